@@ -1,0 +1,269 @@
+"""Task files (TOML) -> reference motion, push, clip timing, objective settings.
+
+A task is data, not code: a user writes a new pose-change task as a TOML file in
+``tasks/`` (format in the README). Every number lives in ``[params]`` so that
+``--set KEY=VALUE`` can override any of them; poses are tables of joint angles in
+degrees.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from cmrt.character import SIDED_JOINTS, character, feet_flat_qpos, joint_angles_from_pose
+from cmrt.errors import CmrtError
+
+TASKS_DIR = Path(__file__).resolve().parent.parent / "tasks"
+
+#: Parameters every task has, with defaults (seconds, newtons, metres).
+DEFAULT_PARAMS: dict[str, float] = {
+    "clip_s": 2.6,  # L: whole clip
+    "preparation_s": 1.0,  # P: standing before the motion starts
+    "duration_s": 0.0,  # T: duration of the pose change (0: no pose change)
+    "cop_sample_step_s": 0.01,  # step of the CoP-error samples in the objective
+    "stop_threshold": 0.0,  # CMA-ES early-stop threshold on the objective (ABC Table 1)
+    "push_force_n": 0.0,  # horizontal push on the thorax, +x forward
+    "push_start_s": 0.0,
+    "push_duration_s": 0.0,
+}
+
+
+def smoothstep5(s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Quintic ease-in-ease-out on [0, 1]: value, d/ds, d2/ds2 (zero rate and acceleration at both ends)."""
+    s = np.clip(s, 0.0, 1.0)
+    return (
+        s**3 * (10 - 15 * s + 6 * s**2),
+        30 * s**2 * (1 - s) ** 2,
+        60 * s * (1 - s) * (1 - 2 * s),
+    )
+
+
+@dataclass(frozen=True)
+class Task:
+    name: str
+    summary: str
+    params: dict[str, float]
+    param_ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
+    start_pose_deg: dict[str, float] = field(default_factory=dict)
+    end_pose_deg: dict[str, float] | None = None
+    balance_joint: str | None = "ankle"
+    timing: dict[str, tuple[float, float]] = field(default_factory=dict)
+    speed_param: str | None = None
+    source: str = ""
+
+    # --- parameters -------------------------------------------------------------
+    def __getattr__(self, key: str) -> float:
+        params = self.__dict__.get("params", {})
+        if key in params:
+            return params[key]
+        raise AttributeError(key)
+
+    @property
+    def speed(self) -> float | None:
+        return self.params[self.speed_param] if self.speed_param else None
+
+    @property
+    def decay_s(self) -> float:
+        return self.clip_s - self.preparation_s - self.duration_s
+
+    def with_params(self, **overrides: float) -> Task:
+        """A copy with parameters overridden (validated against names and ranges)."""
+        params = dict(self.params)
+        for key, value in overrides.items():
+            if key not in params:
+                raise CmrtError(f"task '{self.name}' has no parameter '{key}' (has: {', '.join(sorted(params))})")
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                raise CmrtError(f"parameter '{key}' must be a number, got '{value}'") from None
+            if not math.isfinite(value):
+                raise CmrtError(f"parameter '{key}' must be finite, got '{value}'")
+            params[key] = value
+        task = replace(self, params=params)
+        task.validate()
+        return task
+
+    def with_speed(self, speed: float | None) -> Task:
+        if speed is None:
+            return self
+        if not self.speed_param:
+            raise CmrtError(f"task '{self.name}' has no speed parameter")
+        return self.with_params(**{self.speed_param: speed})
+
+    def validate(self) -> None:
+        p = self.params
+        for key, (lo, hi) in self.param_ranges.items():
+            if not lo <= p[key] <= hi:
+                raise CmrtError(f"{key} = {p[key]:g} is outside task '{self.name}' range [{lo:g}, {hi:g}]")
+        if p["clip_s"] <= 0 or p["preparation_s"] < 0 or p["duration_s"] < 0:
+            raise CmrtError("clip_s must be > 0, preparation_s and duration_s >= 0")
+        if self.decay_s < -1e-12:
+            raise CmrtError(f"preparation_s + duration_s exceeds clip_s ({p['clip_s']:g} s)")
+        if self.end_pose_deg is not None and p["duration_s"] <= 0:
+            raise CmrtError("a pose-change task needs duration_s > 0")
+        if p["cop_sample_step_s"] <= 0:
+            raise CmrtError("cop_sample_step_s must be > 0")
+        if p["push_duration_s"] < 0:
+            raise CmrtError("push_duration_s must be >= 0")
+
+    # --- motion -----------------------------------------------------------------
+    def start_qpos(self) -> np.ndarray:
+        return _pose_qpos(tuple(sorted(self.start_pose_deg.items())), self.balance_joint)
+
+    def end_qpos(self) -> np.ndarray:
+        if self.end_pose_deg is None:
+            return self.start_qpos()
+        return _pose_qpos(tuple(sorted(self.end_pose_deg.items())), self.balance_joint)
+
+    def reference(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Reference q, qd, qdd at times ``t_s`` (shape (n, nv)).
+
+        Each joint eases from the start to the end pose over its window of the task
+        phase [P, P + T] (``[timing]``: fractions of T, default [0, 1]). The root pitch
+        that keeps the right foot flat, -(hip + knee + ankle), follows the leg joints.
+        The root's x and z are not tracked; they ease with the hip for completeness.
+        """
+        t = np.atleast_1d(np.asarray(t_s, dtype=float))
+        q0, q1 = self.start_qpos(), self.end_qpos()
+        n, nv = len(t), q0.size
+        q, qd, qdd = np.tile(q0, (n, 1)), np.zeros((n, nv)), np.zeros((n, nv))
+        if self.end_pose_deg is None:
+            return q, qd, qdd
+        ch = character()
+        dq = q1 - q0
+        windows = self.joint_windows()
+        for i, name in enumerate(ch.dof_names):
+            a, b = windows.get(name, (0.0, 1.0))
+            span = (b - a) * self.duration_s
+            s, ds, dds = smoothstep5((t - self.preparation_s - a * self.duration_s) / span)
+            q[:, i] += s * dq[i]
+            qd[:, i] = ds / span * dq[i]
+            qdd[:, i] = dds / span**2 * dq[i]
+        legs = [ch.dof(j) for j in ("hip_r", "knee_r", "ankle_r")]
+        root_x, root_z, root_pitch = ch.root_dofs
+        for arr in (q, qd, qdd):
+            arr[:, root_pitch] = -arr[:, legs].sum(axis=1)
+        hip = ch.dof("hip_r")
+        frac = np.divide(q[:, hip] - q0[hip], dq[hip]) if dq[hip] else np.zeros(n)
+        for i in (root_x, root_z):
+            q[:, i] = q0[i] + frac * dq[i]
+            qd[:, i] = qdd[:, i] = 0.0
+        return q, qd, qdd
+
+    def joint_windows(self) -> dict[str, tuple[float, float]]:
+        """Per-dof easing window as fractions of T (bare names expand to both sides)."""
+        out = {}
+        for key, win in self.timing.items():
+            names = [f"{key}_r", f"{key}_l"] if key in SIDED_JOINTS else [key]
+            for n in names:
+                out[n] = win
+        return out
+
+    def push_force_n(self, t_s: float) -> float:
+        start = self.params["push_start_s"]
+        return self.params["push_force_n"] if start <= t_s < start + self.params["push_duration_s"] else 0.0
+
+    def final_pose_error_rad(self, qpos: np.ndarray) -> float:
+        """Euclidean distance of the actuated joint angles from the task's target pose."""
+        dofs = list(character().actuated_dofs)
+        return float(np.linalg.norm(qpos[dofs] - self.end_qpos()[dofs]))
+
+
+def _angles(pose_deg: dict[str, float]) -> dict[str, float]:
+    return joint_angles_from_pose({k: math.radians(v) for k, v in pose_deg.items()})
+
+
+_QPOS_CACHE: dict = {}
+
+
+def _pose_qpos(pose_items: tuple, balance_joint: str | None) -> np.ndarray:
+    key = (pose_items, balance_joint)
+    if key not in _QPOS_CACHE:
+        _QPOS_CACHE[key] = feet_flat_qpos(_angles(dict(pose_items)), balance_joint)
+    return _QPOS_CACHE[key].copy()
+
+
+# --- loading --------------------------------------------------------------------
+def available_tasks() -> list[str]:
+    return sorted(p.stem for p in TASKS_DIR.glob("*.toml"))
+
+
+def load_task(name_or_path: str) -> Task:
+    """Load a task by name (``tasks/NAME.toml``) or from a path to a TOML file."""
+    path = Path(name_or_path)
+    if path.suffix != ".toml":
+        path = TASKS_DIR / f"{name_or_path}.toml"
+        if not path.exists():
+            raise CmrtError(f"unknown task '{name_or_path}' (known: {', '.join(available_tasks())})")
+    try:
+        raw = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise CmrtError(f"cannot read task file {path}: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise CmrtError(f"malformed task file {path}: {exc}") from None
+    return task_from_dict(raw, source=str(path), default_name=path.stem)
+
+
+def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task") -> Task:
+    allowed = {
+        "name",
+        "summary",
+        "speed_param",
+        "balance_joint",
+        "params",
+        "param_ranges",
+        "start_pose_deg",
+        "end_pose_deg",
+        "timing",
+    }
+    unknown = set(raw) - allowed
+    if unknown:
+        raise CmrtError(f"{source}: unknown key(s) {', '.join(sorted(unknown))}")
+    params = dict(DEFAULT_PARAMS)
+    for key, value in raw.get("params", {}).items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise CmrtError(f"{source}: parameter '{key}' must be a number")
+        params[key] = float(value)
+    ranges = {}
+    for key, value in raw.get("param_ranges", {}).items():
+        if key not in params or not (isinstance(value, list) and len(value) == 2):
+            raise CmrtError(f"{source}: param_ranges.{key} must be [low, high] of a known parameter")
+        ranges[key] = (float(value[0]), float(value[1]))
+    speed_param = raw.get("speed_param")
+    if speed_param is not None and speed_param not in params:
+        raise CmrtError(f"{source}: speed_param '{speed_param}' is not a parameter")
+    for table in ("start_pose_deg", "end_pose_deg"):
+        for key, value in raw.get(table, {}).items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise CmrtError(f"{source}: {table}.{key} must be a number of degrees")
+    timing = {}
+    for key, value in raw.get("timing", {}).items():
+        ok = isinstance(value, list) and len(value) == 2 and all(isinstance(v, (int, float)) for v in value)
+        if not ok or not 0.0 <= value[0] < value[1] <= 1.0:
+            raise CmrtError(f"{source}: timing.{key} must be [start, end] fractions of T with 0 <= start < end <= 1")
+        timing[key] = (float(value[0]), float(value[1]))
+    task = Task(
+        name=str(raw.get("name", default_name)),
+        summary=str(raw.get("summary", "")),
+        params=params,
+        param_ranges=ranges,
+        start_pose_deg={k: float(v) for k, v in raw.get("start_pose_deg", {}).items()},
+        end_pose_deg={k: float(v) for k, v in raw["end_pose_deg"].items()} if "end_pose_deg" in raw else None,
+        balance_joint=raw.get("balance_joint", "ankle") or None,
+        timing=timing,
+        speed_param=speed_param,
+        source=source,
+    )
+    task.validate()
+    try:
+        joint_angles_from_pose({k: 0.0 for k in timing})
+    except CmrtError as exc:
+        raise CmrtError(f"{source}: timing: {exc}") from None
+    task.start_qpos()  # fail now on unknown joints or unbalanceable poses
+    task.end_qpos()
+    return task

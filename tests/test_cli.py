@@ -1,0 +1,82 @@
+"""The `cmrt` command as a user runs it: real subprocesses, real exit codes."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "cmrt.cli", *args], capture_output=True, text=True, timeout=300)
+
+
+def test_simulate_json_fields_and_trace(tmp_path):
+    trace = tmp_path / "t.npz"
+    r = run("simulate", "bend", "--speed", "1.2", "--json", "--trace", str(trace))
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    for key in ("task", "speed", "objective", "fell", "max_cop_error_m", "final_pose_error_rad"):
+        assert key in out
+    assert out["task"] == "bend" and out["speed"] == 1.2 and out["fell"] is False
+    z = np.load(trace)
+    for key in (
+        "time_s",
+        "qpos",
+        "qvel",
+        "com_m",
+        "cop_x_m",
+        "support_center_x_m",
+        "foot_normal_force_n",
+        "cmrt_displacement_m",
+    ):
+        assert key in z.files
+    assert z["qpos"].shape == (1300, 15)
+
+
+def test_library_curve_and_set_override():
+    r = run("simulate", "bend", "--curve", "library", "--json")
+    out = json.loads(r.stdout)
+    assert r.returncode == 0 and out["fell"] is False and out["final_pose_error_rad"] < 0.1
+    r = run("simulate", "stand", "--set", "push_force_n=250", "--set", "clip_s=4", "--json")
+    out = json.loads(r.stdout)
+    assert out["params"]["push_force_n"] == 250 and out["fell"] is True
+
+
+def test_curve_file(tmp_path):
+    f = tmp_path / "c.json"
+    f.write_text(json.dumps({"clip_s": 2.6, "knot_times_s": [0.5, 1.0, 1.5, 2.0], "values_m": [0, 0.01, 0, 0]}))
+    r = run("simulate", "bend", "--speed", "1.2", "--curve", str(f), "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["curve"] == str(f)
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (("simulate", "nosuchtask"), "unknown task"),
+        (("simulate", "bend", "--speed", "fast"), "invalid float"),
+        (("simulate", "bend", "--speed", "9"), "range"),
+        (("simulate", "bend", "--set", "duration_s"), "KEY=VALUE"),
+        (("simulate", "bend", "--set", "mass=3"), "no parameter"),
+        (("simulate", "bend", "--curve", "/nonexistent/c.json"), "cannot read"),
+        (("simulate", "stand", "--speed", "0.4"), "no speed"),
+        (("simulate", "bend", "--curve", "library", "--speed", "0.9"), "no library CMRT"),
+        (("simulate", "bend", "--trace", "/nonexistent/dir/t.npz"), "does not exist"),
+        (("frobnicate",), "invalid choice"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(args, words):
+    r = run(*args)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("cmrt: error:") and words in lines[0], r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_bad_curve_file_content(tmp_path):
+    f = tmp_path / "c.json"
+    f.write_text("[1, 2]")
+    r = run("simulate", "bend", "--curve", str(f))
+    assert r.returncode == 2 and "must be an object" in r.stderr
