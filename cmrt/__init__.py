@@ -6,30 +6,56 @@ The public API for scripts; the CLI (``cmrt``) is a thin layer over it::
     task = cmrt.load_task("bend").with_speed(0.4)
     zero = cmrt.evaluate(task, cmrt.simulate(task))
     lib = cmrt.evaluate(task, cmrt.simulate(task, cmrt.library_curve(task)))
+    with cmrt.open_store("store/cmrt.sqlite") as store:
+        run = cmrt.optimize_now(store, task, seed=1)
 """
 
-from cmrt.character import character, load_model
-from cmrt.control import ControllerConfig, MomentumBalanceController
-from cmrt.curve import Cmrt
-from cmrt.errors import CmrtError
-from cmrt.library import library_curve
-from cmrt.objective import Evaluation, evaluate
-from cmrt.simulate import Trajectory, simulate
-from cmrt.task import Task, available_tasks, load_task
+import os as _os
+
+# The controller's matrices are tiny: BLAS thread pools only add overhead and, with
+# several worker processes, oversubscription. Effective only if numpy is not loaded yet.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    _os.environ.setdefault(_var, "1")
+
+from cmrt.character import character, load_model  # noqa: E402
+from cmrt.control import ControllerConfig, MomentumBalanceController  # noqa: E402
+from cmrt.curve import Cmrt  # noqa: E402
+from cmrt.errors import CmrtError  # noqa: E402
+from cmrt.jobs import claim, optimize_now, submit, work  # noqa: E402
+from cmrt.library import library_curve  # noqa: E402
+from cmrt.objective import Evaluation, evaluate  # noqa: E402
+from cmrt.optimize import OptimizeSettings  # noqa: E402
+from cmrt.parallel import Evaluator  # noqa: E402
+from cmrt.query import best_run, export_run, run_curve, run_details  # noqa: E402
+from cmrt.simulate import Trajectory, simulate  # noqa: E402
+from cmrt.store import Store, open_store  # noqa: E402
+from cmrt.task import Task, available_tasks, load_task  # noqa: E402
 
 __all__ = [
     "Cmrt",
     "CmrtError",
     "ControllerConfig",
     "Evaluation",
+    "Evaluator",
     "MomentumBalanceController",
+    "OptimizeSettings",
+    "Store",
     "Task",
     "Trajectory",
     "available_tasks",
+    "best_run",
     "character",
+    "claim",
     "evaluate",
+    "export_run",
     "library_curve",
     "load_model",
     "load_task",
+    "open_store",
+    "optimize_now",
+    "run_curve",
+    "run_details",
     "simulate",
+    "submit",
+    "work",
 ]

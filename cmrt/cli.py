@@ -17,12 +17,15 @@ from pathlib import Path
 
 import numpy as np
 
+from cmrt import jobs, query
 from cmrt.character import character
 from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
 from cmrt.library import library_curve
 from cmrt.objective import evaluate
+from cmrt.parallel import BACKENDS, Evaluator
 from cmrt.simulate import simulate
+from cmrt.store import DEFAULT_STORE, open_store, resolve_path
 from cmrt.task import Task, available_tasks, load_task
 
 EXIT_BAD_INPUT = 2
@@ -53,19 +56,36 @@ def resolve_task(name: str, speed: float | None, sets: list[str] | None) -> Task
     return task.with_speed(speed)
 
 
-def resolve_curve(spec: str, task: Task) -> tuple[Cmrt, str]:
-    """zero | library | FILE.json -> (curve, description)."""
+def resolve_curve(spec: str, task: Task, store_path: str | None = None) -> tuple[Cmrt, str]:
+    """zero | library | RUN (a stored run id) | FILE.json -> (curve, description)."""
     if spec == "zero":
         return Cmrt.zero(task.clip_s), "zero"
     if spec == "library":
         return library_curve(task), "library"
+    if spec.isdigit():
+        with _store(store_path, create=False) as store:
+            curve = query.run_curve(store, int(spec))
+        if abs(curve.clip_s - task.clip_s) > 1e-9:
+            raise CmrtError(f"run {spec} is for a {curve.clip_s:g} s clip, task clip is {task.clip_s:g} s")
+        return curve, f"run {spec}"
     path = Path(spec)
     if path.suffix.lower() == ".json" or path.exists():
         curve = Cmrt.load(path)
         if abs(curve.clip_s - task.clip_s) > 1e-9:
             raise CmrtError(f"CMRT in {spec} is for a {curve.clip_s:g} s clip, task clip is {task.clip_s:g} s")
         return curve, str(path)
-    raise CmrtError(f"--curve must be zero, library or a CMRT .json file, got '{spec}'")
+    raise CmrtError(f"--curve must be zero, library, a run id or a CMRT .json file, got '{spec}'")
+
+
+def _store(path: str | None, create: bool = True):
+    p = resolve_path(path)
+    if create and p == DEFAULT_STORE and not p.parent.exists():
+        p.parent.mkdir(parents=True)
+    return open_store(p, create=create)
+
+
+def _emit(obj, as_json: bool, text: str | None = None) -> None:
+    print(json.dumps(obj, indent=None if isinstance(obj, dict) else 2) if as_json else text)
 
 
 def _finite(x):
@@ -152,7 +172,7 @@ def cmd_tasks(args) -> int:
 
 def cmd_simulate(args) -> int:
     task = resolve_task(args.task, args.speed, args.set)
-    curve, name = resolve_curve(args.curve, task)
+    curve, name = resolve_curve(args.curve, task, args.store)
     report = simulate_report(task, curve, name, args.trace)
     if args.json:
         print(json.dumps(report))
@@ -162,33 +182,255 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_demo(args) -> int:
+    """The main job end to end: optimize the fast bend into the store, print the stored result."""
     task = load_task("bend").with_speed(0.4)
-    print("Fast bend (T = 0.4 s): the reactive controller alone, then with the library CMRT.")
-    for spec in ("zero", "library"):
-        curve, name = resolve_curve(spec, task)
-        _print_report(simulate_report(task, curve, name))
+    print("Fast bend (T = 0.4 s, both feet planted). The reactive controller alone:")
+    _print_report(simulate_report(task, Cmrt.zero(task.clip_s), "zero"))
+    store_path = resolve_path(args.store)
+    print(f"\nOptimizing its CMRT with CMA-ES (seed 1) into {store_path} ...", flush=True)
+    evaluator = Evaluator(args.backend, args.workers)
+    try:
+        with _store(args.store) as store:
+            progress = _Progress(3000, enabled=sys.stderr.isatty())
+            try:
+                run = jobs.optimize_now(store, task, evaluator, progress, seed=1)
+            finally:
+                progress.close()
+            stored = query.best_run(store, task)
+            curve = query.run_curve(store, run["id"])
+    finally:
+        evaluator.close()
+    print(f"\nStored in {store_path}; the best run for this task ('cmrt best bend --speed 0.4'):")
+    _print_result(_result(stored))
+    print(f"\nReplaying run {run['id']}'s CMRT ('cmrt simulate bend --speed 0.4 --curve {run['id']}'):")
+    _print_report(simulate_report(task, curve, f"run {run['id']}"))
+    return 0
+
+
+# --- optimization service -------------------------------------------------------
+def _submit_kwargs(args) -> dict:
+    return dict(seed=args.seed, max_evals=args.max_evals, popsize=args.popsize, sigma0=args.sigma0,
+                min_evals=args.min_evals, init_run=args.init)
+
+
+def cmd_submit(args) -> int:
+    task = resolve_task(args.task, args.speed, args.set)
+    with _store(args.store) as store:
+        run_id = jobs.submit(store, task, **_submit_kwargs(args))
+    _emit({"run_id": run_id, "task": task.name, "speed": task.speed, "status": "queued"}, args.json,
+          f"queued run {run_id}: {task.name}" + (f" --speed {task.speed:g}" if task.speed is not None else ""))
+    return 0
+
+
+class _Progress:
+    """tqdm bar on stderr: generation, evaluations, best objective, sigma, evaluations/s."""
+
+    def __init__(self, total: int, enabled: bool):
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=total, unit="eval", file=sys.stderr, disable=not enabled, dynamic_ncols=True)
+
+    def __call__(self, state, records, wall_s) -> None:
+        self.bar.n = min(state.evaluations, self.bar.total)
+        self.bar.set_postfix_str(
+            f"gen {state.generation} best {state.best_objective:.4f} sigma {state.es.sigma:.3f} "
+            f"{state.evaluations / max(wall_s, 1e-9):.1f} eval/s", refresh=True)
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def _result(run: dict) -> dict:
+    return {"run_id": run["id"], "task": run["task"], "speed": run["speed"], "status": run["status"],
+            "best_objective": run["best_objective"], "fell": run["best_fell"],
+            "baseline_objective": run["baseline_objective"], "baseline_fell": run["baseline_fell"],
+            "evaluations": run["evaluations"], "generations": run["generations"],
+            "stop_reason": run["stop_reason"], "wall_s": run["wall_s"], "best_cmrt": run["best_cmrt"]}
+
+
+def _print_result(r: dict) -> None:
+    speed = f" --speed {r['speed']:g}" if r["speed"] is not None else ""
+    kept = "balance kept" if not r["fell"] else "balance LOST"
+    base = "lost" if r["baseline_fell"] else "kept"
+    print(f"run {r['run_id']} {r['task']}{speed}: {r['status']} ({r['stop_reason']}) after {r['evaluations']} "
+          f"evaluations, {r['wall_s']:.1f} s")
+    print(f"  zero CMRT:      objective {r['baseline_objective']:.4f}  balance {base}")
+    print(f"  optimized CMRT: objective {r['best_objective']:.4f}  {kept}")
+
+
+def cmd_optimize(args) -> int:
+    task = resolve_task(args.task, args.speed, args.set)
+    evaluator = Evaluator(args.backend, args.workers, args.scheduler)  # fails before the store is touched
+    try:
+        with _store(args.store) as store:
+            progress = _Progress(args.max_evals, enabled=not args.no_progress)
+            try:
+                run = jobs.optimize_now(store, task, evaluator, progress, **_submit_kwargs(args))
+            finally:
+                progress.close()
+    finally:
+        evaluator.close()
+    r = _result(run)
+    if args.json:
+        print(json.dumps(r))
+    else:
+        _print_result(r)
+    return 0
+
+
+def cmd_worker(args) -> int:
+    evaluator = Evaluator(args.backend, args.workers, args.scheduler)
+    try:
+        with _store(args.store) as store:
+            def on_claim(c):
+                if not args.json:
+                    print(f"worker {jobs.worker_id()}: run {c.run_id} (attempt {c.attempt})", flush=True)
+
+            done = jobs.work(store, evaluator, until_idle=args.until_idle, once=args.once,
+                             stale_after_s=args.stale_after, on_claim=on_claim)
+    finally:
+        evaluator.close()
+    _emit({"finished": done}, args.json, f"worker finished runs: {', '.join(map(str, done)) or 'none'}")
+    return 0
+
+
+def _table(rows: list[dict], keys: tuple[str, ...]) -> str:
+    def fmt(v):
+        if isinstance(v, float):
+            return f"{v:.4g}"
+        return "-" if v is None else str(v)
+
+    cells = [[k for k in keys]] + [[fmt(r.get(k)) for k in keys] for r in rows]
+    widths = [max(len(row[i]) for row in cells) for i in range(len(keys))]
+    return "\n".join("  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)) for row in cells)
+
+
+def cmd_jobs(args) -> int:
+    with _store(args.store, create=False) as store:
+        rows = [{k: r.get(k) for k in ("id", "task", "speed", "status", "worker", "attempt", "evaluations",
+                                        "heartbeat_at", "error")} for r in store.runs(status=args.status)]
+    _emit(rows, args.json, _table(rows, ("id", "task", "speed", "status", "worker", "attempt", "evaluations")))
+    return 0
+
+
+def cmd_runs(args) -> int:
+    with _store(args.store, create=False) as store:
+        rows = [query.run_summary(r) for r in store.runs(task=args.task)]
+    _emit(rows, args.json, _table(rows, ("id", "task", "speed", "status", "seed", "best_objective", "best_fell",
+                                         "baseline_objective", "evaluations", "stop_reason")))
+    return 0
+
+
+def cmd_show(args) -> int:
+    with _store(args.store, create=False) as store:
+        d = query.run_details(store, args.run)
+    if args.json:
+        print(json.dumps(d))
+    else:
+        for k, v in d.items():
+            if k not in ("task_definition",):
+                print(f"{k:20s} {json.dumps(v) if isinstance(v, (dict, list)) else v}")
+    return 0
+
+
+def cmd_best(args) -> int:
+    task = resolve_task(args.task, args.speed, args.set)
+    with _store(args.store, create=False) as store:
+        r = _result(query.best_run(store, task))
+    if args.json:
+        print(json.dumps(r))
+    else:
+        _print_result(r)
+    return 0
+
+
+def cmd_export(args) -> int:
+    with _store(args.store, create=False) as store:
+        text = query.export_run(store, args.run, args.format)
+    if args.out:
+        try:
+            Path(args.out).write_text(text)
+        except OSError as exc:
+            raise CmrtError(f"cannot write {args.out}: {exc.strerror}") from None
+    else:
+        sys.stdout.write(text if text.endswith("\n") else text + "\n")
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="cmrt", description="Anticipatory balance: center-of-mass reference trajectories.")
     sub = p.add_subparsers(dest="verb", required=True, parser_class=_Parser)
+    common = _Parser(add_help=False)
+    common.add_argument("--store", metavar="PATH", help=f"SQLite store (default $CMRT_STORE or {DEFAULT_STORE})")
 
-    s = sub.add_parser("tasks", help="list the task files")
-    s.add_argument("--json", action="store_true")
-    s.set_defaults(func=cmd_tasks)
+    def add(name, help_, func, json_flag=True):
+        sp = sub.add_parser(name, help=help_, parents=[common])
+        if json_flag:
+            sp.add_argument("--json", action="store_true", help="machine-readable output")
+        sp.set_defaults(func=func)
+        return sp
 
-    s = sub.add_parser("simulate", help="simulate one clip of a task with a CMRT")
-    s.add_argument("task", help="task name (tasks/NAME.toml) or path to a .toml file")
-    s.add_argument("--speed", type=float, help="the task's speed parameter (bend: duration T in s)")
-    s.add_argument("--curve", default="zero", help="zero | library | FILE.json (default zero)")
-    s.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a task parameter")
-    s.add_argument("--json", action="store_true", help="print one JSON object")
+    def task_args(sp):
+        sp.add_argument("task", help="task name (tasks/NAME.toml) or path to a .toml file")
+        sp.add_argument("--speed", type=float, help="the task's speed parameter (bend: duration T in s)")
+        sp.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a task parameter")
+
+    def opt_args(sp):
+        sp.add_argument("--seed", type=int, default=1)
+        sp.add_argument("--max-evals", type=int, default=3000)
+        sp.add_argument("--min-evals", type=int, default=700, help="no slow-convergence stop before this")
+        sp.add_argument("--popsize", type=int, default=10)
+        sp.add_argument("--sigma0", type=float, default=0.5)
+        sp.add_argument("--init", type=int, metavar="RUN", help="warm start from a stored run's best CMRT")
+
+    def backend_args(sp):
+        sp.add_argument("--backend", choices=BACKENDS, default="loky")
+        sp.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (loky, LocalCluster)")
+        sp.add_argument("--scheduler", metavar="ADDRESS", help="dask scheduler (default: a LocalCluster)")
+
+    add("tasks", "list the task files", cmd_tasks)
+
+    s = add("simulate", "simulate one clip of a task with a CMRT", cmd_simulate)
+    task_args(s)
+    s.add_argument("--curve", default="zero", help="zero | library | RUN | FILE.json (default zero)")
     s.add_argument("--trace", metavar="FILE.npz", help="save the trajectories")
-    s.set_defaults(func=cmd_simulate)
 
-    s = sub.add_parser("demo", help="the fast bend with and without anticipation")
-    s.set_defaults(func=cmd_demo)
+    s = add("submit", "queue an optimization job", cmd_submit)
+    task_args(s)
+    opt_args(s)
+
+    s = add("optimize", "run one optimization job in the foreground", cmd_optimize)
+    task_args(s)
+    opt_args(s)
+    backend_args(s)
+    s.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    s = add("worker", "claim and run queued (and orphaned) jobs", cmd_worker)
+    s.add_argument("--until-idle", action="store_true", help="exit when the queue is empty")
+    s.add_argument("--once", action="store_true", help="run at most one job")
+    s.add_argument("--stale-after", type=float, default=jobs.DEFAULT_STALE_AFTER_S, metavar="SECONDS",
+                   help="resume a running job whose heartbeat is older than this")
+    backend_args(s)
+
+    s = add("jobs", "list jobs and their status", cmd_jobs)
+    s.add_argument("--status", choices=("queued", "running", "done", "failed"))
+
+    s = add("runs", "list stored runs", cmd_runs)
+    s.add_argument("--task")
+
+    s = add("show", "one run in detail", cmd_show)
+    s.add_argument("run", type=int)
+
+    s = add("best", "the best finished run for a task and speed", cmd_best)
+    task_args(s)
+
+    s = add("export", "export a run's evaluations", cmd_export, json_flag=False)
+    s.add_argument("run", type=int)
+    s.add_argument("--format", choices=("json", "csv"), default="json")
+    s.add_argument("--out", metavar="FILE")
+
+    s = add("demo", "the main job: optimize the fast bend into the store, show the result", cmd_demo, json_flag=False)
+    backend_args(s)
     return p
 
 

@@ -8,6 +8,8 @@ degrees.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import tomllib
 from dataclasses import dataclass, field, replace
@@ -167,6 +169,28 @@ class Task:
     def push_force_n(self, t_s: float) -> float:
         start = self.params["push_start_s"]
         return self.params["push_force_n"] if start <= t_s < start + self.params["push_duration_s"] else 0.0
+
+    def to_dict(self) -> dict:
+        """The task as a task-file dict (``task_from_dict`` round-trips it): stored with runs."""
+        out = {
+            "name": self.name,
+            "summary": self.summary,
+            "params": dict(self.params),
+            "param_ranges": {k: list(v) for k, v in self.param_ranges.items()},
+            "start_pose_deg": dict(self.start_pose_deg),
+            "balance_joint": self.balance_joint or "",
+            "timing": {k: list(v) for k, v in self.timing.items()},
+        }
+        if self.end_pose_deg is not None:
+            out["end_pose_deg"] = dict(self.end_pose_deg)
+        if self.speed_param:
+            out["speed_param"] = self.speed_param
+        return out
+
+    def content_hash(self) -> str:
+        """Hash of everything that changes the physics of a clip (not name or summary)."""
+        body = {k: v for k, v in self.to_dict().items() if k not in ("name", "summary")}
+        return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()[:16]
 
     def final_pose_error_rad(self, qpos: np.ndarray) -> float:
         """Euclidean distance of the actuated joint angles from the task's target pose."""

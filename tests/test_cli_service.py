@@ -1,0 +1,106 @@
+"""The optimization service through the `cmrt` command, as a user drives it."""
+
+import csv
+import hashlib
+import io
+import json
+
+import pytest
+
+from .service_helpers import FAST_BEND, cmrt
+
+
+@pytest.fixture(scope="module")
+def store_with_run(tmp_path_factory):
+    path = tmp_path_factory.mktemp("svc") / "s.sqlite"
+    r = cmrt("optimize", *FAST_BEND, "--seed", "2", "--max-evals", "20", "--popsize", "5", "--backend", "serial",
+             "--json", "--no-progress", store=path, check=True)
+    return path, json.loads(r.stdout)
+
+
+def test_optimize_json(store_with_run):
+    _, out = store_with_run
+    for key in ("run_id", "best_objective", "evaluations", "fell", "wall_s"):
+        assert key in out
+    assert out["evaluations"] == 20 and out["status"] == "done"
+
+
+def test_queries(store_with_run):
+    path, out = store_with_run
+    rid = out["run_id"]
+    runs = json.loads(cmrt("runs", "--task", "bend", "--json", store=path, check=True).stdout)
+    assert [r["id"] for r in runs] == [rid]
+    show = json.loads(cmrt("show", str(rid), "--json", store=path, check=True).stdout)
+    for key in ("status", "best_objective", "best_params", "baseline_objective", "evaluations", "wall_s"):
+        assert key in show
+    best = json.loads(cmrt("best", *FAST_BEND, "--json", store=path, check=True).stdout)
+    assert best["run_id"] == rid and best["best_objective"] == out["best_objective"]
+    jobs = json.loads(cmrt("jobs", "--json", store=path, check=True).stdout)
+    assert jobs[0]["status"] == "done"
+    # the stored best CMRT replays to the stored objective (determinism across processes)
+    sim = json.loads(cmrt("simulate", *FAST_BEND, "--curve", str(rid), "--json", store=path, check=True).stdout)
+    assert sim["objective"] == out["best_objective"]
+
+
+def test_export(store_with_run, tmp_path):
+    path, out = store_with_run
+    text = cmrt("export", str(out["run_id"]), "--format", "csv", store=path, check=True).stdout
+    rows = list(csv.DictReader(io.StringIO(text)))
+    assert len(rows) == 20 and min(float(r["objective"]) for r in rows) == out["best_objective"]
+    dest = tmp_path / "run.json"
+    cmrt("export", str(out["run_id"]), "--format", "json", "--out", str(dest), store=path, check=True)
+    data = json.loads(dest.read_text())
+    assert len(data["evaluations"]) == 20 and len(data["generations"]) == 4
+
+
+def test_submit_and_worker(tmp_path):
+    path = tmp_path / "q.sqlite"
+    sub = json.loads(cmrt("submit", "bend", "--speed", "0.5", "--set", "cop_sample_step_s=0.02", "--seed", "4",
+                          "--max-evals", "6", "--popsize", "3", "--json", store=path, check=True).stdout)
+    assert sub["status"] == "queued"
+    assert json.loads(cmrt("jobs", "--json", store=path, check=True).stdout)[0]["status"] == "queued"
+    w = cmrt("worker", "--until-idle", "--backend", "serial", "--json", store=path, check=True)
+    assert json.loads(w.stdout.strip().splitlines()[-1])["finished"] == [sub["run_id"]]
+    show = json.loads(cmrt("show", str(sub["run_id"]), "--json", store=path, check=True).stdout)
+    assert show["params"]["cop_sample_step_s"] == 0.02 and show["status"] == "done"
+    # best filters on the overridden parameters
+    assert cmrt("best", "bend", "--speed", "0.5", store=path).returncode == 2
+    assert cmrt("best", "bend", "--speed", "0.5", "--set", "cop_sample_step_s=0.02", store=path).returncode == 0
+
+
+def digest(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@pytest.mark.parametrize("args, words", [
+    (("submit", "nosuchtask"), "unknown task"),
+    (("submit", "TASKFILE"), "malformed task file"),
+    (("submit", "bend", "--speed", "7"), "outside task"),
+    (("submit", "bend", "--seed", "1.5"), "invalid int value"),
+    (("optimize", "bend", "--backend", "dask", "--scheduler", "tcp://127.0.0.1:1"), "cannot reach dask scheduler"),
+    (("show", "999"), "no run 999"),
+    (("best", "bend", "--speed", "1.0"), "no finished run"),
+    (("simulate", "bend", "--curve", "999"), "no run 999"),
+    (("export", "1", "--format", "xml"), "invalid choice"),
+])
+def test_bad_input_leaves_store_byte_identical(store_with_run, tmp_path, args, words):
+    path, _ = store_with_run
+    bad_task = tmp_path / "bad.toml"
+    bad_task.write_text("name = [unclosed\n")
+    args = tuple(str(bad_task) if a == "TASKFILE" else a for a in args)
+    cmrt("runs", store=path, check=True)  # checkpoint the WAL so the main file is complete
+    before = digest(path)
+    r = cmrt(*args, store=path)
+    assert r.returncode == 2, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and words in r.stderr and "Traceback" not in r.stderr
+    assert digest(path) == before
+
+
+def test_not_a_store(tmp_path):
+    path = tmp_path / "notes.txt"
+    path.write_text("my notes\n")
+    before = digest(path)
+    for args in (("runs",), ("submit", "bend"), ("optimize", "bend", "--backend", "serial")):
+        r = cmrt(*args, store=path)
+        assert r.returncode == 2 and "not a CMRT store" in r.stderr
+    assert digest(path) == before

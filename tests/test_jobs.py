@@ -1,0 +1,101 @@
+"""Queue semantics with real worker processes: crash/resume and concurrency."""
+
+import os
+import signal
+import sqlite3
+import time
+
+from cmrt.jobs import claim, run_claimed, submit
+from cmrt.parallel import Evaluator
+from cmrt.store import open_store
+from cmrt.task import load_task
+
+from .service_helpers import spawn_worker
+
+TASK = load_task("bend").with_speed(0.4)
+
+
+def finished_run(path, **kw):
+    with open_store(path) as store:
+        rid = submit(store, TASK, **kw)
+        c = claim(store, "test", run_id=rid)
+        run_claimed(store, c, Evaluator("serial"))
+        return store.run(rid), store.evaluations(rid)
+
+
+def test_run_stores_every_evaluation_and_generation(tmp_path):
+    run, evals = finished_run(tmp_path / "s.sqlite", seed=3, max_evals=15, popsize=5)
+    assert run["status"] == "done" and run["stop_reason"] == "budget"
+    assert run["evaluations"] == len(evals) == 15 and run["generations"] == 3
+    assert run["best_objective"] == min(e["objective"] for e in evals)
+    assert run["baseline_fell"] is True and run["baseline_objective"] > 10
+
+
+def test_sigkill_mid_run_then_resume_is_bit_identical(tmp_path):
+    kw = dict(seed=7, max_evals=48, popsize=6)
+    reference, ref_evals = finished_run(tmp_path / "ref.sqlite", **kw)
+
+    path = tmp_path / "crash.sqlite"
+    with open_store(path) as store:
+        rid = submit(store, TASK, **kw)
+    worker = spawn_worker(path, "--once")
+    deadline = time.time() + 300
+    while time.time() < deadline:
+        with sqlite3.connect(path) as con:
+            gens = con.execute("SELECT COUNT(*) FROM generations WHERE run_id = ?", (rid,)).fetchone()[0]
+        if gens >= 3:
+            break
+        time.sleep(0.05)
+    os.kill(worker.pid, signal.SIGKILL)
+    worker.wait()
+    with open_store(path) as store:
+        killed = store.run(rid)
+    assert killed["status"] == "running" and 3 <= killed["generations"] < 8  # really killed mid-run
+
+    resumer = spawn_worker(path, "--until-idle", "--stale-after", "0")
+    out, err = resumer.communicate(timeout=600)
+    assert resumer.returncode == 0, err
+    with open_store(path) as store:
+        run, evals = store.run(rid), store.evaluations(rid)
+    assert run["status"] == "done" and run["attempt"] == 2
+    assert run["best_params"] == reference["best_params"]
+    assert run["best_objective"] == reference["best_objective"]
+    assert run["evaluations"] == 48 and len(evals) == 48
+    assert len({(e["gen"], e["idx"]) for e in evals}) == 48
+    assert [(e["params"], e["objective"]) for e in evals] == [(e["params"], e["objective"]) for e in ref_evals]
+
+
+def test_four_workers_eight_jobs_each_done_exactly_once(tmp_path):
+    path = tmp_path / "busy.sqlite"
+    with open_store(path) as store:
+        ids = [submit(store, TASK, seed=s, max_evals=8, popsize=4) for s in range(8)]
+    workers = [spawn_worker(path, "--until-idle", "--json") for _ in range(4)]
+    outputs = [w.communicate(timeout=900) for w in workers]
+    for w, (_out, err) in zip(workers, outputs, strict=True):
+        assert w.returncode == 0, err
+        assert "locked" not in err.lower()
+    import json
+
+    finished = [rid for out, _ in outputs for rid in json.loads(out.strip().splitlines()[-1])["finished"]]
+    assert sorted(finished) == ids  # every job exactly once across the workers
+    with open_store(path) as store:
+        assert all(r["status"] == "done" and r["attempt"] == 1 for r in store.runs())
+        assert store.conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+        n = store.conn.execute("SELECT COUNT(*), COUNT(DISTINCT run_id || '-' || gen || '-' || idx) FROM evaluations")
+        assert tuple(n.fetchone()) == (64, 64)
+
+
+def test_lost_claim_stops_the_old_worker(tmp_path):
+    from cmrt.jobs import LostClaim
+
+    with open_store(tmp_path / "s.sqlite") as store:
+        rid = submit(store, TASK, seed=1, max_evals=10, popsize=5)
+        first = claim(store, "a", run_id=rid)
+        second = claim(store, "b", stale_after_s=0.0, run_id=rid)  # a looked dead
+        assert second.attempt == first.attempt + 1
+        try:
+            run_claimed(store, first, Evaluator("serial"))
+            raise AssertionError("the superseded worker wrote into the run")
+        except LostClaim:
+            pass
+        assert store.evaluations(rid) == []

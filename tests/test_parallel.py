@@ -1,0 +1,32 @@
+"""Same seed, same result on every backend (loky processes and a real dask LocalCluster)."""
+
+import pytest
+
+from cmrt.errors import CmrtError
+from cmrt.jobs import claim, run_claimed, submit
+from cmrt.parallel import Evaluator
+from cmrt.store import open_store
+from cmrt.task import load_task
+
+
+def optimize_with(tmp_path, backend):
+    task = load_task("bend").with_speed(0.4)
+    with open_store(tmp_path / f"{backend}.sqlite") as store:
+        rid = submit(store, task, seed=11, max_evals=16, popsize=8, backend=backend)
+        with Evaluator(backend, workers=2) as ev:
+            run_claimed(store, claim(store, "t", run_id=rid), ev)
+        return store.run(rid), store.evaluations(rid)
+
+
+def test_serial_loky_dask_identical(tmp_path):
+    serial = optimize_with(tmp_path, "serial")
+    for backend in ("loky", "dask"):
+        run, evals = optimize_with(tmp_path, backend)
+        assert run["best_params"] == serial[0]["best_params"], backend
+        assert run["best_objective"] == serial[0]["best_objective"], backend
+        assert [e["objective"] for e in evals] == [e["objective"] for e in serial[1]], backend
+
+
+def test_unreachable_scheduler_is_bad_input():
+    with pytest.raises(CmrtError, match="cannot reach dask scheduler"):
+        Evaluator("dask", scheduler="tcp://127.0.0.1:1")
