@@ -384,7 +384,7 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument("--init", type=int, metavar="RUN", help="warm start from a stored run's best CMRT")
 
     def backend_args(sp):
-        sp.add_argument("--backend", choices=BACKENDS, default="loky")
+        sp.add_argument("--backend", choices=BACKENDS, default="batch")
         sp.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (loky, LocalCluster)")
         sp.add_argument("--scheduler", metavar="ADDRESS", help="dask scheduler (default: a LocalCluster)")
 

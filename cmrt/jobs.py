@@ -58,7 +58,7 @@ def submit(
     sigma0: float = 0.5,
     min_evals: int = 700,
     init_run: int | None = None,
-    backend: str = "serial",
+    backend: str = "batch",
 ) -> int:
     """Queue an optimization of ``task``; returns the run id."""
     if isinstance(seed, bool) or not isinstance(seed, int):
@@ -202,7 +202,7 @@ def optimize_now(
 ) -> dict:
     """Submit a run and optimize it in this process (``cmrt optimize``); returns the finished run."""
     own = evaluator is None
-    evaluator = evaluator or Evaluator("serial")
+    evaluator = evaluator or Evaluator("batch")
     try:
         run_id = submit(store, task, backend=evaluator.backend, **submit_kwargs)
         c = claim(store, worker_id(), run_id=run_id)

@@ -51,7 +51,7 @@ def cop_error_samples(task: Task, traj: Trajectory) -> np.ndarray:
     every = max(1, int(round(task.cop_sample_step_s / dt)))
     idx = np.arange(0, traj.time_s.size, every)
     weight = character().mass_kg * GRAVITY_M_S2
-    loaded = traj.foot_normal_force_n[idx].sum(axis=1) > MIN_FOOT_FORCE_FRACTION * weight
+    loaded = traj.normal_force_n[idx] > MIN_FOOT_FORCE_FRACTION * weight
     e = traj.cop_x_m[idx] - traj.support_center_x_m[idx]
     keep = loaded & np.isfinite(e)
     return e[keep]

@@ -1,10 +1,17 @@
-"""Evaluation backends for a generation: serial, loky (joblib processes), dask.
+"""Evaluation backends for a generation.
 
-The same candidate gets the same objective on every backend: the simulation is
-deterministic and each worker process builds the same model and settled state (both
-cached per process, so a worker compiles the MJCF once, not per evaluation). BLAS is
-limited to one thread per process (set before numpy loads, in ``cmrt/__init__``):
-the matrices are tiny and thread pools only add overhead and oversubscription.
+* ``serial``: one candidate after another in this process;
+* ``batch`` (default): the whole generation stepped in lockstep on a
+  ``mujoco.batch.Batch`` with the vectorised controller, on all cores' threads;
+* ``loky`` / ``dask``: candidates spread over joblib worker processes, or over a
+  ``dask.distributed`` cluster through joblib's dask backend;
+* ``loky+batch`` / ``dask+batch``: the generation split into one batch per worker.
+
+The same candidate gets the same objective on every backend: MuJoCo is
+deterministic, its batch is bit-identical to stepping each simulation alone, the
+controller's arithmetic is row-wise, and each worker process builds the same model
+and settled state (both cached per process, so a worker compiles the MJCF once, not
+per evaluation). BLAS is limited to one thread per process (``cmrt/__init__``).
 """
 
 from __future__ import annotations
@@ -19,43 +26,64 @@ from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
 from cmrt.objective import evaluate
 from cmrt.optimize import EvalRecord
-from cmrt.simulate import simulate
+from cmrt.simulate import simulate, simulate_batch
 from cmrt.task import Task
 
-BACKENDS = ("serial", "loky", "dask")
+BACKENDS = ("batch", "serial", "loky", "loky+batch", "dask", "dask+batch")
 
 
 def evaluate_candidate(task: Task, x: np.ndarray) -> EvalRecord:
     """Simulate and score one parameter vector (module-level: picklable for workers)."""
     t0 = time.perf_counter()
-    ev = evaluate(task, simulate(task, Cmrt.from_params(x, task.clip_s)))
+    ev = evaluate(task, simulate(task, Cmrt.from_params(x, task.clip_s), record=False))
     return EvalRecord(objective=float(ev.objective), fell=bool(ev.fell), seconds=time.perf_counter() - t0)
+
+
+def evaluate_batch(task: Task, xs: Sequence[np.ndarray], threads: int | None = None) -> list[EvalRecord]:
+    """Simulate and score candidates in lockstep; seconds are the batch's wall time shared equally."""
+    t0 = time.perf_counter()
+    trajs = simulate_batch(task, [Cmrt.from_params(x, task.clip_s) for x in xs], threads=threads)
+    scores = [evaluate(task, tr) for tr in trajs]
+    each = (time.perf_counter() - t0) / max(len(xs), 1)
+    return [EvalRecord(objective=float(e.objective), fell=bool(e.fell), seconds=each) for e in scores]
+
+
+def _chunks(xs: Sequence[np.ndarray], k: int) -> list[list[np.ndarray]]:
+    size = -(-len(xs) // k)
+    return [list(xs[i : i + size]) for i in range(0, len(xs), size)]
 
 
 class Evaluator:
     """Scores generations on one backend; create it once (it connects to dask up front,
     so an unreachable scheduler fails before anything is written) and ``close()`` it."""
 
-    def __init__(self, backend: str = "serial", workers: int = 2, scheduler: str | None = None):
+    def __init__(self, backend: str = "batch", workers: int = 2, scheduler: str | None = None):
         if backend not in BACKENDS:
             raise CmrtError(f"unknown backend '{backend}' (choose from {', '.join(BACKENDS)})")
         if workers < 1:
             raise CmrtError("--workers must be >= 1")
-        if scheduler and backend != "dask":
+        if scheduler and not backend.startswith("dask"):
             raise CmrtError("--scheduler needs --backend dask")
         self.backend, self.workers = backend, workers
         self._client = self._cluster = None
-        if backend == "dask":
+        if backend.startswith("dask"):
             self._client, self._cluster = _dask_client(scheduler, workers)
 
     def __call__(self, task: Task, xs: Sequence[np.ndarray]) -> list[EvalRecord]:
         if self.backend == "serial":
             return [evaluate_candidate(task, x) for x in xs]
-        jobs = (joblib.delayed(evaluate_candidate)(task, x) for x in xs)
-        if self.backend == "loky":
-            return joblib.Parallel(n_jobs=self.workers, backend="loky")(jobs)
-        with joblib.parallel_config(backend="dask"):
-            return joblib.Parallel(n_jobs=-1)(jobs)
+        if self.backend == "batch":
+            return evaluate_batch(task, xs)
+        if self.backend.endswith("+batch"):  # one single-threaded batch per worker process
+            jobs = (joblib.delayed(evaluate_batch)(task, chunk, 1) for chunk in _chunks(xs, self.workers))
+        else:
+            jobs = (joblib.delayed(evaluate_candidate)(task, x) for x in xs)
+        if self.backend.startswith("loky"):
+            out = joblib.Parallel(n_jobs=self.workers, backend="loky")(jobs)
+        else:
+            with joblib.parallel_config(backend="dask"):
+                out = joblib.Parallel(n_jobs=-1)(jobs)
+        return [r for part in out for r in part] if self.backend.endswith("+batch") else out
 
     def close(self) -> None:
         if self._client is not None:

@@ -166,7 +166,8 @@ class Task:
                 out[n] = win
         return out
 
-    def push_force_n(self, t_s: float) -> float:
+    def push_at(self, t_s: float) -> float:
+        """Horizontal push on the thorax at time t_s (N)."""
         start = self.params["push_start_s"]
         return self.params["push_force_n"] if start <= t_s < start + self.params["push_duration_s"] else 0.0
 

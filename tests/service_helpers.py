@@ -17,6 +17,6 @@ def cmrt(*args, store=None, timeout=600, check=False):
     return r
 
 
-def spawn_worker(store, *args):
-    cmd = [sys.executable, "-m", "cmrt.cli", "worker", "--store", str(store), "--backend", "serial", *args]
+def spawn_worker(store, *args, backend="batch"):
+    cmd = [sys.executable, "-m", "cmrt.cli", "worker", "--store", str(store), "--backend", backend, *args]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

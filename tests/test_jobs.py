@@ -38,7 +38,7 @@ def test_sigkill_mid_run_then_resume_is_bit_identical(tmp_path):
     path = tmp_path / "crash.sqlite"
     with open_store(path) as store:
         rid = submit(store, TASK, **kw)
-    worker = spawn_worker(path, "--once")
+    worker = spawn_worker(path, "--once", backend="serial")  # slow generations: a kill lands mid-run
     deadline = time.time() + 300
     while time.time() < deadline:
         with sqlite3.connect(path) as con:

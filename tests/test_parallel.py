@@ -13,14 +13,14 @@ def optimize_with(tmp_path, backend):
     task = load_task("bend").with_speed(0.4)
     with open_store(tmp_path / f"{backend}.sqlite") as store:
         rid = submit(store, task, seed=11, max_evals=16, popsize=8, backend=backend)
-        with Evaluator(backend, workers=2) as ev:
+        with Evaluator(backend, workers=2) as ev:  # dask: a real LocalCluster of 2 worker processes
             run_claimed(store, claim(store, "t", run_id=rid), ev)
         return store.run(rid), store.evaluations(rid)
 
 
-def test_serial_loky_dask_identical(tmp_path):
+def test_every_backend_gives_identical_results(tmp_path):
     serial = optimize_with(tmp_path, "serial")
-    for backend in ("loky", "dask"):
+    for backend in ("batch", "loky", "loky+batch", "dask", "dask+batch"):
         run, evals = optimize_with(tmp_path, backend)
         assert run["best_params"] == serial[0]["best_params"], backend
         assert run["best_objective"] == serial[0]["best_objective"], backend

@@ -14,7 +14,7 @@ with  Ldot_x,des = k_l m (c_r - c) + d_l (m cdot_r - L_x),   c_r = s + d(t)  (CM
 Torques: tau = [M qdd* + h - J_c^T f*] on the actuated rows, clipped to the motor
 limits, where f* is the ground force the *plan* implies: the minimum-norm solution of
 the three root rows of M qdd* + h = J_c^T f over the heel and toe points of both feet,
-with no unilateral or friction limits. Why this choice (see docs/controller.md):
+with no unilateral or friction limits. Why this choice (docs/controller.md):
 
 * A QP that keeps contact forces unilateral inside the plan hides the failure the
   product is about (the controller silently stops tracking instead of tipping).
@@ -24,9 +24,9 @@ with no unilateral or friction limits. Why this choice (see docs/controller.md):
   the torques ask the ground for a pull it cannot give, the foot tips, and balance
   is lost physically - exactly what a CMRT must prevent.
 
-The linear algebra (``plan_accelerations``, ``implied_torques``) works on arrays with
-any leading batch axes, so a population of simulations can later be controlled in
-lockstep without a rewrite.
+Everything is vectorised over a leading axis of n simulations (one CMA-ES generation
+stepped in lockstep with ``mujoco.batch.Batch``); a single clip is the case n = 1, so
+there is one implementation and batched and serial objectives agree.
 """
 
 from __future__ import annotations
@@ -34,11 +34,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import mujoco
 import numpy as np
 
 from cmrt.character import FOOT_POINT_RADIUS_M, Character
-from cmrt.control.momentum import KinematicsScratch, centroidal_momentum_matrix, foot_jacobian
+from cmrt.control.planar import PlanarKinematics
 
 GRAVITY_M_S2 = 9.81
 
@@ -58,7 +57,7 @@ class ControllerConfig:
     weight_leg: float = 0.2  # W for hips, knees, ankles: legs give way to balance
     weight_root_pitch: float = 0.2  # W for the trunk's absolute pitch
     regularization: float = 1e-6  # eps on |qdd|^2, keeps the KKT matrix regular
-    control_every: int = 1  # physics steps per control step (1 -> 500 Hz at 2 ms)
+    control_every: int = 4  # physics steps per control step: 125 Hz at the 2 ms step (ABC: 60-120 Hz)
 
     def tracking_weights(self, ch: Character) -> np.ndarray:
         w = np.full(ch.nv, self.weight_upper)
@@ -71,7 +70,7 @@ class ControllerConfig:
 
 
 def plan_accelerations(Q: np.ndarray, g: np.ndarray, Js: np.ndarray, rhs_s: np.ndarray) -> np.ndarray:
-    """Solve min 1/2 qdd'Q qdd - g'qdd  s.t. Js qdd = rhs_s; batched over leading axes."""
+    """Solve min 1/2 qdd'Q qdd - g'qdd  s.t. Js qdd = rhs_s; batched over the leading axis."""
     nv, nc = Q.shape[-1], Js.shape[-2]
     K = np.zeros(Q.shape[:-2] + (nv + nc, nv + nc))
     K[..., :nv, :nv] = Q
@@ -81,73 +80,60 @@ def plan_accelerations(Q: np.ndarray, g: np.ndarray, Js: np.ndarray, rhs_s: np.n
     return np.linalg.solve(K, rhs[..., None])[..., :nv, 0]
 
 
-def implied_torques(
-    M: np.ndarray, h: np.ndarray, qdd: np.ndarray, Jc: np.ndarray, root: slice
-) -> tuple[np.ndarray, np.ndarray]:
-    """Generalised forces M qdd + h - Jc' f with f the min-norm force balancing the root rows."""
-    need = np.einsum("...ij,...j->...i", M, qdd) + h
-    B = np.swapaxes(Jc, -1, -2)[..., root, :]  # (3, n_force)
-    f = np.einsum("...ji,...j->...i", B, np.linalg.solve(B @ np.swapaxes(B, -1, -2), need[..., root]))
-    return need - np.einsum("...ji,...j->...i", Jc, f), f
+def implied_torques(M: np.ndarray, h: np.ndarray, qdd: np.ndarray, Jc: np.ndarray) -> np.ndarray:
+    """Generalised forces M qdd + h - Jc' f, f the min-norm force balancing the 3 root rows."""
+    need = (M @ qdd[..., None])[..., 0] + h
+    B = np.swapaxes(Jc[..., :3], -1, -2)  # (n, 3, n_force): root rows of Jc'
+    lam = np.linalg.solve(B @ np.swapaxes(B, -1, -2), need[..., :3, None])
+    f = (np.swapaxes(B, -1, -2) @ lam)[..., 0]
+    return need - (np.swapaxes(Jc, -1, -2) @ f[..., None])[..., 0]
 
 
 class MomentumBalanceController:
-    """Stateless apart from scratch buffers; call :meth:`torques` after ``mj_step1``."""
+    """Computes motor torques for n simulations from their bound MuJoCo fields."""
 
     def __init__(self, ch: Character, config: ControllerConfig = ControllerConfig()):
         self.ch = ch
         self.config = config
-        self.model = ch.model
+        self.kin = PlanarKinematics(ch.model)
         self.w2 = config.tracking_weights(ch) ** 2
-        self.scratch = KinematicsScratch(ch.model, ch.foot_bodies)
+        self.diag = config.beta_t * self.w2 + config.regularization
         self.actuated = np.array(ch.actuated_dofs)
         self.limits = ch.torque_limit_nm
         self.mass = ch.mass_kg
-        self.root = slice(0, 3)
-        self.M = np.empty((ch.nv, ch.nv))
-        self._jacp = np.empty((3, ch.nv))
-        # Contact points: bottoms of the heel and toe spheres, in their geom frames.
-        self.points = [g for pair in ch.foot_points for g in pair]
-        self.last_qdd = np.zeros(ch.nv)
-        self.last_force = np.zeros(2 * len(self.points))
+        self.points = np.array(ch.foot_point_geoms)
+        self.point_bodies = ch.model.geom_bodyid[self.points]
+        self.point_offset = np.array([0.0, 0.0, FOOT_POINT_RADIUS_M])  # sphere centre -> bottom
+        self.feet = np.array(ch.foot_bodies)
 
-    def torques(
-        self,
-        data: mujoco.MjData,
-        q_ref: np.ndarray,
-        qd_ref: np.ndarray,
-        qdd_ref: np.ndarray,
-        com_ref_x: float,
-        com_ref_vel_x: float,
-        cop_des_x: float,
-    ) -> np.ndarray:
-        m, d, cfg = self.model, data, self.config
-        qpos, qvel = d.qpos.copy(), d.qvel.copy()
-        A = centroidal_momentum_matrix(m, d)
-        Js = np.concatenate([foot_jacobian(m, d, b) for b in self.ch.foot_bodies])
-        a, jsdot_qd = self.scratch.biases(qpos, qvel)
-        L = A @ qvel
-        com = d.subtree_com[1]
+    def torques(self, f: dict[str, np.ndarray], q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x):
+        """Torques (n, nu). ``f`` holds (n, ...) arrays of the MuJoCo fields at the current state:
+        qpos, qvel, cdof, cdof_dot, cvel, cinert, M, qfrc_bias, qfrc_passive, subtree_com, xpos,
+        geom_xpos. References (nv,) are shared; CoM/CoP targets are (n,)."""
+        cfg, kin = self.config, self.kin
+        qpos, qvel = f["qpos"], f["qvel"]
+        cdof, cdof_dot, cvel = f["cdof"], f["cdof_dot"], f["cvel"]
+        com = f["subtree_com"][:, 1]
+        A, a = kin.centroidal(cdof, cdof_dot, cvel, f["cinert"], qvel)
+        n, nv = qvel.shape
+        Js, jsdot = kin.frame_jacobians_and_biases(cdof, cdof_dot, cvel, qvel, f["xpos"][:, self.feet], com,
+                                                   self.feet)
+        Js, jsdot = Js.reshape(n, -1, nv), jsdot.reshape(n, -1)
+        L_x = (A[:, 0] * qvel).sum(axis=1)
 
-        ldot_x = cfg.k_l * self.mass * (com_ref_x - com[0]) + cfg.d_l * (self.mass * com_ref_vel_x - L[0])
-        force_x, force_z = ldot_x, self.mass * GRAVITY_M_S2  # desired ground force (Ldot_z,des = 0)
-        hdot = -com[2] * force_x - (cop_des_x - com[0]) * force_z
+        ldot_x = cfg.k_l * self.mass * (com_ref_x - com[:, 0]) + cfg.d_l * (self.mass * com_ref_vel_x - L_x)
+        # desired ground force (Ldot_z,des = 0) placed at the desired CoP
+        hdot = -com[:, 2] * ldot_x - (cop_des_x - com[:, 0]) * (self.mass * GRAVITY_M_S2)
         qdd_des = cfg.k_t * (q_ref - qpos) + cfg.d_t * (qd_ref - qvel) + qdd_ref
 
-        Ax, Ah = A[0], A[2]
-        Q = cfg.beta_l * np.outer(Ax, Ax) + cfg.beta_h * np.outer(Ah, Ah)
-        Q += np.diag(cfg.beta_t * self.w2 + cfg.regularization)
-        g = cfg.beta_l * Ax * (ldot_x - a[0]) + cfg.beta_h * Ah * (hdot - a[2]) + cfg.beta_t * self.w2 * qdd_des
-        qdd = plan_accelerations(Q, g, Js, -jsdot_qd)
+        Ax, Ah = A[:, 0], A[:, 2]
+        Q = cfg.beta_l * Ax[:, :, None] * Ax[:, None, :] + cfg.beta_h * Ah[:, :, None] * Ah[:, None, :]
+        Q[:, np.arange(nv), np.arange(nv)] += self.diag
+        g = (cfg.beta_l * (ldot_x - a[:, 0]))[:, None] * Ax + (cfg.beta_h * (hdot - a[:, 2]))[:, None] * Ah
+        g += cfg.beta_t * self.w2 * qdd_des
+        qdd = plan_accelerations(Q, g, Js, -jsdot)
 
-        mujoco.mj_fullM(m, d, self.M)
-        h = d.qfrc_bias - d.qfrc_passive
-        Jc = np.empty((2 * len(self.points), m.nv))
-        for k, gid in enumerate(self.points):
-            point = d.geom_xpos[gid] - np.array([0.0, 0.0, FOOT_POINT_RADIUS_M])
-            mujoco.mj_jac(m, d, self._jacp, None, point, m.geom_bodyid[gid])
-            Jc[2 * k] = self._jacp[0]
-            Jc[2 * k + 1] = self._jacp[2]
-        tau, f = implied_torques(self.M, h, qdd, Jc, self.root)
-        self.last_qdd, self.last_force = qdd, f
-        return np.clip(tau[self.actuated], -self.limits, self.limits)
+        points = f["geom_xpos"][:, self.points] - self.point_offset  # (n, 4, 3)
+        Jc = kin.point_jacobians(cdof, points, com, self.point_bodies).reshape(n, -1, nv)
+        tau = implied_torques(kin.dense_mass_matrix(f["M"]), f["qfrc_bias"] - f["qfrc_passive"], qdd, Jc)
+        return np.clip(tau[:, self.actuated], -self.limits, self.limits)
