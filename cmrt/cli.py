@@ -204,6 +204,8 @@ def cmd_demo(args) -> int:
     _print_result(_result(stored))
     print(f"\nReplaying run {run['id']}'s CMRT ('cmrt simulate bend --speed 0.4 --curve {run['id']}'):")
     _print_report(simulate_report(task, curve, f"run {run['id']}"))
+    print("\nThe library CMRT shipped with cmrt (a longer run; 'cmrt simulate bend --speed 0.4 --curve library'):")
+    _print_report(simulate_report(task, library_curve(task), "library"))
     return 0
 
 
@@ -357,6 +359,29 @@ def cmd_export(args) -> int:
     return 0
 
 
+def cmd_bench(args) -> int:
+    from cmrt.bench import run_bench
+
+    task = resolve_task(args.task, args.speed, args.set)
+    backends = tuple(args.backends.split(",")) if args.backends else BACKENDS
+    unknown = [b for b in backends if b not in BACKENDS]
+    if unknown or args.population < 1 or args.repeat < 1:
+        raise CmrtError(f"bad bench options (backends from {', '.join(BACKENDS)}; population, repeat >= 1)")
+    r = run_bench(task, args.population, args.repeat, backends, args.workers)
+    if args.json:
+        print(json.dumps(r))
+        return 0
+    print(f"{r['task']} speed {r['speed']}, population {r['population']}, {r['steps_per_clip']} steps/clip, "
+          f"control {r['control_hz']:.0f} Hz ({r['machine']}, best of {r['repeat']})")
+    floor = r["physics_only_s_per_clip"]
+    rows = [("physics only (floor)", floor), ("batched evaluator", r["batched_s_per_clip"]),
+            ("serial, one clip at a time", r["serial_s_per_clip"])]
+    rows += [(f"generation, backend {b}", v) for b, v in r["generation_s_per_clip"].items()]
+    for name, v in rows:
+        print(f"  {name:32s} {1e3 * v:8.2f} ms/clip   x{v / floor:5.2f}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="cmrt", description="Anticipatory balance: center-of-mass reference trajectories.")
     sub = p.add_subparsers(dest="verb", required=True, parser_class=_Parser)
@@ -428,6 +453,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("run", type=int)
     s.add_argument("--format", choices=("json", "csv"), default="json")
     s.add_argument("--out", metavar="FILE")
+
+    s = add("bench", "time the physics floor, batched, serial and every backend", cmd_bench)
+    s.add_argument("--task", default="bend")
+    s.add_argument("--speed", type=float, default=0.4)
+    s.add_argument("--set", action="append", metavar="KEY=VALUE")
+    s.add_argument("--population", type=int, default=16)
+    s.add_argument("--repeat", type=int, default=3)
+    s.add_argument("--backends", help=f"comma-separated subset of {','.join(BACKENDS)}")
+    s.add_argument("--workers", type=int, default=os.cpu_count() or 1)
 
     s = add("demo", "the main job: optimize the fast bend into the store, show the result", cmd_demo, json_flag=False)
     backend_args(s)

@@ -16,6 +16,7 @@ per evaluation). BLAS is limited to one thread per process (``cmrt/__init__``).
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Sequence
 
@@ -108,5 +109,6 @@ def _dask_client(scheduler: str | None, workers: int):
             return Client(scheduler, timeout="5s"), None
         except (OSError, TimeoutError, ValueError) as exc:
             raise CmrtError(f"cannot reach dask scheduler {scheduler}: {type(exc).__name__}") from None
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                           silence_logs=logging.ERROR)
     return Client(cluster), cluster

@@ -1,0 +1,92 @@
+"""``cmrt bench``: where the time of a CMRT evaluation goes, measured in one run.
+
+(a) the floor: the clip's physics alone for N simulations on a ``mujoco.batch.Batch``
+    (all cores' threads, zero control, from the settled state);
+(b) the batched evaluator: N candidates in lockstep with the vectorised controller;
+(c) per-candidate serial evaluation (one clip after another, one thread);
+(d) one full generation of N candidates with each optimizer backend.
+
+Each figure is the best of ``repeat`` alternating rounds (these machines are noisy:
+compare ratios from one run, not absolute seconds across runs).
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+
+import mujoco
+import mujoco.batch
+import numpy as np
+
+from cmrt.character import character
+from cmrt.control import ControllerConfig
+from cmrt.curve import Cmrt
+from cmrt.errors import CmrtError
+from cmrt.library import library_curve
+from cmrt.parallel import BACKENDS, Evaluator, evaluate_candidate
+from cmrt.simulate import settled_state, simulate_batch
+from cmrt.task import Task
+
+
+def _candidates(task: Task, n: int) -> list[np.ndarray]:
+    """Small perturbations of the library optimum (most clips run to the end), or of the flat start."""
+    try:
+        base = library_curve(task).to_params()
+    except CmrtError:
+        base = np.zeros(8)
+    rng = np.random.default_rng(0)
+    return [base + rng.normal(0.0, 0.02, base.size) for _ in range(n)]
+
+
+def run_bench(task: Task, population: int = 16, repeat: int = 3, backends=BACKENDS, workers: int = 2) -> dict:
+    m = character().model
+    n_steps = int(round(task.clip_s / m.opt.timestep))
+    threads = os.cpu_count() or 1
+    xs = _candidates(task, population)
+    curves = [Cmrt.from_params(x, task.clip_s) for x in xs]
+    state = settled_state(task, ControllerConfig())
+
+    def physics() -> None:
+        batch = mujoco.batch.Batch(m, nsim=population, nthread=threads, persistent=True)
+        for k, v in state.items():
+            batch.bind(k)[:] = v
+        batch.forward()
+        for _ in range(n_steps):
+            batch.step()
+
+    timings: dict[str, float] = {}
+
+    def timed(key: str, fn) -> None:
+        t0 = time.perf_counter()
+        fn()
+        timings[key] = min(timings.get(key, np.inf), time.perf_counter() - t0)
+
+    simulate_batch(task, curves[:2])  # warm-up: settled state, imports
+    fells = [tr.fell for tr in simulate_batch(task, curves)]
+    for _ in range(repeat):  # alternate so machine noise hits each figure alike
+        timed("physics", physics)
+        timed("batched", lambda: simulate_batch(task, curves))
+        timed("serial", lambda: [evaluate_candidate(task, x) for x in xs])
+    for b in backends:  # one backend alive at a time: idle workers/clusters would steal CPU
+        with Evaluator(b, workers=workers) as ev:
+            ev(task, xs[:2])  # warm-up: worker processes, clusters, per-process caches
+            for _ in range(repeat):
+                timed(f"gen_{b}", lambda ev=ev: ev(task, xs))
+
+    per = {k: v / population for k, v in timings.items()}
+    out = {
+        "task": task.name, "speed": task.speed, "population": population, "steps_per_clip": n_steps,
+        "control_hz": 1.0 / (m.opt.timestep * ControllerConfig().control_every),
+        "candidates_that_fell": int(sum(fells)),
+        "physics_only_s_per_clip": per["physics"],
+        "batched_s_per_clip": per["batched"],
+        "serial_s_per_clip": per["serial"],
+        "ratio_batched_to_physics": per["batched"] / per["physics"],
+        "ratio_serial_to_physics": per["serial"] / per["physics"],
+        "generation_s_per_clip": {b: per[f"gen_{b}"] for b in backends},
+        "machine": f"{platform.machine()}, {threads} cores, mujoco {mujoco.__version__}",
+        "repeat": repeat,
+    }
+    return out

@@ -1,0 +1,17 @@
+import json
+
+from .service_helpers import cmrt
+
+
+def test_bench_json_reports_every_figure():
+    r = cmrt("bench", "--population", "4", "--repeat", "1", "--backends", "batch,serial", "--json", check=True)
+    out = json.loads(r.stdout)
+    for key in ("physics_only_s_per_clip", "batched_s_per_clip", "serial_s_per_clip", "ratio_batched_to_physics"):
+        assert out[key] > 0
+    assert set(out["generation_s_per_clip"]) == {"batch", "serial"}
+    assert out["ratio_batched_to_physics"] == out["batched_s_per_clip"] / out["physics_only_s_per_clip"]
+
+
+def test_bench_bad_options():
+    r = cmrt("bench", "--backends", "gpu")
+    assert r.returncode == 2 and "bad bench options" in r.stderr
