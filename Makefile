@@ -7,6 +7,12 @@ BIN := $(VENV)/bin
 .PHONY: demo test lint clean
 
 $(BIN)/cmrt: pyproject.toml
+	@# Offscreen rendering without a GPU needs the OSMesa system library (Debian: libosmesa6).
+	@if ! ldconfig -p | grep -q libOSMesa; then \
+	  if command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ]; then \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libosmesa6 >/dev/null; \
+	  else echo "note: libOSMesa not found and cannot be installed here: cmrt render/plot tests need it"; fi; \
+	fi
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[test]'

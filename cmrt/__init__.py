@@ -17,6 +17,12 @@ import os as _os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     _os.environ.setdefault(_var, "1")
 
+# Offscreen rendering backend, read by mujoco at import: EGL where a GPU device exists,
+# else OSMesa (software). A user's MUJOCO_GL wins. Failures surface only when rendering.
+if "MUJOCO_GL" not in _os.environ:
+    _gpu = _os.path.exists("/dev/nvidia0") or any(_os.path.exists(f"/dev/dri/renderD{i}") for i in range(128, 136))
+    _os.environ["MUJOCO_GL"] = "egl" if _gpu else "osmesa"
+
 from cmrt.character import character, load_model  # noqa: E402
 from cmrt.control import ControllerConfig, MomentumBalanceController  # noqa: E402
 from cmrt.curve import Cmrt  # noqa: E402

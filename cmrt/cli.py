@@ -382,6 +382,31 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def cmd_plot(args) -> int:
+    from cmrt.plot import plot_run
+
+    with _store(args.store, create=False) as store:
+        paths = [str(p) for p in plot_run(store, args.run, args.out)]
+    _emit({"run_id": args.run, "files": paths}, args.json, "\n".join(paths))
+    return 0
+
+
+def cmd_render(args) -> int:
+    from cmrt.render import render
+
+    task = resolve_task(args.task, args.speed, args.set)
+    curve, name = resolve_curve(args.curve, task, args.store)
+    compare, cname = resolve_curve(args.compare, task, args.store) if args.compare else (None, "")
+    if args.frames < 1 or args.fps < 1:
+        raise CmrtError("--frames and --fps must be >= 1")
+    r = render(task, curve, args.out, compare, (f"{name} CMRT", f"{cname} CMRT"), n_frames=args.frames, fps=args.fps)
+    lines = [f"wrote {r['out']} ({r['frames']} frames)"] + [
+        f"  {c['label']}: {'lost balance' if c['fell'] else 'balanced'}, objective {c['objective']:.4f}"
+        for c in r["clips"]]
+    _emit(r, args.json, "\n".join(lines))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="cmrt", description="Anticipatory balance: center-of-mass reference trajectories.")
     sub = p.add_subparsers(dest="verb", required=True, parser_class=_Parser)
@@ -453,6 +478,18 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("run", type=int)
     s.add_argument("--format", choices=("json", "csv"), default="json")
     s.add_argument("--out", metavar="FILE")
+
+    s = add("plot", "figures of a stored run (CoP error, CMRT, convergence)", cmd_plot)
+    s.add_argument("run", type=int)
+    s.add_argument("--out", default="plots", metavar="DIR")
+
+    s = add("render", "render a clip (PNG filmstrip or MP4), optionally beside another", cmd_render)
+    task_args(s)
+    s.add_argument("--curve", default="library", help="zero | library | RUN | FILE.json (default library)")
+    s.add_argument("--compare", help="a second CMRT to show beside it (e.g. zero)")
+    s.add_argument("--out", required=True, metavar="FILE.png|FILE.mp4")
+    s.add_argument("--frames", type=int, default=8, help="filmstrip frames (PNG)")
+    s.add_argument("--fps", type=int, default=30, help="video frame rate (MP4)")
 
     s = add("bench", "time the physics floor, batched, serial and every backend", cmd_bench)
     s.add_argument("--task", default="bend")

@@ -1,0 +1,122 @@
+"""Figures of a stored run (matplotlib, Agg): ABC Figs. 2-4.
+
+* ``cop_error.png``: CoP error e(t) = p - s over the clip for the zero CMRT and for the
+  run's best CMRT, with the support interval and the clip phases (Fig. 2);
+* ``cmrt.png``: the best CMRT d(t) with its knots and the preparation / task / decay
+  phases marked (Fig. 3);
+* ``convergence.png``: every evaluation's objective in order, best so far, the stop
+  threshold, falls marked (Fig. 4).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from cmrt.curve import Cmrt  # noqa: E402
+from cmrt.errors import CmrtError  # noqa: E402
+from cmrt.jobs import task_of  # noqa: E402
+from cmrt.objective import evaluate  # noqa: E402
+from cmrt.simulate import simulate  # noqa: E402
+from cmrt.store import Store  # noqa: E402
+from cmrt.task import Task  # noqa: E402
+
+
+def _phases(ax, task: Task) -> None:
+    P, T = task.preparation_s, task.duration_s
+    for x in (P, P + T):
+        ax.axvline(x, color="k", lw=0.8)
+    ax.axvspan(P, P + T, color="0.9", zorder=0)
+
+
+def plot_cop_error(task: Task, curves: list[tuple[str, Cmrt]], out: Path) -> Path:
+    fig, axes = plt.subplots(len(curves), 1, figsize=(7, 2.4 * len(curves)), sharex=True, squeeze=False)
+    for ax, (label, curve) in zip(axes[:, 0], curves, strict=True):
+        traj = simulate(task, curve)
+        ev = evaluate(task, traj)
+        t = traj.time_s
+        ax.plot(t, 100 * (traj.cop_x_m - traj.support_center_x_m), lw=1.2, label="CoP error")
+        ax.plot(t, 100 * (traj.support_lo_x_m - traj.support_center_x_m), "k--", lw=0.8, label="support edges")
+        ax.plot(t, 100 * (traj.support_hi_x_m - traj.support_center_x_m), "k--", lw=0.8)
+        if traj.fall_time_s is not None:
+            ax.axvline(traj.fall_time_s, color="r", ls=":", label="balance lost")
+        _phases(ax, task)
+        status = "lost balance" if ev.fell else "balanced"
+        ax.set_title(f"{label}: objective {ev.objective:.3f} ({status})", fontsize=10)
+        ax.set_ylabel("p - s (cm)")
+        ax.set_xlim(0, task.clip_s)
+    axes[0, 0].legend(loc="upper right", fontsize=8)
+    axes[-1, 0].set_xlabel("time (s)")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def plot_cmrt(task: Task, curve: Cmrt, out: Path, label: str = "best CMRT") -> Path:
+    fig, ax = plt.subplots(figsize=(7, 2.8))
+    t = np.linspace(0, task.clip_s, 400)
+    ax.plot(t, 100 * curve.displacement_m(t), lw=1.5, label=label)
+    ax.plot(curve.knot_times_s, 100 * np.asarray(curve.values_m), "o", ms=5, label="knots")
+    _phases(ax, task)
+    top = ax.get_ylim()[1]
+    P, T = task.preparation_s, task.duration_s
+    for x, name in ((P / 2, "preparation"), (P + T / 2, "task"), ((P + T + task.clip_s) / 2, "decay")):
+        ax.text(x, top, name, ha="center", va="top", fontsize=8)
+    ax.axhline(0, color="0.5", lw=0.6)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("d(t) (cm)")
+    ax.set_xlim(0, task.clip_s)
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def plot_convergence(evaluations: list[dict], threshold: float, out: Path, title: str) -> Path:
+    obj = np.array([e["objective"] for e in evaluations])
+    fell = np.array([e["fell"] for e in evaluations])
+    idx = np.arange(1, obj.size + 1)
+    fig, ax = plt.subplots(figsize=(7, 3))
+    ax.semilogy(idx[~fell], obj[~fell], ".", ms=3, label="balanced")
+    ax.semilogy(idx[fell], obj[fell], "x", ms=3, color="r", label="lost balance (penalised)")
+    ax.semilogy(idx, np.minimum.accumulate(obj), "k-", lw=1, label="best so far")
+    if threshold > 0:
+        ax.axhline(threshold, color="g", ls="--", label=f"stop threshold {threshold:g}")
+    ax.set_xlabel("evaluation")
+    ax.set_ylabel("objective")
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def plot_run(store: Store, run_id: int, out_dir: str | Path) -> list[Path]:
+    """Write the run's figures to ``out_dir``; returns their paths."""
+    run = store.run(run_id)
+    if not run.get("best_cmrt"):
+        raise CmrtError(f"run {run_id} has no result to plot yet (status {run['status']})")
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CmrtError(f"cannot create {out}: {exc.strerror}") from None
+    task = task_of(run)
+    best = Cmrt.from_dict(run["best_cmrt"])
+    speed = f" T = {task.speed:g} s" if task.speed is not None else ""
+    prefix = f"run{run_id}_"
+    return [
+        plot_cop_error(task, [("zero CMRT", Cmrt.zero(task.clip_s)), (f"run {run_id} best CMRT", best)],
+                       out / f"{prefix}cop_error.png"),
+        plot_cmrt(task, best, out / f"{prefix}cmrt.png", f"run {run_id}: {task.name}{speed}"),
+        plot_convergence(store.evaluations(run_id), run["stop_threshold"] or 0.0, out / f"{prefix}convergence.png",
+                         f"run {run_id}: {task.name}{speed}, {run['evaluations']} evaluations ({run['stop_reason']})"),
+    ]

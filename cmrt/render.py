@@ -1,0 +1,147 @@
+"""Offscreen renders of clips with the balance markers of ABC Figs. 7-9.
+
+Markers: the CoM (cyan sphere) and its ground projection (cyan disc), the reference CoM
+c_r = s + d(t) (green vertical line) and the measured CoP (red disc). A PNG is a
+filmstrip of evenly spaced frames (with ``compare``: the comparison clip on the top row,
+as in the paper's "top: without anticipation, bottom: with"); an MP4 is a video
+(imageio's ffmpeg plugin) with the two clips side by side.
+
+The OpenGL backend is chosen in ``cmrt/__init__``: EGL with a GPU, else OSMesa
+(``apt-get install libosmesa6``; PyOpenGL from pip).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from cmrt.character import character
+from cmrt.curve import Cmrt
+from cmrt.errors import CmrtError
+from cmrt.objective import evaluate
+from cmrt.simulate import Trajectory, simulate
+from cmrt.task import Task
+
+CYAN = np.array([0.1, 0.8, 0.9, 1.0], dtype=np.float32)
+GREEN = np.array([0.1, 0.8, 0.2, 1.0], dtype=np.float32)
+RED = np.array([0.9, 0.1, 0.1, 1.0], dtype=np.float32)
+MARKER_Y_M = -0.35  # the camera looks along +y from the -y side
+
+
+def _renderer(model: mujoco.MjModel, height: int, width: int) -> mujoco.Renderer:
+    try:
+        return mujoco.Renderer(model, height, width)
+    except Exception as exc:  # ImportError, FatalError, ctypes errors: all mean "no OpenGL here"
+        backend = os.environ.get("MUJOCO_GL", "?")
+        hint = ("install OSMesa (apt-get install libosmesa6) and PyOpenGL" if backend == "osmesa"
+                else "check the GPU's EGL driver, or set MUJOCO_GL=osmesa with libosmesa6 installed")
+        raise CmrtError(f"cannot render with MUJOCO_GL={backend}: {type(exc).__name__}: {exc}; {hint}") from None
+
+
+def _add_geom(scene: mujoco.MjvScene, gtype, size, pos, rgba, mat=None) -> None:
+    if scene.ngeom >= scene.maxgeom:
+        return
+    g = scene.geoms[scene.ngeom]
+    mujoco.mjv_initGeom(g, gtype, np.asarray(size, float), np.asarray(pos, float),
+                        np.eye(3).ravel() if mat is None else mat, rgba)
+    scene.ngeom += 1
+
+
+def _frame(renderer, data, camera, traj: Trajectory, k: int) -> np.ndarray:
+    renderer.update_scene(data, camera)
+    scene = renderer.scene
+    com = data.subtree_com[1]
+    y = MARKER_Y_M  # markers sit between the body and the camera so they are never hidden
+    _add_geom(scene, mujoco.mjtGeom.mjGEOM_SPHERE, [0.035, 0, 0], [com[0], y, com[2]], CYAN)
+    _add_geom(scene, mujoco.mjtGeom.mjGEOM_CYLINDER, [0.04, 0.003, 0], [com[0], y, 0.003], CYAN)
+    ref = traj.com_ref_x_m[k]
+    if np.isfinite(ref):
+        _add_geom(scene, mujoco.mjtGeom.mjGEOM_CAPSULE, [0.008, 0.6, 0], [ref, y, 0.6], GREEN)
+    cop = traj.cop_x_m[k]
+    if np.isfinite(cop):
+        _add_geom(scene, mujoco.mjtGeom.mjGEOM_CYLINDER, [0.03, 0.005, 0], [cop, y, 0.008], RED)
+    return renderer.render().copy()
+
+
+def render_frames(task: Task, traj: Trajectory, times_s: np.ndarray, height: int, width: int, progress=None):
+    """Images of ``traj`` at ``times_s`` (a clip cut short by a fall holds its last pose)."""
+    m = character().model
+    data = mujoco.MjData(m)
+    camera = mujoco.MjvCamera()
+    camera.type = mujoco.mjtCamera.mjCAMERA_FREE
+    camera.lookat[:] = [0.05, 0.0, 0.8]
+    camera.distance, camera.azimuth, camera.elevation = 3.2, 90.0, -8.0
+    renderer = _renderer(m, height, width)
+    frames = []
+    try:
+        for t in times_s:
+            k = min(int(round(t / m.opt.timestep)), traj.time_s.size - 1)
+            data.qpos[:] = traj.qpos[k]
+            mujoco.mj_forward(m, data)
+            frames.append(_frame(renderer, data, camera, traj, k))
+            if progress:
+                progress.update(1)
+    finally:
+        renderer.close()
+    return frames
+
+
+def render(
+    task: Task, curve: Cmrt, out: str | Path, compare: Cmrt | None = None, labels: tuple[str, str] = ("", ""),
+    n_frames: int = 8, fps: int = 30, height: int = 320, width: int = 240,
+) -> dict:
+    """Render ``task`` with ``curve`` (and ``compare`` above it) to a PNG filmstrip or an MP4."""
+    from tqdm import tqdm
+
+    out = Path(out)
+    if out.suffix.lower() not in (".png", ".mp4"):
+        raise CmrtError(f"--out must end in .png or .mp4, got '{out.name}'")
+    if not out.parent.exists():
+        raise CmrtError(f"cannot write {out}: directory {out.parent} does not exist")
+    clips = [(compare, labels[1])] if compare is not None else []
+    clips.append((curve, labels[0]))
+    trajs = [simulate(task, c) for c, _ in clips]
+    scores = [evaluate(task, tr) for tr in trajs]
+    if out.suffix.lower() == ".png":
+        times = np.linspace(task.preparation_s - 0.2, task.clip_s - 0.05, n_frames)
+    else:
+        times = np.arange(0.0, task.clip_s, 1.0 / fps)
+    with tqdm(total=len(times) * len(trajs), desc="render", unit="frame", file=sys.stderr,
+              disable=not sys.stderr.isatty()) as bar:
+        rows = [render_frames(task, tr, times, height, width, bar) for tr in trajs]
+    if out.suffix.lower() == ".png":
+        _filmstrip(out, rows, times, [lab for _, lab in clips], scores)
+    else:
+        import imageio.v2 as imageio
+
+        with imageio.get_writer(out, fps=fps, codec="libx264", quality=7, macro_block_size=8) as writer:
+            for i in range(len(times)):
+                writer.append_data(np.concatenate([row[i] for row in rows], axis=1))
+    return {"out": str(out), "frames": len(times), "clips": [
+        {"label": lab, "fell": s.fell, "objective": s.objective} for (_, lab), s in zip(clips, scores, strict=True)]}
+
+
+def _filmstrip(out: Path, rows, times, labels, scores) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n_rows, n_cols = len(rows), len(times)
+    fig, axes = plt.subplots(n_rows, n_cols, figsize=(1.6 * n_cols, 2.3 * n_rows), squeeze=False)
+    for r, (row, label, score) in enumerate(zip(rows, labels, scores, strict=True)):
+        status = "lost balance" if score.fell else "balanced"
+        for c, img in enumerate(row):
+            ax = axes[r, c]
+            ax.imshow(img)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            ax.set_title(f"{times[c]:.2f} s", fontsize=8)
+        axes[r, 0].set_ylabel(f"{label}\n{status}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
