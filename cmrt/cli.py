@@ -115,6 +115,7 @@ def simulate_report(task: Task, curve: Cmrt, curve_name: str, trace: str | None 
         "max_cop_error_m": _finite(ev.max_cop_error_m),
         "final_pose_error_rad": _finite(ev.final_pose_error_rad),
         "n_samples": ev.n_samples,
+        "task_success": ev.task_success,
         "wall_s": round(wall, 4),
     }
 

@@ -11,6 +11,8 @@ graded by how early balance was lost and how far the foot lifted:
 
     fell:     FALL_PENALTY + 10 (L - t_fail) / L + 50 min(max_lift - 0.01 m, 0.2 m)
     blow-up:  DIVERGED_PENALTY (worse than any fall)
+    goal missed (tasks with a prop: ball not caught and held, slab not toppled, target
+    not hit): + MISSED_GOAL_PENALTY, so that "do nothing and stay balanced" never wins
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from cmrt.task import Task
 MIN_FOOT_FORCE_FRACTION = 0.05
 FALL_PENALTY = 10.0
 DIVERGED_PENALTY = 100.0
+MISSED_GOAL_PENALTY = 30.0  # ABC 5: a missed catch is heavily penalised (also: slab not toppled, no hit)
 
 
 @dataclass(frozen=True)
@@ -43,6 +46,7 @@ class Evaluation:
     max_cop_error_m: float
     final_pose_error_rad: float
     n_samples: int
+    task_success: bool | None = None
 
 
 def cop_error_samples(task: Task, traj: Trajectory) -> np.ndarray:
@@ -68,6 +72,8 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
         penalty = FALL_PENALTY + 10.0 * (task.clip_s - t_fail) / task.clip_s + 50.0 * lift
     else:
         penalty = 0.0
+    if traj.task_success is False:
+        penalty += MISSED_GOAL_PENALTY
     final_err = task.final_pose_error_rad(traj.final_qpos) if np.all(np.isfinite(traj.final_qpos)) else float("inf")
     return Evaluation(
         objective=norm + penalty,
@@ -80,4 +86,5 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
         max_cop_error_m=float(np.max(np.abs(e))) if e.size else 0.0,
         final_pose_error_rad=final_err,
         n_samples=int(e.size),
+        task_success=traj.task_success,
     )

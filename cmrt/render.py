@@ -19,7 +19,6 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from cmrt.character import character
 from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
 from cmrt.objective import evaluate
@@ -69,7 +68,7 @@ def _frame(renderer, data, camera, traj: Trajectory, k: int) -> np.ndarray:
 
 def render_frames(task: Task, traj: Trajectory, times_s: np.ndarray, height: int, width: int, progress=None):
     """Images of ``traj`` at ``times_s`` (a clip cut short by a fall holds its last pose)."""
-    m = character().model
+    m = task.model()
     data = mujoco.MjData(m)
     camera = mujoco.MjvCamera()
     camera.type = mujoco.mjtCamera.mjCAMERA_FREE

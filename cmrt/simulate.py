@@ -18,11 +18,10 @@ Balance loss is detected physically at every control step (8 ms):
 * non-finite state or a MuJoCo instability reset -> a numerical blow-up.
 A finished simulation is masked out of the batch; none of these raises.
 
-The CoP is measured from the contact forces MuJoCo applied during each step: the root
-rows of ``qfrc_constraint`` are the total ground force (F_x, F_z) and its moment about
-the pelvis, and for contacts on the floor plane (z = 0)
-``cop_x = (P_x F_z - P_z F_x - tau_y) / F_z``. Per-foot forces, needed only for traces,
-come from replaying the step's contact solve on a scratch ``MjData`` (``record=True``).
+The CoP is measured from the contact forces MuJoCo applied during each step: touch
+sensors around the four heel/toe spheres read each point's normal force f_i, the
+contact lies straight under the sphere's centre x_i, so ``cop_x = sum f_i x_i / sum f_i``.
+Forces on the hands (a ball, a bag, a slab) never enter it.
 """
 
 from __future__ import annotations
@@ -37,6 +36,7 @@ import numpy as np
 from cmrt.character import character
 from cmrt.control import ControllerConfig, MomentumBalanceController
 from cmrt.curve import Cmrt
+from cmrt.props import PropRuntime
 from cmrt.task import Task
 
 SETTLE_S = 1.5
@@ -62,7 +62,7 @@ class Trajectory:
     support_lo_x_m: np.ndarray
     support_hi_x_m: np.ndarray
     normal_force_n: np.ndarray  # total vertical ground force
-    foot_normal_force_n: np.ndarray  # (n, 2): right, left; NaN unless recorded
+    foot_normal_force_n: np.ndarray  # (n, 2): right, left
     point_lift_m: np.ndarray  # (n, 4): heel_r, toe_r, heel_l, toe_l above settled height
     cmrt_displacement_m: np.ndarray
     com_ref_x_m: np.ndarray
@@ -72,13 +72,15 @@ class Trajectory:
     fall_reason: str | None
     diverged: bool
     max_lift_m: float
-    final_qpos: np.ndarray
+    final_qpos: np.ndarray  # the humanoid's
+    task_success: bool | None = None  # goal reached (ball caught and held, slab toppled, target hit)
 
     def as_npz_dict(self) -> dict[str, np.ndarray]:
         out = {k: v for k, v in self.__dict__.items() if isinstance(v, np.ndarray)}
         out["fell"] = np.array(self.fell)
         out["diverged"] = np.array(self.diverged)
         out["fall_time_s"] = np.array(np.nan if self.fall_time_s is None else self.fall_time_s)
+        out["task_success"] = np.array(np.nan if self.task_success is None else float(self.task_success))
         return out
 
 
@@ -110,23 +112,28 @@ def _threads(n: int) -> int:
 
 
 def settled_state(task: Task, config: ControllerConfig) -> dict[str, np.ndarray]:
-    """The start pose after the controller held it for SETTLE_S (cached per process)."""
+    """The start pose after the controller held it for SETTLE_S (cached per process and model)."""
+    from cmrt.props import model_values
+
     q0 = task.start_qpos()
-    key = (q0.tobytes(), config)
+    key = (q0.tobytes(), config, task.prop, model_values(task.prop, task.params))
     if key not in _SETTLED:
         ch = character()
-        m = ch.model
+        m = task.model()
+        prop = PropRuntime(task.prop, m, task.params)
         batch = mujoco.batch.Batch(m, nsim=1, nthread=1, persistent=True)
         f = {k: batch.bind(k) for k in set(CONTROL_FIELDS) | set(STATE_FIELDS) | {"ctrl"}}
-        f["qpos"][0] = q0
+        f["qpos"][0, : q0.size] = q0
         f["qpos"][0, 1] -= 0.002  # start just in contact: the feet sink ~2 mm under body weight
         batch.forward(stage=mujoco.mjtStage.mjSTAGE_VEL)
         ctrl = MomentumBalanceController(ch, config)
         lo, hi = _support(f["geom_xpos"], np.array(ch.foot_point_geoms))
         center = 0.5 * (lo + hi)
-        zeros = np.zeros(m.nv)
-        for _ in range(int(round(SETTLE_S / m.opt.timestep))):
-            f["ctrl"][:] = ctrl.torques(f, q0, zeros, zeros, center, np.zeros(1), center)
+        zeros = np.zeros(q0.size)
+        for k in range(int(round(SETTLE_S / m.opt.timestep))):
+            if k % config.control_every == 0:
+                f["ctrl"][:] = ctrl.torques(f, q0, zeros, zeros, center, np.zeros(1), center)
+            prop.settle_hold(f)
             batch.step(stage=mujoco.mjtStage.mjSTAGE_VEL)
         _SETTLED[key] = {k: f[k][0].copy() for k in STATE_FIELDS}
     return _SETTLED[key]
@@ -135,25 +142,6 @@ def settled_state(task: Task, config: ControllerConfig) -> dict[str, np.ndarray]
 def _support(geom_xpos: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     xs = geom_xpos[:, points, 0]
     return xs.min(axis=1), xs.max(axis=1)
-
-
-def _foot_forces(m, scratch: mujoco.MjData, state: dict, ctrl, xfrc) -> tuple[float, float]:
-    """Right/left vertical force of the step from this state (replays its contact solve)."""
-    ch = character()
-    for k, v in state.items():
-        getattr(scratch, k)[:] = v
-    scratch.ctrl[:] = ctrl
-    scratch.xfrc_applied[:] = xfrc
-    mujoco.mj_forward(m, scratch)
-    force6 = np.zeros(6)
-    fz = [0.0, 0.0]
-    for i in range(scratch.ncon):
-        con = scratch.contact[i]
-        for side, pair in enumerate(ch.foot_points):
-            if con.geom1 in pair or con.geom2 in pair:
-                mujoco.mj_contactForce(m, scratch, i, force6)
-                fz[side] += float(con.frame[2] * force6[0])
-    return fz[0], fz[1]
 
 
 def _control(controller, f, k, q_ref, qd_ref, qdd_ref, com_ref, com_ref_vel, center):
@@ -185,12 +173,12 @@ def simulate_batch(
 ) -> list[Trajectory]:
     """Simulate one clip of ``task`` per CMRT (None: zero CMRT), in lockstep.
 
-    ``record`` also fills qpos, qvel and per-foot forces at every step (for traces);
-    scores do not depend on it. ``threads``: MuJoCo batch threads (default: all cores,
+    ``record`` also fills qpos, qvel and the CoP at every step (for traces); scores do
+    not depend on it. ``threads``: MuJoCo batch threads (default: all cores,
     or $CMRT_THREADS).
     """
     ch = character()
-    m = ch.model
+    m = task.model()
     n = len(curves)
     dt = m.opt.timestep
     n_steps = int(round(task.clip_s / dt))
@@ -205,18 +193,20 @@ def simulate_batch(
     vel_stage = mujoco.mjtStage.mjSTAGE_VEL
 
     batch = mujoco.batch.Batch(m, nsim=n, nthread=threads or _threads(n), persistent=True)
-    names = set(CONTROL_FIELDS) | set(STATE_FIELDS) | {"ctrl", "xfrc_applied", "qfrc_constraint", "geom_xmat",
-                                                       "time"}
-    b = {k: batch.bind(k) for k in names}
+    prop = PropRuntime(task.prop, m, task.params)
+    names = set(CONTROL_FIELDS) | set(STATE_FIELDS) | {"ctrl", "xfrc_applied", "sensordata", "geom_xmat", "time"}
+    b = {k: batch.bind(k) for k in names | prop.fields()}
     for k, v in settled_state(task, config).items():
         b[k][:] = v
     b["time"][:] = 0.0
+    prop.start(batch, b)
     batch.forward(stage=vel_stage)
     settled_z = b["geom_xpos"][0, geo.points, 2].copy()
 
     def buf(*shape):
         return np.full((n, n_steps, *shape), np.nan)
 
+    nq = ch.model.nq  # the humanoid's coordinates come first; a prop's follow them
     rec = {"com": buf(2), "cop": buf(), "sc": buf(), "lo": buf(), "hi": buf(), "fz": buf(), "lift": buf(4),
            "cref": buf(), "ctrl": buf(m.nu), "qpos": buf(m.nq), "qvel": buf(m.nv), "ffz": buf(2)}
     last = np.full(n, n_steps)
@@ -226,7 +216,6 @@ def simulate_batch(
     reasons: list[str | None] = [None] * n
     max_lift = np.zeros(n)
     active = np.arange(n)
-    scratch = mujoco.MjData(m) if record else None
 
     ctrl_all = np.zeros((n, m.nu))
     bad_all = np.zeros(n, bool)
@@ -245,8 +234,9 @@ def simulate_batch(
             lo, hi = _support(geom_xpos, geo.points)
             center = 0.5 * (lo + hi)
             rec["sc"][sel, k], rec["lo"][sel, k], rec["hi"][sel, k] = center, lo, hi
-            pelvis = b["xpos"][sel, 1].copy()
+            point_x = geom_xpos[:, geo.points, 0]  # heel/toe x at the state the step starts from
         if control:
+            prop.control_step(b, ids)
             f = {name: (b[name] if whole else b[name][active]) for name in CONTROL_FIELDS}
             com_ref = center + disp[sel, k]
             ctrl, bad = _control(controller, f, k, q_ref, qd_ref, qdd_ref, com_ref, disp_vel[sel, k], center)
@@ -264,20 +254,16 @@ def simulate_batch(
             b["xfrc_applied"][sel, ch.thorax_body, 0] = push[k]
         if record:
             rec["qpos"][sel, k], rec["qvel"][sel, k] = b["qpos"][sel], b["qvel"][sel]
-            states = {s: b[s][sel].copy() for s in STATE_FIELDS}
-            xfrc = b["xfrc_applied"][sel]
-            for i, sim in enumerate(ids):
-                rec["ffz"][sim, k] = _foot_forces(m, scratch, {s: v[i] for s, v in states.items()},
-                                                  ctrl_all[sim], xfrc[i])
 
         batch.step(ids=None if whole else active, stage=vel_stage)
 
         if sample:
-            qc = b["qfrc_constraint"][sel, :3]
-            fx, fz, tau = qc[:, 0], qc[:, 1], qc[:, 2]
+            touch = b["sensordata"][sel, : geo.points.size]  # normal force at heel_r, toe_r, heel_l, toe_l
+            fz = touch.sum(axis=1)
             with np.errstate(all="ignore"):
-                cop = np.where(fz > 1e-9, (pelvis[:, 0] * fz - pelvis[:, 2] * fx - tau) / fz, np.nan)
+                cop = np.where(fz > 1e-9, (touch * point_x).sum(axis=1) / fz, np.nan)
             rec["cop"][sel, k], rec["fz"][sel, k] = cop, fz
+            rec["ffz"][sel, k] = np.stack([touch[:, :2].sum(axis=1), touch[:, 2:].sum(axis=1)], axis=1)
         if not control:
             continue
 
@@ -319,7 +305,8 @@ def simulate_batch(
             if active.size == 0:
                 break
 
-    final_qpos = b["qpos"].copy()
+    final_qpos = b["qpos"][:, :nq].copy()
+    success = prop.success(b)
     out = []
     for i in range(n):
         cut = slice(0, last[i])
@@ -331,7 +318,7 @@ def simulate_batch(
             cmrt_displacement_m=disp[i, cut], com_ref_x_m=rec["cref"][i, cut], ctrl_nm=rec["ctrl"][i, cut],
             fell=bool(fell[i]), fall_time_s=None if np.isnan(fall_time[i]) else float(fall_time[i]),
             fall_reason=reasons[i], diverged=bool(diverged[i]), max_lift_m=float(max_lift[i]),
-            final_qpos=final_qpos[i],
+            final_qpos=final_qpos[i], task_success=None if success is None else bool(success[i]),
         ))
     return out
 

@@ -55,6 +55,7 @@ class Task:
     end_pose_deg: dict[str, float] | None = None
     balance_joint: str | None = "ankle"
     timing: dict[str, tuple[float, float]] = field(default_factory=dict)
+    prop: str | None = None
     speed_param: str | None = None
     source: str = ""
 
@@ -112,6 +113,17 @@ class Task:
             raise CmrtError("cop_sample_step_s must be > 0")
         if p["push_duration_s"] < 0:
             raise CmrtError("push_duration_s must be >= 0")
+
+    # --- model -------------------------------------------------------------------
+    def model(self):
+        """The character plus this task's prop (compiled once per distinct prop parameters)."""
+        from cmrt.props import build_model, model_values
+
+        return build_model(self.prop, model_values(self.prop, self.params))
+
+    @property
+    def has_goal(self) -> bool:
+        return self.prop is not None
 
     # --- motion -----------------------------------------------------------------
     def start_qpos(self) -> np.ndarray:
@@ -184,6 +196,8 @@ class Task:
         }
         if self.end_pose_deg is not None:
             out["end_pose_deg"] = dict(self.end_pose_deg)
+        if self.prop:
+            out["prop"] = {"kind": self.prop}
         if self.speed_param:
             out["speed_param"] = self.speed_param
         return out
@@ -245,11 +259,19 @@ def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task"
         "start_pose_deg",
         "end_pose_deg",
         "timing",
+        "prop",
     }
     unknown = set(raw) - allowed
     if unknown:
         raise CmrtError(f"{source}: unknown key(s) {', '.join(sorted(unknown))}")
     params = dict(DEFAULT_PARAMS)
+    prop = raw.get("prop", {}).get("kind") if isinstance(raw.get("prop"), dict) else None
+    if "prop" in raw:
+        from cmrt.props import PROP_KINDS, PROP_PARAMS
+
+        if prop not in PROP_KINDS:
+            raise CmrtError(f"{source}: prop.kind must be one of {', '.join(PROP_KINDS)}")
+        params.update(PROP_PARAMS[prop])
     for key, value in raw.get("params", {}).items():
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise CmrtError(f"{source}: parameter '{key}' must be a number")
@@ -281,6 +303,7 @@ def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task"
         end_pose_deg={k: float(v) for k, v in raw["end_pose_deg"].items()} if "end_pose_deg" in raw else None,
         balance_joint=raw.get("balance_joint", "ankle") or None,
         timing=timing,
+        prop=prop,
         speed_param=speed_param,
         source=source,
     )

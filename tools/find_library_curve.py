@@ -41,7 +41,7 @@ def main() -> None:
     check = evaluate(task, simulate(task, curve))
     entry = {
         "task": task.name, "speed": task.speed, "cmrt": curve.to_dict(), "objective": check.objective,
-        "fell": check.fell, "final_pose_error_rad": check.final_pose_error_rad,
+        "fell": check.fell, "task_success": check.task_success, "final_pose_error_rad": check.final_pose_error_rad,
         "zero_cmrt_objective": run["baseline_objective"], "zero_cmrt_fell": run["baseline_fell"],
         "evaluations": run["evaluations"], "stop_reason": run["stop_reason"], "seed": args.seed,
         "stop_threshold": task.stop_threshold, "wall_s": round(time.perf_counter() - t0, 1),

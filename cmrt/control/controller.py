@@ -95,7 +95,8 @@ class MomentumBalanceController:
     def __init__(self, ch: Character, config: ControllerConfig = ControllerConfig()):
         self.ch = ch
         self.config = config
-        self.kin = PlanarKinematics(ch.model)
+        self.kin = PlanarKinematics(ch.model)  # the humanoid alone: props come after it in any model
+        self.nv, self.nbody, self.nM = ch.model.nv, ch.model.nbody, ch.model.nM
         self.w2 = config.tracking_weights(ch) ** 2
         self.diag = config.beta_t * self.w2 + config.regularization
         self.actuated = np.array(ch.actuated_dofs)
@@ -111,11 +112,12 @@ class MomentumBalanceController:
         qpos, qvel, cdof, cdof_dot, cvel, cinert, M, qfrc_bias, qfrc_passive, subtree_com, xpos,
         geom_xpos. References (nv,) are shared; CoM/CoP targets are (n,)."""
         cfg, kin = self.config, self.kin
-        qpos, qvel = f["qpos"], f["qvel"]
-        cdof, cdof_dot, cvel = f["cdof"], f["cdof_dot"], f["cvel"]
+        nv, nb = self.nv, self.nbody  # a task model may append props: use the humanoid's slices
+        qpos, qvel = f["qpos"][:, :nv], f["qvel"][:, :nv]
+        cdof, cdof_dot, cvel = f["cdof"][:, :nv], f["cdof_dot"][:, :nv], f["cvel"][:, :nb]
         com = f["subtree_com"][:, 1]
-        A, a = kin.centroidal(cdof, cdof_dot, cvel, f["cinert"], qvel)
-        n, nv = qvel.shape
+        A, a = kin.centroidal(cdof, cdof_dot, cvel, f["cinert"][:, :nb], qvel)
+        n = qvel.shape[0]
         Js, jsdot = kin.frame_jacobians_and_biases(cdof, cdof_dot, cvel, qvel, f["xpos"][:, self.feet], com,
                                                    self.feet)
         Js, jsdot = Js.reshape(n, -1, nv), jsdot.reshape(n, -1)
@@ -135,5 +137,6 @@ class MomentumBalanceController:
 
         points = f["geom_xpos"][:, self.points] - self.point_offset  # (n, 4, 3)
         Jc = kin.point_jacobians(cdof, points, com, self.point_bodies).reshape(n, -1, nv)
-        tau = implied_torques(kin.dense_mass_matrix(f["M"]), f["qfrc_bias"] - f["qfrc_passive"], qdd, Jc)
+        h = f["qfrc_bias"][:, :nv] - f["qfrc_passive"][:, :nv]
+        tau = implied_torques(kin.dense_mass_matrix(f["M"][:, : self.nM]), h, qdd, Jc)
         return np.clip(tau[:, self.actuated], -self.limits, self.limits)

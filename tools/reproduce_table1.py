@@ -1,0 +1,80 @@
+"""Reproduce ABC Table 1 with outcome columns: zero CMRT vs optimized vs library, per task.
+
+For each row: the zero-CMRT clip, a fresh CMA-ES run (seed 1, the task's stop threshold,
+default batched backend) into a scratch store, and the CMRT shipped in the library;
+objective, balance lost, task success, evaluations and wall time, next to the paper's
+timings, threshold, iterations N and computation time C (s).
+
+    python tools/reproduce_table1.py [--rows fast-bend,catch] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+from cmrt import Evaluator, evaluate, library_curve, load_task, open_store, optimize_now, simulate
+
+# name: (task, overrides, paper row (L, P, T, D, delta, N, C) or None)
+ROWS = {
+    "push": ("push", {}, (3.0, 1, 0.35, 1.65, 0.6, 149, 328)),
+    "catch": ("catch", {}, (3.0, 1, 0.3, 1.7, 0.9, 18, 40)),
+    "slow-bend": ("bend", {"duration_s": 1.2, "stop_threshold": 0.15}, (2.6, 1, 1.2, 0.4, 0.9, 328, 641)),
+    "fast-bend": ("bend", {"duration_s": 0.4}, (2.6, 1, 0.4, 1.2, 1.1, 683, 1366)),
+    "punch": ("punch", {}, None),
+}
+
+
+def row(name: str, store_dir: Path) -> dict:
+    task_name, overrides, paper = ROWS[name]
+    task = load_task(task_name).with_params(**overrides)
+    zero = evaluate(task, simulate(task, record=False))
+    lib = evaluate(task, simulate(task, library_curve(task), record=False))
+    t0 = time.perf_counter()
+    with open_store(store_dir / f"{name}.sqlite") as store, Evaluator("batch") as ev:
+        run = optimize_now(store, task, ev, seed=1)
+    wall = time.perf_counter() - t0
+    out = {
+        "row": name, "task": task.name, "L": task.clip_s, "P": task.preparation_s, "T": task.duration_s,
+        "D": round(task.decay_s, 6), "threshold": task.stop_threshold,
+        "zero_objective": zero.objective, "zero_fell": zero.fell, "zero_success": zero.task_success,
+        "optimized_objective": run["best_objective"], "optimized_fell": run["best_fell"],
+        "evaluations": run["evaluations"], "stop_reason": run["stop_reason"], "wall_s": round(wall, 1),
+        "library_objective": lib.objective, "library_fell": lib.fell, "library_success": lib.task_success,
+        "library_final_pose_error_rad": lib.final_pose_error_rad,
+    }
+    if paper:
+        out.update(dict(zip(("paper_L", "paper_P", "paper_T", "paper_D", "paper_delta", "paper_N", "paper_C_s"),
+                            paper, strict=True)))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description="ABC Table 1 with outcomes")
+    ap.add_argument("--rows", default=",".join(ROWS))
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = [row(r, Path(tmp)) for r in args.rows.split(",")]
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return
+    yn = {True: "yes", False: "no", None: "-"}
+    print("| motion | L | P | T | D | threshold (paper) | zero CMRT: objective / fell / goal | optimized: objective / "
+          "fell / evals / wall s (paper N / C s) | library: objective / fell / goal |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        paper = (f" ({r['paper_N']} / {r['paper_C_s']})" if "paper_N" in r else "")
+        delta = f"{r['threshold']:g} ({r['paper_delta']:g})" if "paper_delta" in r else f"{r['threshold']:g}"
+        print(f"| {r['row']} | {r['L']:g} | {r['P']:g} | {r['T']:g} | {r['D']:g} | {delta} | "
+              f"{r['zero_objective']:.2f} / {yn[r['zero_fell']]} / {yn[r['zero_success']]} | "
+              f"{r['optimized_objective']:.3f} / {yn[bool(r['optimized_fell'])]} / {r['evaluations']} / "
+              f"{r['wall_s']:.1f}{paper} | {r['library_objective']:.3f} / {yn[r['library_fell']]} / "
+              f"{yn[r['library_success']]} |")
+
+
+if __name__ == "__main__":
+    main()
