@@ -212,16 +212,25 @@ def cmd_demo(args) -> int:
 
 # --- optimization service -------------------------------------------------------
 def _submit_kwargs(args) -> dict:
-    return dict(seed=args.seed, max_evals=args.max_evals, popsize=args.popsize, sigma0=args.sigma0,
-                min_evals=args.min_evals, init_run=args.init)
+    return dict(
+        seed=args.seed,
+        max_evals=args.max_evals,
+        popsize=args.popsize,
+        sigma0=args.sigma0,
+        min_evals=args.min_evals,
+        init_run=args.init,
+    )
 
 
 def cmd_submit(args) -> int:
     task = resolve_task(args.task, args.speed, args.set)
     with _store(args.store) as store:
         run_id = jobs.submit(store, task, **_submit_kwargs(args))
-    _emit({"run_id": run_id, "task": task.name, "speed": task.speed, "status": "queued"}, args.json,
-          f"queued run {run_id}: {task.name}" + (f" --speed {task.speed:g}" if task.speed is not None else ""))
+    _emit(
+        {"run_id": run_id, "task": task.name, "speed": task.speed, "status": "queued"},
+        args.json,
+        f"queued run {run_id}: {task.name}" + (f" --speed {task.speed:g}" if task.speed is not None else ""),
+    )
     return 0
 
 
@@ -237,31 +246,47 @@ class _Progress:
         self.bar.n = min(state.evaluations, self.bar.total)
         self.bar.set_postfix_str(
             f"gen {state.generation} best {state.best_objective:.4f} sigma {state.es.sigma:.3f} "
-            f"{state.evaluations / max(wall_s, 1e-9):.1f} eval/s", refresh=True)
+            f"{state.evaluations / max(wall_s, 1e-9):.1f} eval/s",
+            refresh=True,
+        )
 
     def close(self) -> None:
         self.bar.close()
 
 
 def _result(run: dict) -> dict:
-    return {"run_id": run["id"], "task": run["task"], "speed": run["speed"], "status": run["status"],
-            "best_objective": run["best_objective"], "fell": run["best_fell"],
-            "baseline_objective": run["baseline_objective"], "baseline_fell": run["baseline_fell"],
-            "evaluations": run["evaluations"], "generations": run["generations"],
-            "stop_reason": run["stop_reason"], "wall_s": run["wall_s"], "best_cmrt": run["best_cmrt"]}
+    return {
+        "run_id": run["id"],
+        "task": run["task"],
+        "speed": run["speed"],
+        "status": run["status"],
+        "best_objective": run["best_objective"],
+        "fell": run["best_fell"],
+        "baseline_objective": run["baseline_objective"],
+        "baseline_fell": run["baseline_fell"],
+        "evaluations": run["evaluations"],
+        "generations": run["generations"],
+        "stop_reason": run["stop_reason"],
+        "wall_s": run["wall_s"],
+        "best_cmrt": run["best_cmrt"],
+    }
 
 
 def _print_result(r: dict) -> None:
     speed = f" --speed {r['speed']:g}" if r["speed"] is not None else ""
     kept = "balance kept" if not r["fell"] else "balance LOST"
     base = "lost" if r["baseline_fell"] else "kept"
-    print(f"run {r['run_id']} {r['task']}{speed}: {r['status']} ({r['stop_reason']}) after {r['evaluations']} "
-          f"evaluations, {r['wall_s']:.1f} s")
+    print(
+        f"run {r['run_id']} {r['task']}{speed}: {r['status']} ({r['stop_reason']}) after {r['evaluations']} "
+        f"evaluations, {r['wall_s']:.1f} s"
+    )
     print(f"  zero CMRT:      objective {r['baseline_objective']:.4f}  balance {base}")
     print(f"  optimized CMRT: objective {r['best_objective']:.4f}  {kept}")
 
 
 def cmd_optimize(args) -> int:
+    if args.speeds:
+        return _optimize_family(args)
     task = resolve_task(args.task, args.speed, args.set)
     evaluator = Evaluator(args.backend, args.workers, args.scheduler)  # fails before the store is touched
     try:
@@ -281,16 +306,130 @@ def cmd_optimize(args) -> int:
     return 0
 
 
+def _optimize_family(args) -> int:
+    """--speeds a,b,c: optimize each speed in turn, warm-starting from the previous result."""
+    try:
+        speeds = [float(v) for v in args.speeds.split(",")]
+    except ValueError:
+        raise CmrtError(f"--speeds must be comma-separated numbers, got '{args.speeds}'") from None
+    if args.speed is not None or args.init is not None:
+        raise CmrtError("--speeds replaces --speed and --init")
+    tasks = [resolve_task(args.task, v, args.set) for v in speeds]  # validate every speed first
+    evaluator = Evaluator(args.backend, args.workers, args.scheduler)
+    results, previous = [], None
+    try:
+        with _store(args.store) as store:
+            for task in tasks:
+                progress = _Progress(args.max_evals, enabled=not args.no_progress)
+                try:
+                    kw = {**_submit_kwargs(args), "init_run": previous}
+                    if previous is not None:  # stay near the neighbour: one family shape, interpolable
+                        kw["sigma0"] = args.family_sigma0
+                    run = jobs.optimize_now(store, task, evaluator, progress, **kw)
+                finally:
+                    progress.close()
+                previous = run["id"]
+                results.append(_result(run))
+                if not args.json:
+                    _print_result(results[-1])
+    finally:
+        evaluator.close()
+    if args.json:
+        print(json.dumps(results))
+    return 0
+
+
+def cmd_interpolate(args) -> int:
+    from cmrt.interpolate import interpolate, to_json
+
+    task = resolve_task(args.task, args.speed, args.set)
+    store = _store(args.store, create=False) if args.source == "store" else None
+    try:
+        r = interpolate(task, args.param, args.source, store)
+    finally:
+        if store:
+            store.close()
+    text = to_json(r)
+    if args.out:
+        try:
+            Path(args.out).write_text(text + "\n")
+        except OSError as exc:
+            raise CmrtError(f"cannot write {args.out}: {exc.strerror}") from None
+    if r.extrapolated:
+        print(
+            f"cmrt: warning: {r.param} = {r.value:g} is outside the optimized range "
+            f"[{r.sources[0][0]:g}, {r.sources[1][0]:g}]: extrapolated",
+            file=sys.stderr,
+        )
+    if args.json:
+        print(text)
+    else:
+        src = " and ".join(f"{lab}" for _, lab in r.sources)
+        print(
+            f"{task.name} {r.param} = {r.value:g}: {'extrapolated' if r.extrapolated else 'interpolated'} "
+            f"from {src} (weight {r.weight:.3f})"
+        )
+        print(
+            f"  knots {', '.join(f'{t:.3f}' for t in r.curve.knot_times_s)} s; values "
+            f"{', '.join(f'{100 * v:+.2f}' for v in r.curve.values_m)} cm"
+            + (f"; written to {args.out}" if args.out else "")
+        )
+    return 0
+
+
+def cmd_sequence(args) -> int:
+    from cmrt.sequence import load_sequence
+
+    seq = load_sequence(args.file)
+    curve = seq.superposed() if args.curve == "superposed" else Cmrt.zero(seq.clip_s)
+    t0 = time.perf_counter()
+    traj = simulate(seq, curve, record=bool(args.trace))
+    ev = evaluate(seq, traj)
+    if args.trace:
+        _save_npz(args.trace, {**traj.as_npz_dict(), "dof_names": np.array(character().dof_names)})
+    r = {
+        "sequence": seq.name,
+        "curve": args.curve,
+        "clip_s": seq.clip_s,
+        "motions": [{"task": m.task.name, "speed": m.task.speed, "start_s": m.start_s} for m in seq.motions],
+        "objective": _finite(ev.objective),
+        "cop_error_norm": ev.cop_error_norm,
+        "fell": ev.fell,
+        "fall_time_s": ev.fall_time_s,
+        "fall_reason": ev.fall_reason,
+        "max_cop_error_m": ev.max_cop_error_m,
+        "final_pose_error_rad": _finite(ev.final_pose_error_rad),
+        "wall_s": round(time.perf_counter() - t0, 3),
+    }
+    if args.json:
+        print(json.dumps(r))
+    else:
+        status = f"LOST BALANCE at {r['fall_time_s']:.3f} s" if r["fell"] else "balance kept"
+        print(f"{seq.name} ({len(seq.motions)} motions, {seq.clip_s:.2f} s) curve={args.curve}: {status}")
+        print(
+            f"  objective {r['objective']:.4f}  max |CoP error| {r['max_cop_error_m']:.4f} m  "
+            f"final pose error {r['final_pose_error_rad']:.4f} rad"
+        )
+    return 0
+
+
 def cmd_worker(args) -> int:
     evaluator = Evaluator(args.backend, args.workers, args.scheduler)
     try:
         with _store(args.store) as store:
+
             def on_claim(c):
                 if not args.json:
                     print(f"worker {jobs.worker_id()}: run {c.run_id} (attempt {c.attempt})", flush=True)
 
-            done = jobs.work(store, evaluator, until_idle=args.until_idle, once=args.once,
-                             stale_after_s=args.stale_after, on_claim=on_claim)
+            done = jobs.work(
+                store,
+                evaluator,
+                until_idle=args.until_idle,
+                once=args.once,
+                stale_after_s=args.stale_after,
+                on_claim=on_claim,
+            )
     finally:
         evaluator.close()
     _emit({"finished": done}, args.json, f"worker finished runs: {', '.join(map(str, done)) or 'none'}")
@@ -310,8 +449,13 @@ def _table(rows: list[dict], keys: tuple[str, ...]) -> str:
 
 def cmd_jobs(args) -> int:
     with _store(args.store, create=False) as store:
-        rows = [{k: r.get(k) for k in ("id", "task", "speed", "status", "worker", "attempt", "evaluations",
-                                        "heartbeat_at", "error")} for r in store.runs(status=args.status)]
+        rows = [
+            {
+                k: r.get(k)
+                for k in ("id", "task", "speed", "status", "worker", "attempt", "evaluations", "heartbeat_at", "error")
+            }
+            for r in store.runs(status=args.status)
+        ]
     _emit(rows, args.json, _table(rows, ("id", "task", "speed", "status", "worker", "attempt", "evaluations")))
     return 0
 
@@ -319,8 +463,25 @@ def cmd_jobs(args) -> int:
 def cmd_runs(args) -> int:
     with _store(args.store, create=False) as store:
         rows = [query.run_summary(r) for r in store.runs(task=args.task)]
-    _emit(rows, args.json, _table(rows, ("id", "task", "speed", "status", "seed", "best_objective", "best_fell",
-                                         "baseline_objective", "evaluations", "stop_reason")))
+    _emit(
+        rows,
+        args.json,
+        _table(
+            rows,
+            (
+                "id",
+                "task",
+                "speed",
+                "status",
+                "seed",
+                "best_objective",
+                "best_fell",
+                "baseline_objective",
+                "evaluations",
+                "stop_reason",
+            ),
+        ),
+    )
     return 0
 
 
@@ -372,11 +533,16 @@ def cmd_bench(args) -> int:
     if args.json:
         print(json.dumps(r))
         return 0
-    print(f"{r['task']} speed {r['speed']}, population {r['population']}, {r['steps_per_clip']} steps/clip, "
-          f"control {r['control_hz']:.0f} Hz ({r['machine']}, best of {r['repeat']})")
+    print(
+        f"{r['task']} speed {r['speed']}, population {r['population']}, {r['steps_per_clip']} steps/clip, "
+        f"control {r['control_hz']:.0f} Hz ({r['machine']}, best of {r['repeat']})"
+    )
     floor = r["physics_only_s_per_clip"]
-    rows = [("physics only (floor)", floor), ("batched evaluator", r["batched_s_per_clip"]),
-            ("serial, one clip at a time", r["serial_s_per_clip"])]
+    rows = [
+        ("physics only (floor)", floor),
+        ("batched evaluator", r["batched_s_per_clip"]),
+        ("serial, one clip at a time", r["serial_s_per_clip"]),
+    ]
     rows += [(f"generation, backend {b}", v) for b, v in r["generation_s_per_clip"].items()]
     for name, v in rows:
         print(f"  {name:32s} {1e3 * v:8.2f} ms/clip   x{v / floor:5.2f}")
@@ -384,10 +550,24 @@ def cmd_bench(args) -> int:
 
 
 def cmd_plot(args) -> int:
-    from cmrt.plot import plot_run
+    from cmrt import plot
 
-    with _store(args.store, create=False) as store:
-        paths = [str(p) for p in plot_run(store, args.run, args.out)]
+    if args.run is None and not args.family and not args.sequence:
+        raise CmrtError("plot what? give a RUN, --family TASK or --sequence FILE")
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CmrtError(f"cannot create {out}: {exc.strerror}") from None
+    paths = []
+    if args.run is not None:
+        with _store(args.store, create=False) as store:
+            paths += [str(p) for p in plot.plot_run(store, args.run, out)]
+    if args.family:
+        paths.append(str(plot.plot_family(args.family, out / f"{args.family}_family.png")))
+    if args.sequence:
+        name = Path(args.sequence).stem
+        paths.append(str(plot.plot_sequence(args.sequence, out / f"{name}_sequence.png")))
     _emit({"run_id": args.run, "files": paths}, args.json, "\n".join(paths))
     return 0
 
@@ -403,7 +583,8 @@ def cmd_render(args) -> int:
     r = render(task, curve, args.out, compare, (f"{name} CMRT", f"{cname} CMRT"), n_frames=args.frames, fps=args.fps)
     lines = [f"wrote {r['out']} ({r['frames']} frames)"] + [
         f"  {c['label']}: {'lost balance' if c['fell'] else 'balanced'}, objective {c['objective']:.4f}"
-        for c in r["clips"]]
+        for c in r["clips"]
+    ]
     _emit(r, args.json, "\n".join(lines))
     return 0
 
@@ -453,14 +634,21 @@ def build_parser() -> argparse.ArgumentParser:
     s = add("optimize", "run one optimization job in the foreground", cmd_optimize)
     task_args(s)
     opt_args(s)
+    s.add_argument("--speeds", metavar="S1,S2,...", help="a speed family, each warm-started from the previous")
+    s.add_argument("--family-sigma0", type=float, default=0.15, help="step size of the warm-started members")
     backend_args(s)
     s.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     s = add("worker", "claim and run queued (and orphaned) jobs", cmd_worker)
     s.add_argument("--until-idle", action="store_true", help="exit when the queue is empty")
     s.add_argument("--once", action="store_true", help="run at most one job")
-    s.add_argument("--stale-after", type=float, default=jobs.DEFAULT_STALE_AFTER_S, metavar="SECONDS",
-                   help="resume a running job whose heartbeat is older than this")
+    s.add_argument(
+        "--stale-after",
+        type=float,
+        default=jobs.DEFAULT_STALE_AFTER_S,
+        metavar="SECONDS",
+        help="resume a running job whose heartbeat is older than this",
+    )
     backend_args(s)
 
     s = add("jobs", "list jobs and their status", cmd_jobs)
@@ -480,8 +668,23 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--format", choices=("json", "csv"), default="json")
     s.add_argument("--out", metavar="FILE")
 
+    s = add(
+        "interpolate", "a CMRT for a new speed (or other parameter) from stored or library results", cmd_interpolate
+    )
+    task_args(s)
+    s.add_argument("--param", help="the parameter to interpolate over (default: the task's speed)")
+    s.add_argument("--from", dest="source", choices=("library", "store"), default="library")
+    s.add_argument("--out", metavar="FILE.json", help="write the CMRT (usable as --curve FILE.json)")
+
+    s = add("sequence", "simulate a sequence of pose changes with superposed (or zero) CMRTs", cmd_sequence)
+    s.add_argument("file", help="tasks/sequences/NAME.toml, or a name there")
+    s.add_argument("--curve", choices=("superposed", "zero"), default="superposed")
+    s.add_argument("--trace", metavar="FILE.npz")
+
     s = add("plot", "figures of a stored run (CoP error, CMRT, convergence)", cmd_plot)
-    s.add_argument("run", type=int)
+    s.add_argument("run", type=int, nargs="?")
+    s.add_argument("--family", metavar="TASK", help="the task's speed family from the library (ABC Fig. 5)")
+    s.add_argument("--sequence", metavar="FILE", help="a sequence's superposed CMRTs (ABC Fig. 6)")
     s.add_argument("--out", default="plots", metavar="DIR")
 
     s = add("render", "render a clip (PNG filmstrip or MP4), optionally beside another", cmd_render)

@@ -23,21 +23,37 @@ def load_entries(path: Path = LIBRARY_PATH) -> list[dict]:
     return json.loads(path.read_text())["entries"]
 
 
+def _physics(params: dict) -> dict:
+    return {k: v for k, v in params.items() if k != "stop_threshold"}
+
+
 def library_curve(task: Task, path: Path = LIBRARY_PATH) -> Cmrt:
-    """The shipped CMRT for this task at exactly this speed."""
-    for entry in load_entries(path):
-        if entry["task"] != task.name:
-            continue
-        if task.speed is None or abs(entry["speed"] - task.speed) <= SPEED_TOLERANCE:
+    """The shipped CMRT for this task at exactly this speed.
+
+    Other parameters may differ (that is the expectation-mismatch demo: the 7 kg catch
+    CMRT used on a 1 kg ball); if several entries share the speed, the one whose
+    parameters all match wins, else the first (the task file's defaults).
+    """
+    same_speed = [e for e in load_entries(path) if e["task"] == task.name
+                  and (task.speed is None or abs(e["speed"] - task.speed) <= SPEED_TOLERANCE)]
+    for entry in same_speed:
+        if "params" in entry and _physics(entry["params"]) == _physics(task.params):
             return Cmrt.from_dict(entry["cmrt"])
+    if same_speed:
+        return Cmrt.from_dict(same_speed[0]["cmrt"])
     speeds = [e["speed"] for e in load_entries(path) if e["task"] == task.name]
     have = f" (library has speeds {', '.join(f'{s:g}' for s in speeds)})" if speeds else ""
     raise CmrtError(f"no library CMRT for task '{task.name}' at speed {task.speed}{have}")
 
 
 def save_entry(entry: dict, path: Path = LIBRARY_PATH) -> None:
-    """Insert or replace the entry for (task, speed), keeping the file sorted."""
-    entries = [e for e in load_entries(path) if not (e["task"] == entry["task"] and e["speed"] == entry["speed"])]
+    """Insert or replace the entry for (task, parameters), keeping the file sorted."""
+
+    def key(e: dict):
+        return (e["task"], e["speed"], json.dumps(_physics(e.get("params", {})), sort_keys=True))
+
+    entries = [e for e in load_entries(path) if key(e) != key(entry) and
+               not (e["task"] == entry["task"] and e["speed"] == entry["speed"] and "params" not in e)]
     entries.append(entry)
-    entries.sort(key=lambda e: (e["task"], e["speed"]))
+    entries.sort(key=lambda e: (e["task"], e["speed"], json.dumps(e.get("params", {}), sort_keys=True)))
     path.write_text(json.dumps({"entries": entries}, indent=2) + "\n")

@@ -114,9 +114,98 @@ def plot_run(store: Store, run_id: int, out_dir: str | Path) -> list[Path]:
     speed = f" T = {task.speed:g} s" if task.speed is not None else ""
     prefix = f"run{run_id}_"
     return [
-        plot_cop_error(task, [("zero CMRT", Cmrt.zero(task.clip_s)), (f"run {run_id} best CMRT", best)],
-                       out / f"{prefix}cop_error.png"),
+        plot_cop_error(
+            task,
+            [("zero CMRT", Cmrt.zero(task.clip_s)), (f"run {run_id} best CMRT", best)],
+            out / f"{prefix}cop_error.png",
+        ),
         plot_cmrt(task, best, out / f"{prefix}cmrt.png", f"run {run_id}: {task.name}{speed}"),
-        plot_convergence(store.evaluations(run_id), run["stop_threshold"] or 0.0, out / f"{prefix}convergence.png",
-                         f"run {run_id}: {task.name}{speed}, {run['evaluations']} evaluations ({run['stop_reason']})"),
+        plot_convergence(
+            store.evaluations(run_id),
+            run["stop_threshold"] or 0.0,
+            out / f"{prefix}convergence.png",
+            f"run {run_id}: {task.name}{speed}, {run['evaluations']} evaluations ({run['stop_reason']})",
+        ),
     ]
+
+
+def plot_family(
+    task_name: str, out: Path, between: tuple[float, ...] = (), source: str = "library", store: Store | None = None
+) -> Path:
+    """ABC Fig. 5: CMRTs optimized at several speeds (solid) and interpolated between them (dashed)."""
+    from cmrt.interpolate import candidates, interpolate
+    from cmrt.task import load_task
+
+    base = load_task(task_name)
+    if base.speed_param is None:
+        raise CmrtError(f"task '{task_name}' has no speed parameter for a family figure")
+    pts = candidates(base, base.speed_param, source, store)
+    if len(pts) < 2:
+        raise CmrtError(f"need two {source} results for '{task_name}' at different speeds; found {len(pts)}")
+    speeds = [v for v, _, _ in pts]
+    between = between or tuple((a + b) / 2 for a, b in zip(speeds, speeds[1:], strict=False))
+    fig, ax = plt.subplots(figsize=(7.5, 3.6))
+    colors = plt.cm.viridis(np.linspace(0, 0.9, len(speeds) + len(between)))
+    t = np.linspace(0, base.clip_s, 400)
+    rows = sorted([(v, "opt", c) for v, c, _ in pts] + [(v, "int", None) for v in between], key=lambda r: r[0])
+    for color, (v, kind, curve) in zip(colors, rows, strict=True):
+        task = base.with_speed(v)
+        if kind == "int":
+            curve = interpolate(task, source=source, store=store).curve
+        ev = evaluate(task, simulate(task, curve, record=False))
+        style = "-" if kind == "opt" else "--"
+        ax.plot(
+            t,
+            100 * curve.displacement_m(t),
+            style,
+            color=color,
+            lw=1.4,
+            label=f"T={v:g} e={ev.objective:.3f}{' fell' if ev.fell else ''}",
+        )
+        ax.axvline(task.preparation_s + v, color=color, lw=0.6)
+    ax.axvline(base.preparation_s, color="k", lw=1.0)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("d(t) (cm)")
+    ax.set_title(f"{task_name}: optimized (solid) and interpolated (dashed) CMRTs", fontsize=10)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def plot_sequence(seq_file: str, out: Path) -> Path:
+    """ABC Fig. 6: the motions' shifted CMRTs and their sum, and the CoP error with zero vs superposed."""
+    from cmrt.sequence import load_sequence
+
+    seq = load_sequence(seq_file)
+    sup = seq.superposed()
+    t = np.linspace(0, seq.clip_s, 800)
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7.5, 5), sharex=True)
+    for (off, c), m in zip(sup.parts, seq.motions, strict=True):
+        ax1.plot(
+            t, 100 * c.displacement_m(t - off), "--", lw=1, label=f"{m.task.name} T={m.task.speed:g} @ {m.start_s:g} s"
+        )
+    ax1.plot(t, 100 * sup.displacement_m(t), "k-", lw=1.8, label="superposed")
+    ax1.set_ylabel("d(t) (cm)")
+    ax1.legend(fontsize=7, ncol=2)
+    for label, curve in (("zero CMRTs", Cmrt.zero(seq.clip_s)), ("superposed CMRTs", sup)):
+        traj = simulate(seq, curve)
+        ev = evaluate(seq, traj)
+        ax2.plot(
+            traj.time_s,
+            100 * (traj.cop_x_m - traj.support_center_x_m),
+            lw=1,
+            label=f"{label}: e={ev.objective:.3f}{' (fell)' if ev.fell else ''}",
+        )
+    for m in seq.motions:
+        for ax in (ax1, ax2):
+            ax.axvspan(m.start_s, m.start_s + m.task.duration_s, color="0.92", zorder=0)
+    ax2.set_ylabel("p - s (cm)")
+    ax2.set_xlabel("time (s)")
+    ax2.legend(fontsize=7)
+    ax1.set_title(f"sequence {seq.name}", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out

@@ -23,28 +23,44 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("task")
     ap.add_argument("--speed", type=float)
+    ap.add_argument("--speeds", help="a family: comma-separated speeds, each warm-started from the previous")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--max-evals", type=int, default=1500)
     ap.add_argument("--stop-threshold", type=float, help="override the task's (0: run to convergence)")
     ap.add_argument("--backend", default="batch")
+    ap.add_argument("--family-sigma0", type=float, default=0.15,
+                    help="CMA-ES step size for warm-started family members: stay near the neighbour's solution "
+                         "so the family keeps one shape and interpolates (ABC 4.2)")
     ap.add_argument("--no-save", action="store_true")
     args = ap.parse_args()
 
-    task = load_task(args.task).with_speed(args.speed)
+    base = load_task(args.task).with_params(**dict(kv.split("=", 1) for kv in args.set))
     if args.stop_threshold is not None:
-        task = task.with_params(stop_threshold=args.stop_threshold)
-    t0 = time.perf_counter()
+        base = base.with_params(stop_threshold=args.stop_threshold)
+    speeds = [float(s) for s in args.speeds.split(",")] if args.speeds else [args.speed]
     with tempfile.TemporaryDirectory() as tmp, open_store(Path(tmp) / "lib.sqlite") as store:
-        with Evaluator(args.backend) as ev:
-            run = optimize_now(store, task, ev, seed=args.seed, max_evals=args.max_evals)
-        curve = run_curve(store, run["id"])
+        previous = None
+        for speed in speeds:
+            task = base.with_speed(speed)
+            t0 = time.perf_counter()
+            with Evaluator(args.backend) as ev:
+                sigma0 = 0.5 if previous is None else args.family_sigma0
+                run = optimize_now(store, task, ev, seed=args.seed, max_evals=args.max_evals, init_run=previous,
+                                   sigma0=sigma0)
+            previous = run["id"]
+            record(task, run, run_curve(store, run["id"]), args, time.perf_counter() - t0)
+
+
+def record(task, run, curve, args, wall_s: float) -> None:
     check = evaluate(task, simulate(task, curve))
     entry = {
         "task": task.name, "speed": task.speed, "cmrt": curve.to_dict(), "objective": check.objective,
         "fell": check.fell, "task_success": check.task_success, "final_pose_error_rad": check.final_pose_error_rad,
         "zero_cmrt_objective": run["baseline_objective"], "zero_cmrt_fell": run["baseline_fell"],
         "evaluations": run["evaluations"], "stop_reason": run["stop_reason"], "seed": args.seed,
-        "stop_threshold": task.stop_threshold, "wall_s": round(time.perf_counter() - t0, 1),
+        "stop_threshold": task.stop_threshold, "wall_s": round(wall_s, 1), "init_run": run["init_run"] is not None,
+        "params": task.params,
     }
     print(json.dumps(entry, indent=2))
     if not args.no_save:
