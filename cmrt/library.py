@@ -32,14 +32,20 @@ def library_curve(task: Task, path: Path = LIBRARY_PATH) -> Cmrt:
 
     Other parameters may differ (that is the expectation-mismatch demo: the 7 kg catch
     CMRT used on a 1 kg ball); if several entries share the speed, the one whose
-    parameters all match wins, else the first (the task file's defaults).
+    parameters all match wins, else the one for the task file's defaults.
     """
     same_speed = [e for e in load_entries(path) if e["task"] == task.name
                   and (task.speed is None or abs(e["speed"] - task.speed) <= SPEED_TOLERANCE)]
     for entry in same_speed:
         if "params" in entry and _physics(entry["params"]) == _physics(task.params):
             return Cmrt.from_dict(entry["cmrt"])
-    if same_speed:
+    if same_speed:  # parameters differ: the entry for the task file's own defaults at this speed
+        from cmrt.task import load_task
+
+        defaults = _physics(load_task(task.name).with_speed(task.speed).params) if task.speed is not None else None
+        for entry in same_speed:
+            if "params" not in entry or _physics(entry["params"]) == defaults:
+                return Cmrt.from_dict(entry["cmrt"])
         return Cmrt.from_dict(same_speed[0]["cmrt"])
     speeds = [e["speed"] for e in load_entries(path) if e["task"] == task.name]
     have = f" (library has speeds {', '.join(f'{s:g}' for s in speeds)})" if speeds else ""
@@ -50,10 +56,12 @@ def save_entry(entry: dict, path: Path = LIBRARY_PATH) -> None:
     """Insert or replace the entry for (task, parameters), keeping the file sorted."""
 
     def key(e: dict):
-        return (e["task"], e["speed"], json.dumps(_physics(e.get("params", {})), sort_keys=True))
+        from cmrt.task import load_task
 
-    entries = [e for e in load_entries(path) if key(e) != key(entry) and
-               not (e["task"] == entry["task"] and e["speed"] == entry["speed"] and "params" not in e)]
+        params = e.get("params") or load_task(e["task"]).with_speed(e["speed"]).params  # older entries: defaults
+        return (e["task"], e["speed"], json.dumps(_physics(params), sort_keys=True))
+
+    entries = [e for e in load_entries(path) if key(e) != key(entry)]
     entries.append(entry)
     entries.sort(key=lambda e: (e["task"], e["speed"], json.dumps(e.get("params", {}), sort_keys=True)))
     path.write_text(json.dumps({"entries": entries}, indent=2) + "\n")

@@ -47,6 +47,18 @@ def test_interpolating_the_library_family():
         interpolate(load_task("stand").with_params(push_force_n=10), param="push_force_n")
 
 
+def test_interpolating_over_ball_mass_and_mismatch_lookup():
+    from cmrt import library_curve
+
+    task = load_task("catch").with_params(ball_mass_kg=5.5)
+    r = interpolate(task, param="ball_mass_kg")
+    assert [v for v, _ in r.sources] == [4.0, 7.0] and r.weight == pytest.approx(0.5)
+    ev = evaluate(task, simulate(task, r.curve, record=False))
+    assert not ev.fell and ev.task_success
+    # --curve library with another mass is the task file's own (7 kg) CMRT: the mismatch demo
+    assert library_curve(load_task("catch").with_params(ball_mass_kg=1.0)) == library_curve(load_task("catch"))
+
+
 def test_superposing_a_single_cmrt_is_that_cmrt():
     task = load_task("bend").with_speed(0.5)
     seq = SequenceTask(name="one", summary="", params=dict(task.params), end_pose_deg=task.end_pose_deg,
