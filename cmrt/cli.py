@@ -18,7 +18,6 @@ from pathlib import Path
 import numpy as np
 
 from cmrt import jobs, query
-from cmrt.character import character
 from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
 from cmrt.library import library_curve
@@ -98,7 +97,7 @@ def simulate_report(task: Task, curve: Cmrt, curve_name: str, trace: str | None 
     ev = evaluate(task, traj)
     wall = time.perf_counter() - t0
     if trace:
-        _save_npz(trace, {**traj.as_npz_dict(), "dof_names": np.array(character().dof_names)})
+        _save_npz(trace, {**traj.as_npz_dict(), "dof_names": _dof_names(task)})
     return {
         "task": task.name,
         "speed": task.speed,
@@ -118,6 +117,12 @@ def simulate_report(task: Task, curve: Cmrt, curve_name: str, trace: str | None 
         "task_success": ev.task_success,
         "wall_s": round(wall, 4),
     }
+
+
+def _dof_names(task: Task) -> np.ndarray:
+    """Names of the trace's qvel columns: the humanoid's dofs, then the prop's."""
+    m = task.model()
+    return np.array([m.joint(int(m.dof_jntid[i])).name for i in range(m.nv)])
 
 
 def _save_npz(path: str, arrays: dict) -> None:
@@ -386,7 +391,7 @@ def cmd_sequence(args) -> int:
     traj = simulate(seq, curve, record=bool(args.trace))
     ev = evaluate(seq, traj)
     if args.trace:
-        _save_npz(args.trace, {**traj.as_npz_dict(), "dof_names": np.array(character().dof_names)})
+        _save_npz(args.trace, {**traj.as_npz_dict(), "dof_names": _dof_names(seq)})
     r = {
         "sequence": seq.name,
         "curve": args.curve,
