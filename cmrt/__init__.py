@@ -27,12 +27,14 @@ from cmrt.character import character, load_model  # noqa: E402
 from cmrt.control import ControllerConfig, MomentumBalanceController  # noqa: E402
 from cmrt.curve import Cmrt  # noqa: E402
 from cmrt.errors import CmrtError  # noqa: E402
+from cmrt.interpolate import interpolate  # noqa: E402
 from cmrt.jobs import claim, optimize_now, submit, work  # noqa: E402
 from cmrt.library import library_curve  # noqa: E402
 from cmrt.objective import Evaluation, evaluate  # noqa: E402
 from cmrt.optimize import OptimizeSettings  # noqa: E402
 from cmrt.parallel import Evaluator  # noqa: E402
 from cmrt.query import best_run, export_run, run_curve, run_details  # noqa: E402
+from cmrt.sequence import load_sequence  # noqa: E402
 from cmrt.simulate import Trajectory, simulate  # noqa: E402
 from cmrt.store import Store, open_store  # noqa: E402
 from cmrt.task import Task, available_tasks, load_task  # noqa: E402
@@ -54,8 +56,10 @@ __all__ = [
     "claim",
     "evaluate",
     "export_run",
+    "interpolate",
     "library_curve",
     "load_model",
+    "load_sequence",
     "load_task",
     "open_store",
     "optimize_now",
