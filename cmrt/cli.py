@@ -83,8 +83,14 @@ def _store(path: str | None, create: bool = True):
     return open_store(p, create=create)
 
 
-def _emit(obj, as_json: bool, text: str | None = None) -> None:
-    print(json.dumps(obj, indent=None if isinstance(obj, dict) else 2) if as_json else text)
+def _emit(obj, as_json: bool, text=None) -> None:
+    """JSON (one line for objects, indented for lists) or the human form: a string, or a printer of obj."""
+    if as_json:
+        print(json.dumps(obj, indent=None if isinstance(obj, dict) else 2))
+    elif callable(text):
+        text(obj)
+    else:
+        print(text)
 
 
 def _finite(x):
@@ -179,11 +185,7 @@ def cmd_tasks(args) -> int:
 def cmd_simulate(args) -> int:
     task = resolve_task(args.task, args.speed, args.set)
     curve, name = resolve_curve(args.curve, task, args.store)
-    report = simulate_report(task, curve, name, args.trace)
-    if args.json:
-        print(json.dumps(report))
-    else:
-        _print_report(report)
+    _emit(simulate_report(task, curve, name, args.trace), args.json, _print_report)
     return 0
 
 
@@ -303,11 +305,7 @@ def cmd_optimize(args) -> int:
                 progress.close()
     finally:
         evaluator.close()
-    r = _result(run)
-    if args.json:
-        print(json.dumps(r))
-    else:
-        _print_result(r)
+    _emit(_result(run), args.json, _print_result)
     return 0
 
 
@@ -506,10 +504,7 @@ def cmd_best(args) -> int:
     task = resolve_task(args.task, args.speed, args.set)
     with _store(args.store, create=False) as store:
         r = _result(query.best_run(store, task))
-    if args.json:
-        print(json.dumps(r))
-    else:
-        _print_result(r)
+    _emit(r, args.json, _print_result)
     return 0
 
 

@@ -101,7 +101,9 @@ def interpolate(
 ) -> Interpolated:
     """The CMRT for ``task`` at its current value of ``param`` (default: its speed)."""
     param = param or task.speed_param
-    if param is None or param not in task.params:
+    if param is None:
+        raise CmrtError(f"task '{task.name}' has no speed parameter: name one with --param")
+    if param not in task.params:
         raise CmrtError(f"task '{task.name}' has no parameter '{param}' to interpolate over")
     value = task.params[param]
     pts = candidates(task, param, source, store)
