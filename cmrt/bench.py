@@ -42,7 +42,7 @@ def _candidates(task: Task, n: int) -> list[np.ndarray]:
 
 def run_bench(task: Task, population: int = 16, repeat: int = 3, backends=BACKENDS, workers: int = 2) -> dict:
     m = character().model
-    n_steps = int(round(task.clip_s / m.opt.timestep))
+    n_steps = int(round((task.clip_s + task.tail_s) / m.opt.timestep))  # what an evaluation simulates
     threads = os.cpu_count() or 1
     xs = _candidates(task, population)
     curves = [Cmrt.from_params(x, task.clip_s) for x in xs]

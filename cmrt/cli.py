@@ -110,19 +110,14 @@ def simulate_report(task: Task, curve: Cmrt, curve_name: str, trace: str | None 
         "params": task.params,
         "curve": curve_name,
         "cmrt": curve.to_dict(),
-        "objective": _finite(ev.objective),
-        "cop_error_norm": _finite(ev.cop_error_norm),
-        "penalty": ev.penalty,
-        "fell": ev.fell,
-        "fall_time_s": ev.fall_time_s,
-        "fall_reason": ev.fall_reason,
-        "diverged": ev.diverged,
-        "max_cop_error_m": _finite(ev.max_cop_error_m),
-        "final_pose_error_rad": _finite(ev.final_pose_error_rad),
-        "n_samples": ev.n_samples,
-        "task_success": ev.task_success,
+        **evaluation_dict(ev),
         "wall_s": round(wall, 4),
     }
+
+
+def evaluation_dict(ev) -> dict:
+    """An Evaluation as JSON-safe values (non-finite floats become null)."""
+    return {k: _finite(v) for k, v in ev.__dict__.items()}
 
 
 def _dof_names(task: Task) -> np.ndarray:
@@ -146,17 +141,31 @@ def _save_npz(path: str, arrays: dict) -> None:
         raise CmrtError(f"cannot write trace {path}: {exc.strerror}") from None
 
 
+def _outcome(r: dict) -> str:
+    if r["fell"]:
+        return f"LOST BALANCE at {r['fall_time_s']:.3f} s ({r['fall_reason']})"
+    if r["success"]:
+        return "SUCCESS (balance kept, motion performed, standing still)"
+    why = []
+    if r["performed"] is False:
+        why.append("motion not performed" if r["task_success"] is None else "goal missed")
+    if not r["settled"]:
+        why.append("not standing still after the clip")
+    return "balance kept, but " + " and ".join(why)
+
+
 def _print_report(r: dict) -> None:
     speed = f" --speed {r['speed']:g}" if r["speed"] is not None else ""
-    status = f"LOST BALANCE at {r['fall_time_s']:.3f} s ({r['fall_reason']})" if r["fell"] else "balance kept"
-    print(f"{r['task']}{speed}  curve={r['curve']}: {status}")
-    print(
-        f"  objective {r['objective']:.4f}  (CoP-error 2-norm {r['cop_error_norm']:.4f} m + penalty {r['penalty']:.2f})"
-    )
-    print(
-        f"  max |CoP error| {r['max_cop_error_m']:.4f} m  final pose error {r['final_pose_error_rad']:.4f} rad  "
-        f"[{r['wall_s']:.2f} s]"
-    )
+    print(f"{r['task']}{speed}  curve={r['curve']}: {_outcome(r)}")
+    print(f"  objective {r['objective']:.4f}  (CoP-error 2-norm {r['cop_error_norm']:.4f} m "
+          f"+ penalty {r['penalty']:.2f})")
+    track = "-" if r["tracking_error_rad"] is None else f"{r['tracking_error_rad']:.3f}"
+    if r["tracking_bound_rad"] is not None:
+        track += f" (bound {r['tracking_bound_rad']:.3f})"
+    print(f"  min CoP margin {100 * r['min_cop_margin_m']:.1f} cm  tracking error {track} rad  final pose error "
+          f"{r['final_pose_error_rad']:.3f} rad  [{r['wall_s']:.2f} s]")
+    print(f"  peak ground force {r['peak_normal_force_bw']:.2f} x body weight  airborne {r['airborne_s']:.3f} s  "
+          f"max joint speed {r['max_joint_speed_rad_s']:.1f} rad/s")
 
 
 def cmd_tasks(args) -> int:
@@ -192,7 +201,7 @@ def cmd_simulate(args) -> int:
 def cmd_demo(args) -> int:
     """The main job end to end: optimize the fast bend into the store, print the stored result."""
     task = load_task("bend").with_speed(0.4)
-    print("Fast bend (T = 0.4 s, both feet planted). The reactive controller alone:")
+    print("Fast bend (T = 0.4 s, trunk first, both feet planted). The reactive controller alone:")
     _print_report(simulate_report(task, Cmrt.zero(task.clip_s), "zero"))
     store_path = resolve_path(args.store)
     print(f"\nOptimizing its CMRT with CMA-ES (seed 1) into {store_path} ...", flush=True)
@@ -268,8 +277,10 @@ def _result(run: dict) -> dict:
         "speed": run["speed"],
         "status": run["status"],
         "best_objective": run["best_objective"],
+        "success": run["best_success"],
         "fell": run["best_fell"],
         "baseline_objective": run["baseline_objective"],
+        "baseline_success": run["baseline_success"],
         "baseline_fell": run["baseline_fell"],
         "evaluations": run["evaluations"],
         "generations": run["generations"],
@@ -281,14 +292,16 @@ def _result(run: dict) -> dict:
 
 def _print_result(r: dict) -> None:
     speed = f" --speed {r['speed']:g}" if r["speed"] is not None else ""
-    kept = "balance kept" if not r["fell"] else "balance LOST"
-    base = "lost" if r["baseline_fell"] else "kept"
+    def outcome(success, fell):
+        return "SUCCESS" if success else ("balance LOST" if fell else "not a success (balance kept)")
+
     print(
         f"run {r['run_id']} {r['task']}{speed}: {r['status']} ({r['stop_reason']}) after {r['evaluations']} "
         f"evaluations, {r['wall_s']:.1f} s"
     )
-    print(f"  zero CMRT:      objective {r['baseline_objective']:.4f}  balance {base}")
-    print(f"  optimized CMRT: objective {r['best_objective']:.4f}  {kept}")
+    base = outcome(r["baseline_success"], r["baseline_fell"])
+    print(f"  zero CMRT:      objective {r['baseline_objective']:.4f}  {base}")
+    print(f"  optimized CMRT: objective {r['best_objective']:.4f}  {outcome(r['success'], r['fell'])}")
 
 
 def cmd_optimize(args) -> int:
@@ -395,20 +408,13 @@ def cmd_sequence(args) -> int:
         "curve": args.curve,
         "clip_s": seq.clip_s,
         "motions": [{"task": m.task.name, "speed": m.task.speed, "start_s": m.start_s} for m in seq.motions],
-        "objective": _finite(ev.objective),
-        "cop_error_norm": ev.cop_error_norm,
-        "fell": ev.fell,
-        "fall_time_s": ev.fall_time_s,
-        "fall_reason": ev.fall_reason,
-        "max_cop_error_m": ev.max_cop_error_m,
-        "final_pose_error_rad": _finite(ev.final_pose_error_rad),
+        **evaluation_dict(ev),
         "wall_s": round(time.perf_counter() - t0, 3),
     }
     if args.json:
         print(json.dumps(r))
     else:
-        status = f"LOST BALANCE at {r['fall_time_s']:.3f} s" if r["fell"] else "balance kept"
-        print(f"{seq.name} ({len(seq.motions)} motions, {seq.clip_s:.2f} s) curve={args.curve}: {status}")
+        print(f"{seq.name} ({len(seq.motions)} motions, {seq.clip_s:.2f} s) curve={args.curve}: {_outcome(r)}")
         print(
             f"  objective {r['objective']:.4f}  max |CoP error| {r['max_cop_error_m']:.4f} m  "
             f"final pose error {r['final_pose_error_rad']:.4f} rad"
@@ -478,8 +484,9 @@ def cmd_runs(args) -> int:
                 "status",
                 "seed",
                 "best_objective",
-                "best_fell",
+                "best_success",
                 "baseline_objective",
+                "baseline_success",
                 "evaluations",
                 "stop_reason",
             ),

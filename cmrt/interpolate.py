@@ -81,8 +81,8 @@ def candidates(task: Task, param: str, source: str, store: Store | None = None) 
             raise CmrtError("interpolating from the store needs a store")
         best: dict[float, tuple[float, dict]] = {}
         for run in store.runs(task=task.name, status="done"):
-            if run.get("best_cmrt") is None or run.get("best_fell"):
-                continue
+            if run.get("best_cmrt") is None or not run.get("best_success"):
+                continue  # only CMRTs that made the motion a success
             params = run["params"]
             if _physics(params, param) != want:
                 continue

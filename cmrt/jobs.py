@@ -153,8 +153,8 @@ def run_claimed(
     if run["baseline_objective"] is None:
         base = evaluate(task, simulate(task, Cmrt.zero(task.clip_s)))
         with store.transaction() as conn:
-            _fenced_update(conn, claim, "baseline_objective = ?, baseline_fell = ?, heartbeat_at = ?",
-                           (base.objective, int(base.fell), time.time()))
+            _fenced_update(conn, claim, "baseline_objective = ?, baseline_fell = ?, baseline_success = ?, "
+                           "heartbeat_at = ?", (base.objective, int(base.fell), int(base.success), time.time()))
 
     wall_before = run["wall_s"] or 0.0
     t_start = time.perf_counter()
@@ -167,15 +167,15 @@ def run_claimed(
             _fenced_update(
                 conn, claim,
                 "heartbeat_at = ?, evaluations = ?, generations = ?, best_objective = ?, best_params = ?, "
-                "best_fell = ?, best_cmrt = ?, wall_s = ?, eval_s = COALESCE(eval_s, 0) + ?",
+                "best_fell = ?, best_success = ?, best_cmrt = ?, wall_s = ?, eval_s = COALESCE(eval_s, 0) + ?",
                 (now, state.evaluations, state.generation, state.best_objective,
-                 json.dumps(state.best_x.tolist()), int(state.best_fell),
+                 json.dumps(state.best_x.tolist()), int(state.best_fell), int(state.best_success),
                  best_cmrt(state, task.clip_s).to_json(), wall, sum(r.seconds for r in records)),
             )
             conn.executemany(
-                "INSERT INTO evaluations (run_id, gen, idx, params, objective, fell, seconds) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?)",
-                [(claim.run_id, gen, i, json.dumps(x.tolist()), r.objective, int(r.fell), r.seconds)
+                "INSERT INTO evaluations (run_id, gen, idx, params, objective, fell, success, seconds) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                [(claim.run_id, gen, i, json.dumps(x.tolist()), r.objective, int(r.fell), int(r.success), r.seconds)
                  for i, (x, r) in enumerate(zip(xs, records, strict=True))],
             )
             conn.execute(

@@ -1,18 +1,32 @@
-"""Trajectory -> scalar objective (ABC section 4.1), with penalties for balance loss.
+"""Trajectory -> scalar objective (ABC section 4.1), penalties, and what a success is.
 
 objective = |e|_2 + penalty, where e(t_k) = p(t_k) - s(t_k) is the measured CoP minus
-the support centre (metres), sampled every ``cop_sample_step_s`` of the task (the 2-norm
-grows with the sample count, so the step is fixed per task, not tied to the physics
-step). Samples where the feet carry less than ``MIN_FOOT_FORCE_FRACTION`` of body weight
-are dropped: the CoP is ill-defined there.
+the support centre (metres), sampled every ``cop_sample_step_s`` of the task over the
+clip [0, L) and before any fall (the 2-norm grows with the sample count, so the step is
+fixed per task, not tied to the physics step). Samples where the feet carry less than
+``MIN_FOOT_FORCE_FRACTION`` of body weight are dropped: the CoP is ill-defined there.
 
-Penalty (0 when balance is kept). A flat "fell" penalty gives CMA-ES no slope, so it is
-graded by how early balance was lost and how far the foot lifted:
+A clip is a **success** when
 
-    fell:     FALL_PENALTY + 10 (L - t_fail) / L + 50 min(max_lift - 0.01 m, 0.2 m)
-    blow-up:  DIVERGED_PENALTY (worse than any fall)
-    goal missed (tasks with a prop: ball not caught and held, slab not toppled, target
-    not hit): + MISSED_GOAL_PENALTY, so that "do nothing and stay balanced" never wins
+* balance held over the clip and its standing tail (no fall, ``cmrt.balance``);
+* the motion was **performed**: a pose change ends within ``FINAL_POSE_TOLERANCE_RAD``
+  of its target pose (at the end of the tail) *and* tracked it during the task window
+  [P, P + T] with an RMS joint error no larger than that of its own reference played
+  ``max_tracking_lag`` x T late (0.1 of T by default; ~0.1 rad on the bend): a motion done
+  late or half-heartedly is not the motion asked for; a task with a
+  prop met its goal (ball caught and held, slab toppled, pad hit); pure standing has
+  nothing to perform (``performed`` is None);
+* the character **settled**: at the end of the tail its CoM moves slower than
+  ``SETTLED_COM_SPEED_M_S``.
+
+Penalty (0 for a success), graded so that CMA-ES has a slope:
+
+    fell:            FALL_PENALTY + 10 (L + tail - t_fall) / (L + tail)
+    blow-up:         DIVERGED_PENALTY (worse than any fall)
+    not performed:   NOT_PERFORMED_PENALTY * (1 + min(tracking error / its bound - 1, 1)) for a pose change;
+                     MISSED_GOAL_PENALTY when a prop task's goal was missed (so that
+                     "do nothing and stay balanced" never wins)
+    not settled:     NOT_SETTLED_PENALTY
 """
 
 from __future__ import annotations
@@ -23,13 +37,18 @@ import numpy as np
 
 from cmrt.character import character
 from cmrt.control.controller import GRAVITY_M_S2
-from cmrt.simulate import LIFT_STOP_M, LIFT_THRESHOLD_M, Trajectory
+from cmrt.simulate import Trajectory
 from cmrt.task import Task
 
 MIN_FOOT_FORCE_FRACTION = 0.05
+AIRBORNE_FORCE_FRACTION = 0.01  # total foot normal force below this fraction of body weight: airborne
+FINAL_POSE_TOLERANCE_RAD = 0.1
+SETTLED_COM_SPEED_M_S = 0.05
 FALL_PENALTY = 10.0
 DIVERGED_PENALTY = 100.0
+NOT_PERFORMED_PENALTY = 5.0
 MISSED_GOAL_PENALTY = 30.0  # ABC 5: a missed catch is heavily penalised (also: slab not toppled, no hit)
+NOT_SETTLED_PENALTY = 5.0
 
 
 @dataclass(frozen=True)
@@ -39,52 +58,136 @@ class Evaluation:
     objective: float
     cop_error_norm: float
     penalty: float
+    success: bool
+    performed: bool | None
+    settled: bool
     fell: bool
     fall_time_s: float | None
     fall_reason: str | None
     diverged: bool
     max_cop_error_m: float
+    min_cop_margin_m: float
+    peak_normal_force_bw: float
+    airborne_s: float
+    max_joint_speed_rad_s: float
+    tracking_error_rad: float | None
+    tracking_bound_rad: float | None
     final_pose_error_rad: float
+    final_com_speed_m_s: float
     n_samples: int
     task_success: bool | None = None
 
 
-def cop_error_samples(task: Task, traj: Trajectory) -> np.ndarray:
-    """e(t_k) at the task's sample step; NaN-free (dropped samples removed)."""
+def _sample_index(task: Task, traj: Trajectory) -> np.ndarray:
+    """Indices of the CoP samples: every ``cop_sample_step_s`` over [0, L), before any fall."""
     dt = float(traj.time_s[1] - traj.time_s[0]) if traj.time_s.size > 1 else 1.0
     every = max(1, int(round(task.cop_sample_step_s / dt)))
     idx = np.arange(0, traj.time_s.size, every)
+    keep = traj.time_s[idx] < task.clip_s - 1e-9
+    if traj.fall_time_s is not None:
+        keep &= traj.time_s[idx] < traj.fall_time_s - 1e-9
+    return idx[keep]
+
+
+def _loaded(task: Task, traj: Trajectory, idx: np.ndarray) -> np.ndarray:
     weight = character().mass_kg * GRAVITY_M_S2
-    loaded = traj.normal_force_n[idx] > MIN_FOOT_FORCE_FRACTION * weight
-    e = traj.cop_x_m[idx] - traj.support_center_x_m[idx]
-    keep = loaded & np.isfinite(e)
-    return e[keep]
+    return (traj.normal_force_n[idx] > MIN_FOOT_FORCE_FRACTION * weight) & np.isfinite(traj.cop_x_m[idx])
+
+
+def cop_error_samples(task: Task, traj: Trajectory) -> np.ndarray:
+    """e(t_k) at the task's sample step; NaN-free (dropped samples removed)."""
+    idx = _sample_index(task, traj)
+    idx = idx[_loaded(task, traj, idx)]
+    return traj.cop_x_m[idx] - traj.support_center_x_m[idx]
+
+
+def _window_index(task: Task, traj: Trajectory) -> np.ndarray:
+    """CoP sample indices inside the task window [P, P + T] (before any fall)."""
+    idx = _sample_index(task, traj)
+    start, stop = task.task_window_s()
+    t = traj.time_s[idx]
+    return idx[(t >= start - 1e-9) & (t <= stop + 1e-9)]
+
+
+def tracking_error_rad(task: Task, traj: Trajectory) -> float | None:
+    """RMS error of the actuated joints against the reference over the task window [P, P + T]
+    (the whole clip for a task without a pose change), at the CoP sample steps before any fall;
+    None if balance was lost before the window."""
+    idx = _window_index(task, traj)
+    if idx.size == 0:
+        return None
+    dofs = list(character().actuated_dofs)
+    q_ref = task.reference(traj.time_s[idx])[0]
+    err = traj.qpos[idx][:, dofs] - q_ref[:, dofs]
+    return float(np.sqrt(np.mean(err**2)))
+
+
+def _before_fall(traj: Trajectory) -> np.ndarray:
+    if traj.fall_time_s is None:
+        return np.ones(traj.time_s.size, bool)
+    return traj.time_s < traj.fall_time_s - 1e-9
 
 
 def evaluate(task: Task, traj: Trajectory) -> Evaluation:
-    e = cop_error_samples(task, traj)
+    weight = character().mass_kg * GRAVITY_M_S2
+    idx = _sample_index(task, traj)
+    idx = idx[_loaded(task, traj, idx)]
+    e = traj.cop_x_m[idx] - traj.support_center_x_m[idx]
     norm = float(np.linalg.norm(e))
+    margin = np.minimum(traj.cop_x_m[idx] - traj.support_lo_x_m[idx], traj.support_hi_x_m[idx] - traj.cop_x_m[idx])
+    before = _before_fall(traj)
+    fz = traj.normal_force_n[before]
+    fz = fz[np.isfinite(fz)]
+    dt = float(traj.time_s[1] - traj.time_s[0]) if traj.time_s.size > 1 else 0.0
+    speeds = traj.max_joint_speed_rad_s[before]
+    speeds = speeds[np.isfinite(speeds)]
+    tracking = tracking_error_rad(task, traj)
+    final_ok = bool(np.all(np.isfinite(traj.final_qpos)))
+    final_err = task.final_pose_error_rad(traj.final_qpos) if final_ok else float("inf")
+
+    bound = None
+    if traj.task_success is not None:
+        performed: bool | None = traj.task_success
+    elif task.end_pose_deg is not None:
+        start, stop = task.task_window_s()
+        bound = task.tracking_bound_rad(np.arange(start, stop + 1e-9, task.cop_sample_step_s))
+        performed = bool(final_err < FINAL_POSE_TOLERANCE_RAD and tracking is not None and tracking <= bound)
+    else:
+        performed = None
+    settled = not traj.fell and traj.final_com_speed_m_s < SETTLED_COM_SPEED_M_S
+
+    run_s = task.clip_s + task.tail_s
     if traj.diverged:
         penalty = DIVERGED_PENALTY
     elif traj.fell:
-        t_fail = traj.fall_time_s if traj.fall_time_s is not None else 0.0
-        lift = min(max(traj.max_lift_m - LIFT_THRESHOLD_M, 0.0), LIFT_STOP_M - LIFT_THRESHOLD_M)
-        penalty = FALL_PENALTY + 10.0 * (task.clip_s - t_fail) / task.clip_s + 50.0 * lift
+        penalty = FALL_PENALTY + 10.0 * max(run_s - (traj.fall_time_s or 0.0), 0.0) / run_s
     else:
-        penalty = 0.0
+        penalty = 0.0 if settled else NOT_SETTLED_PENALTY
     if traj.task_success is False:
         penalty += MISSED_GOAL_PENALTY
-    final_err = task.final_pose_error_rad(traj.final_qpos) if np.all(np.isfinite(traj.final_qpos)) else float("inf")
+    elif performed is False and not traj.fell:
+        excess = tracking / bound - 1.0 if tracking is not None and bound else 1.0
+        penalty += NOT_PERFORMED_PENALTY * (1.0 + float(np.clip(excess, 0.0, 1.0)))
     return Evaluation(
         objective=norm + penalty,
         cop_error_norm=norm,
         penalty=penalty,
+        success=bool(not traj.fell and performed is not False and settled),
+        performed=performed,
+        settled=settled,
         fell=traj.fell,
         fall_time_s=traj.fall_time_s,
-        fall_reason=traj.fall_reason,
+        fall_reason=None if traj.fall_reason is None else traj.fall_reason.value,
         diverged=traj.diverged,
         max_cop_error_m=float(np.max(np.abs(e))) if e.size else 0.0,
+        min_cop_margin_m=float(margin.min()) if margin.size else 0.0,
+        peak_normal_force_bw=float(fz.max() / weight) if fz.size else 0.0,
+        airborne_s=float(np.count_nonzero(fz < AIRBORNE_FORCE_FRACTION * weight) * dt),
+        max_joint_speed_rad_s=float(speeds.max()) if speeds.size else 0.0,
+        tracking_error_rad=tracking,
+        tracking_bound_rad=bound,
         final_pose_error_rad=final_err,
+        final_com_speed_m_s=traj.final_com_speed_m_s,
         n_samples=int(e.size),
         task_success=traj.task_success,
     )

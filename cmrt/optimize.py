@@ -2,7 +2,8 @@
 
 Stopping rules (ABC section 4.1):
 
-* ``threshold``: the best objective falls below the task's ``stop_threshold``;
+* ``threshold``: a *successful* candidate (balance held, motion performed, settled:
+  ``cmrt.objective``) scores below the task's ``stop_threshold``;
 * ``budget``: ``max_evals`` evaluations done;
 * ``converged``: only after ``min_evals`` evaluations (700, as in the paper), the best
   objective improved by less than ``stall_tol`` (relative) over ``stall_generations``
@@ -53,6 +54,7 @@ class EvalRecord:
     objective: float
     fell: bool
     seconds: float
+    success: bool = False
 
 
 class _Randn:
@@ -75,7 +77,10 @@ class CmaState:
     best_x: np.ndarray | None = None
     best_objective: float = float("inf")
     best_fell: bool = True
+    best_success: bool = False
     best_history: list[float] = field(default_factory=list)
+    # the best successful candidate (the threshold stop looks at it; it is usually the best overall)
+    best_success_objective: float = float("inf")
 
     def dumps(self) -> bytes:
         return pickle.dumps(self, protocol=pickle.HIGHEST_PROTOCOL)
@@ -109,13 +114,17 @@ def step(state: CmaState, evaluate: Callable[[Sequence[np.ndarray]], list[EvalRe
     state.evaluations += len(xs)
     i = int(np.argmin(objectives))
     if objectives[i] < state.best_objective:
-        state.best_x, state.best_objective, state.best_fell = xs[i].copy(), objectives[i], records[i].fell
+        state.best_x, state.best_objective = xs[i].copy(), objectives[i]
+        state.best_fell, state.best_success = records[i].fell, records[i].success
+    wins = [r.objective for r in records if r.success]
+    if wins:
+        state.best_success_objective = min(state.best_success_objective, min(wins))
     state.best_history.append(state.best_objective)
     return xs, records
 
 
 def stop_reason(state: CmaState, settings: OptimizeSettings) -> str | None:
-    if state.best_objective < settings.stop_threshold and not state.best_fell:
+    if state.best_success_objective < settings.stop_threshold:
         return "threshold"
     if state.evaluations >= settings.max_evals:
         return "budget"

@@ -37,7 +37,8 @@ def evaluate_candidate(task: Task, x: np.ndarray) -> EvalRecord:
     """Simulate and score one parameter vector (module-level: picklable for workers)."""
     t0 = time.perf_counter()
     ev = evaluate(task, simulate(task, Cmrt.from_params(x, task.clip_s), record=False))
-    return EvalRecord(objective=float(ev.objective), fell=bool(ev.fell), seconds=time.perf_counter() - t0)
+    return EvalRecord(objective=float(ev.objective), fell=bool(ev.fell), seconds=time.perf_counter() - t0,
+                      success=bool(ev.success))
 
 
 def evaluate_batch(task: Task, xs: Sequence[np.ndarray], threads: int | None = None) -> list[EvalRecord]:
@@ -46,7 +47,8 @@ def evaluate_batch(task: Task, xs: Sequence[np.ndarray], threads: int | None = N
     trajs = simulate_batch(task, [Cmrt.from_params(x, task.clip_s) for x in xs], threads=threads)
     scores = [evaluate(task, tr) for tr in trajs]
     each = (time.perf_counter() - t0) / max(len(xs), 1)
-    return [EvalRecord(objective=float(e.objective), fell=bool(e.fell), seconds=each) for e in scores]
+    return [EvalRecord(objective=float(e.objective), fell=bool(e.fell), seconds=each, success=bool(e.success))
+            for e in scores]
 
 
 def _chunks(xs: Sequence[np.ndarray], k: int) -> list[list[np.ndarray]]:

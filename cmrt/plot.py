@@ -46,10 +46,11 @@ def plot_cop_error(task: Task, curves: list[tuple[str, Cmrt]], out: Path) -> Pat
         if traj.fall_time_s is not None:
             ax.axvline(traj.fall_time_s, color="r", ls=":", label="balance lost")
         _phases(ax, task)
-        status = "lost balance" if ev.fell else "balanced"
+        status = "success" if ev.success else ("lost balance" if ev.fell else "balanced, not a success")
         ax.set_title(f"{label}: objective {ev.objective:.3f} ({status})", fontsize=10)
         ax.set_ylabel("p - s (cm)")
-        ax.set_xlim(0, task.clip_s)
+        ax.set_xlim(0, task.clip_s + task.tail_s)
+        ax.axvspan(task.clip_s, task.clip_s + task.tail_s, color="0.95", zorder=0)  # standing tail, not scored
     axes[0, 0].legend(loc="upper right", fontsize=8)
     axes[-1, 0].set_xlabel("time (s)")
     fig.tight_layout()
@@ -82,9 +83,12 @@ def plot_cmrt(task: Task, curve: Cmrt, out: Path, label: str = "best CMRT") -> P
 def plot_convergence(evaluations: list[dict], threshold: float, out: Path, title: str) -> Path:
     obj = np.array([e["objective"] for e in evaluations])
     fell = np.array([e["fell"] for e in evaluations])
+    success = np.array([bool(e.get("success")) for e in evaluations])
+    other = ~fell & ~success
     idx = np.arange(1, obj.size + 1)
     fig, ax = plt.subplots(figsize=(7, 3))
-    ax.semilogy(idx[~fell], obj[~fell], ".", ms=3, label="balanced")
+    ax.semilogy(idx[success], obj[success], ".", ms=3, label="success")
+    ax.semilogy(idx[other], obj[other], ".", ms=3, color="0.6", label="balanced, not a success (penalised)")
     ax.semilogy(idx[fell], obj[fell], "x", ms=3, color="r", label="lost balance (penalised)")
     ax.semilogy(idx, np.minimum.accumulate(obj), "k-", lw=1, label="best so far")
     if threshold > 0:
@@ -160,7 +164,7 @@ def plot_family(
             style,
             color=color,
             lw=1.4,
-            label=f"T={v:g} e={ev.objective:.3f}{' fell' if ev.fell else ''}",
+            label=f"T={v:g} e={ev.objective:.3f}{'' if ev.success else ' (not a success)'}",
         )
         ax.axvline(task.preparation_s + v, color=color, lw=0.6)
     ax.axvline(base.preparation_s, color="k", lw=1.0)
@@ -196,7 +200,7 @@ def plot_sequence(seq_file: str, out: Path) -> Path:
             traj.time_s,
             100 * (traj.cop_x_m - traj.support_center_x_m),
             lw=1,
-            label=f"{label}: e={ev.objective:.3f}{' (fell)' if ev.fell else ''}",
+            label=f"{label}: e={ev.objective:.3f}{'' if ev.success else ' (not a success)'}",
         )
     for m in seq.motions:
         for ax in (ax1, ax2):

@@ -11,8 +11,9 @@ from cmrt.errors import CmrtError
 from cmrt.store import Store
 from cmrt.task import Task
 
-SUMMARY_KEYS = ("id", "task", "speed", "status", "seed", "best_objective", "best_fell", "baseline_objective",
-                "baseline_fell", "evaluations", "generations", "stop_reason", "wall_s")
+SUMMARY_KEYS = ("id", "task", "speed", "status", "seed", "best_objective", "best_success", "best_fell",
+                "baseline_objective", "baseline_success", "baseline_fell", "evaluations", "generations", "stop_reason",
+                "wall_s")
 
 
 def run_summary(run: dict) -> dict:
@@ -31,10 +32,11 @@ def run_details(store: Store, run_id: int) -> dict:
 
 
 def best_run(store: Store, task: Task) -> dict:
-    """The finished run with the lowest objective for exactly this task (same physics hash)."""
+    """The best finished run for exactly this task (same physics hash): successes first, then the
+    lowest objective."""
     row = store.conn.execute(
         "SELECT id FROM runs WHERE status = 'done' AND task_hash = ? AND best_objective IS NOT NULL "
-        "ORDER BY best_fell ASC, best_objective ASC, id ASC LIMIT 1",
+        "ORDER BY COALESCE(best_success, 0) DESC, best_fell ASC, best_objective ASC, id ASC LIMIT 1",
         (task.content_hash(),),
     ).fetchone()
     if row is None:
@@ -62,8 +64,9 @@ def export_run(store: Store, run_id: int, fmt: str) -> str:
         )
     buf = io.StringIO()
     w = csv.writer(buf)
-    w.writerow(["run_id", "gen", "idx", "objective", "fell", "seconds"] + [f"p{i}" for i in range(8)])
+    w.writerow(["run_id", "gen", "idx", "objective", "fell", "success", "seconds"] + [f"p{i}" for i in range(8)])
     for e in evaluations:
-        row = [run_id, e["gen"], e["idx"], repr(e["objective"]), int(e["fell"]), e["seconds"]]
+        success = "" if e["success"] is None else int(e["success"])
+        row = [run_id, e["gen"], e["idx"], repr(e["objective"]), int(e["fell"]), success, e["seconds"]]
         w.writerow(row + [repr(p) for p in e["params"]])
     return buf.getvalue()

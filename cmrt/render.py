@@ -103,12 +103,13 @@ def render(
         raise CmrtError(f"cannot write {out}: directory {out.parent} does not exist")
     clips = [(compare, labels[1])] if compare is not None else []
     clips.append((curve, labels[0]))
-    trajs = [simulate(task, c) for c, _ in clips]
+    trajs = [simulate(task, c) for c, _ in clips]  # recorded: past a fall, the topple plays out
     scores = [evaluate(task, tr) for tr in trajs]
+    end_s = max(tr.time_s[-1] for tr in trajs)  # the clip, its standing tail, or a topple
     if out.suffix.lower() == ".png":
-        times = np.linspace(task.preparation_s - 0.2, task.clip_s - 0.05, n_frames)
+        times = np.linspace(task.preparation_s - 0.2, end_s, n_frames)
     else:
-        times = np.arange(0.0, task.clip_s, 1.0 / fps)
+        times = np.arange(0.0, end_s, 1.0 / fps)
     with tqdm(total=len(times) * len(trajs), desc="render", unit="frame", file=sys.stderr,
               disable=not sys.stderr.isatty()) as bar:
         rows = [render_frames(task, tr, times, height, width, bar) for tr in trajs]
@@ -121,7 +122,8 @@ def render(
             for i in range(len(times)):
                 writer.append_data(np.concatenate([row[i] for row in rows], axis=1))
     return {"out": str(out), "frames": len(times), "clips": [
-        {"label": lab, "fell": s.fell, "objective": s.objective} for (_, lab), s in zip(clips, scores, strict=True)]}
+        {"label": lab, "success": s.success, "fell": s.fell, "fall_time_s": s.fall_time_s, "objective": s.objective}
+        for (_, lab), s in zip(clips, scores, strict=True)]}
 
 
 def _filmstrip(out: Path, rows, times, labels, scores) -> None:
@@ -133,7 +135,8 @@ def _filmstrip(out: Path, rows, times, labels, scores) -> None:
     n_rows, n_cols = len(rows), len(times)
     fig, axes = plt.subplots(n_rows, n_cols, figsize=(1.6 * n_cols, 2.3 * n_rows), squeeze=False)
     for r, (row, label, score) in enumerate(zip(rows, labels, scores, strict=True)):
-        status = "lost balance" if score.fell else "balanced"
+        status = ("success" if score.success else
+                  f"fell at {score.fall_time_s:.2f} s" if score.fell else "not a success")
         for c, img in enumerate(row):
             ax = axes[r, c]
             ax.imshow(img)

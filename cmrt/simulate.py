@@ -6,17 +6,18 @@ is the case n = 1. MuJoCo's batch is bit-identical to stepping each simulation a
 and the controller's arithmetic is row-wise, so a candidate's objective does not
 depend on what else is in its batch (tested).
 
-A clip always starts from the task's settled standing state: the start pose held by
-the controller for ``SETTLE_S`` seconds, so no start-up transient enters the objective.
-Balance loss is detected physically at every control step (8 ms):
+A simulated clip is the task's clip (preparation P + task T + decay D = L) followed by
+a standing tail of ``tail_s`` (the end pose held, no CMRT): the paper's objective only
+looks at [0, L]; the tail shows whether the character really comes to rest.
+It always starts from the task's settled standing state (the start pose held by the
+controller for ``SETTLE_S`` seconds), so no start-up transient enters the objective.
 
-* a body other than the heel/toe points reaches the floor (its lowest point below
-  z = 0), or the CoM drops below ``FALL_COM_HEIGHT_M``  -> a fall (the clip stops);
-* a heel or toe point rises more than ``LIFT_THRESHOLD_M`` above its settled height
-  -> the foot tipped (the clip goes on until the lift reaches ``LIFT_STOP_M`` so the
-  penalty can grade how badly it tipped);
-* non-finite state or a MuJoCo instability reset -> a numerical blow-up.
-A finished simulation is masked out of the batch; none of these raises.
+Every control step the balance monitor (``cmrt.balance``) checks for a loss of
+balance. When it finds one, a scoring run stops that simulation (nothing after a fall
+enters the score); a recorded run (``record=True``: traces, renders) switches it to a
+protective mode - a passive spring-damper holding the pose it fell in, which cannot
+add energy - and lets the topple play out to the end of the clip and tail, at least
+``POST_FALL_S`` past the fall.
 
 The CoP is measured from the contact forces MuJoCo applied during each step: touch
 sensors around the four heel/toe spheres read each point's normal force f_i, the
@@ -33,16 +34,21 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from cmrt.character import character
+from cmrt.balance import REASONS, BalanceLimits, FallReason, capture_point_x, check_balance
+from cmrt.character import FOOT_POINT_RADIUS_M, character
 from cmrt.control import ControllerConfig, MomentumBalanceController
+from cmrt.control.planar import PlanarKinematics
 from cmrt.curve import Cmrt
-from cmrt.props import PropRuntime
+from cmrt.props import PropRuntime, model_values
 from cmrt.task import Task
 
 SETTLE_S = 1.5
-LIFT_THRESHOLD_M = 0.01  # heel/toe lift that counts as the foot tipping
-LIFT_STOP_M = 0.21  # lift at which a tipped clip is cut short (penalty saturates)
-FALL_COM_HEIGHT_M = 0.55  # standing CoM is ~0.97 m, the deepest task pose ~0.8 m
+POST_FALL_S = 1.0  # a recorded clip runs at least this long past a fall, so the topple is seen
+CONTACT_HEIGHT_M = 0.001  # a heel/toe point whose lowest point is below this height touches the floor
+# Protective mode after a fall: a passive spring-damper about the pose at the fall, per joint
+# (a fraction of the motor's torque limit per rad and per rad/s): muscle tone, no goal.
+PROTECTIVE_STIFFNESS_PER_RAD = 0.5
+PROTECTIVE_DAMPING_PER_RAD_S = 0.05
 
 CONTROL_FIELDS = ("qpos", "qvel", "cdof", "cdof_dot", "cvel", "cinert", "M", "qfrc_bias", "qfrc_passive",
                   "subtree_com", "xpos", "geom_xpos")
@@ -51,57 +57,81 @@ STATE_FIELDS = ("qpos", "qvel", "qacc_warmstart")
 
 @dataclass(frozen=True)
 class Trajectory:
-    """Per-physics-step record of a clip; time-aligned arrays (n_steps, ...)."""
+    """Per-physics-step record of a clip and its tail; time-aligned arrays (n_steps, ...).
+
+    Without ``record`` only what the score needs is filled (CoP, support, the humanoid's
+    joint angles and CoM at the CoP sample steps; ground force every step; joint speed,
+    CoM and controls at control steps); the rest is NaN. Arrays end where the
+    simulation stopped: the end of the tail, or the fall when scoring."""
 
     time_s: np.ndarray
-    qpos: np.ndarray  # NaN-filled unless recorded
+    qpos: np.ndarray
     qvel: np.ndarray
     com_m: np.ndarray  # (n, 2): x, z
+    com_vel_x_m_s: np.ndarray
+    capture_point_x_m: np.ndarray
     cop_x_m: np.ndarray  # measured from the contact forces; NaN when the feet carry no load
     support_center_x_m: np.ndarray
     support_lo_x_m: np.ndarray
     support_hi_x_m: np.ndarray
-    normal_force_n: np.ndarray  # total vertical ground force
+    normal_force_n: np.ndarray  # total vertical ground force on the feet, every step
     foot_normal_force_n: np.ndarray  # (n, 2): right, left
     point_lift_m: np.ndarray  # (n, 4): heel_r, toe_r, heel_l, toe_l above settled height
+    point_contact: np.ndarray  # (n, 4): 1 where that point touches the floor (control steps), else 0
+    foot_roll_rad: np.ndarray  # (n, 2): pitch of each foot (0 flat; < 0 toes up)
+    max_joint_speed_rad_s: np.ndarray  # largest |qvel| of the actuated joints (control steps)
     cmrt_displacement_m: np.ndarray
     com_ref_x_m: np.ndarray
-    ctrl_nm: np.ndarray
+    ctrl_nm: np.ndarray  # (n, nu): the torques applied during the step (control steps; every step in traces)
+    protective: np.ndarray  # (n,) bool: torques came from the protective mode (after a fall)
+    clip_s: float  # L: the end of the scored clip; the standing tail follows
     fell: bool
     fall_time_s: float | None
-    fall_reason: str | None
+    fall_reason: FallReason | None
     diverged: bool
-    max_lift_m: float
-    final_qpos: np.ndarray  # the humanoid's
+    final_qpos: np.ndarray  # the humanoid's at the end of the tail, or at the fall
+    final_com_speed_m_s: float  # |CoM velocity| at the end of the tail, or at the fall
     task_success: bool | None = None  # goal reached (ball caught and held, slab toppled, target hit)
+
+    @property
+    def max_lift_m(self) -> float:
+        lift = self.point_lift_m[np.isfinite(self.point_lift_m).all(axis=1)]
+        return float(lift.max()) if lift.size else 0.0
 
     def as_npz_dict(self) -> dict[str, np.ndarray]:
         out = {k: v for k, v in self.__dict__.items() if isinstance(v, np.ndarray)}
-        out["fell"] = np.array(self.fell)
-        out["diverged"] = np.array(self.diverged)
+        for key in ("fell", "diverged", "clip_s", "final_com_speed_m_s"):
+            out[key] = np.array(getattr(self, key))
         out["fall_time_s"] = np.array(np.nan if self.fall_time_s is None else self.fall_time_s)
+        out["fall_reason"] = np.array("" if self.fall_reason is None else self.fall_reason.value)
         out["task_success"] = np.array(np.nan if self.task_success is None else float(self.task_success))
         return out
 
 
 class _Geometry:
-    """Constant per-model data for the balance-loss checks."""
+    """Constant per-model data for the balance checks."""
 
     def __init__(self):
         ch = character()
         m = ch.model
-        self.points = np.array(ch.foot_point_geoms)
+        self.points = np.array(ch.foot_point_geoms)  # heel_r, toe_r, heel_l, toe_l
         feet = set(ch.foot_point_geoms) | {ch.floor_geom}
         body = [g for g in range(m.ngeom) if g not in feet and m.geom_conaffinity[g] and m.geom_type[g]
                 == mujoco.mjtGeom.mjGEOM_CAPSULE]
         self.body_geoms = np.array(body)
         self.radius = m.geom_size[body, 0]
         self.half = m.geom_size[body, 1]
+        self.leg_dofs = np.array([[ch.dof(f"{j}_{s}") for j in ("hip", "knee", "ankle")] for s in ("r", "l")])
+        self.root_pitch = ch.root_dofs[2]
 
     def lowest_body_z(self, geom_xpos: np.ndarray, geom_xmat: np.ndarray) -> np.ndarray:
         """Lowest point of any non-foot capsule, per simulation."""
         z = geom_xpos[:, self.body_geoms, 2] - np.abs(geom_xmat[:, self.body_geoms, 8]) * self.half - self.radius
         return z.min(axis=1)
+
+    def foot_roll(self, qpos: np.ndarray) -> np.ndarray:
+        """(n, 2) foot pitch: root pitch plus the leg's hip, knee and ankle angles."""
+        return qpos[:, self.root_pitch, None] + qpos[:, self.leg_dofs].sum(axis=2)
 
 
 _SETTLED: dict = {}
@@ -111,10 +141,12 @@ def _threads(n: int) -> int:
     return max(1, min(n, int(os.environ.get("CMRT_THREADS", os.cpu_count() or 1))))
 
 
+def _in_contact(geom_xpos: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return geom_xpos[:, points, 2] - FOOT_POINT_RADIUS_M < CONTACT_HEIGHT_M
+
+
 def settled_state(task: Task, config: ControllerConfig) -> dict[str, np.ndarray]:
     """The start pose after the controller held it for SETTLE_S (cached per process and model)."""
-    from cmrt.props import model_values
-
     q0 = task.start_qpos()
     key = (q0.tobytes(), config, task.prop, model_values(task.prop, task.params))
     if key not in _SETTLED:
@@ -127,12 +159,14 @@ def settled_state(task: Task, config: ControllerConfig) -> dict[str, np.ndarray]
         f["qpos"][0, 1] -= 0.002  # start just in contact: the feet sink ~2 mm under body weight
         batch.forward(stage=mujoco.mjtStage.mjSTAGE_VEL)
         ctrl = MomentumBalanceController(ch, config)
-        lo, hi = _support(f["geom_xpos"], np.array(ch.foot_point_geoms))
+        points = np.array(ch.foot_point_geoms)
+        lo, hi = _support(f["geom_xpos"], points)
         center = 0.5 * (lo + hi)
         zeros = np.zeros(q0.size)
         for k in range(int(round(SETTLE_S / m.opt.timestep))):
             if k % config.control_every == 0:
-                f["ctrl"][:] = ctrl.torques(f, q0, zeros, zeros, center, np.zeros(1), center)
+                contact = _in_contact(f["geom_xpos"], points)
+                f["ctrl"][:] = ctrl.torques(f, q0, zeros, zeros, center, np.zeros(1), center, contact).torque_nm
             prop.settle_hold(f)
             batch.step(stage=mujoco.mjtStage.mjSTAGE_VEL)
         _SETTLED[key] = {k: f[k][0].copy() for k in STATE_FIELDS}
@@ -144,24 +178,42 @@ def _support(geom_xpos: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.
     return xs.min(axis=1), xs.max(axis=1)
 
 
-def _control(controller, f, k, q_ref, qd_ref, qdd_ref, com_ref, com_ref_vel, center):
+def _control(controller, f, refs, com_ref, com_ref_vel, center, contact):
     """Torques for the given rows; a row whose plan is singular or non-finite gets zeros and bad=True."""
-    args = (q_ref[k], qd_ref[k], qdd_ref[k])
     with np.errstate(all="ignore"):
         try:
-            ctrl = controller.torques(f, *args, com_ref, com_ref_vel, center)
+            ctrl = controller.torques(f, *refs, com_ref, com_ref_vel, center, contact).torque_nm
         except np.linalg.LinAlgError:  # find the culprits one by one; the others are unaffected
             ctrl = np.full((com_ref.size, controller.limits.size), np.nan)
             for i in range(com_ref.size):
                 fi = {name: v[i : i + 1] for name, v in f.items()}
                 try:
-                    ctrl[i] = controller.torques(fi, *args, com_ref[i : i + 1], com_ref_vel[i : i + 1],
-                                                 center[i : i + 1])[0]
+                    ctrl[i] = controller.torques(fi, *refs, com_ref[i : i + 1], com_ref_vel[i : i + 1],
+                                                 center[i : i + 1], contact[i : i + 1]).torque_nm[0]
                 except np.linalg.LinAlgError:
                     pass
     bad = ~np.all(np.isfinite(ctrl), axis=1)
     ctrl[bad] = 0.0
     return ctrl, bad
+
+
+class _Recorder:
+    """Buffers (n, n_steps, ...) filled at the steps where each quantity is read; NaN elsewhere."""
+
+    SHAPES = {"com": (2,), "com_vel": (), "xi": (), "cop": (), "sc": (), "lo": (), "hi": (), "fz": (),
+              "ffz": (2,), "lift": (4,), "contact": (4,), "roll": (2,), "jspeed": (), "cref": (), "ctrl": None,
+              "qpos": None, "qvel": None}
+
+    def __init__(self, n: int, n_steps: int, nq: int, nv: int, nu: int):
+        sizes = {"ctrl": (nu,), "qpos": (nq,), "qvel": (nv,)}
+        self.buf = {k: np.full((n, n_steps, *(sizes.get(k) if s is None else s)), np.nan)
+                    for k, s in self.SHAPES.items()}
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        return self.buf[key]
+
+    def cut(self, i: int, last: int) -> dict[str, np.ndarray]:
+        return {k: v[i, :last] for k, v in self.buf.items()}
 
 
 def simulate_batch(
@@ -170,27 +222,35 @@ def simulate_batch(
     config: ControllerConfig = ControllerConfig(),
     record: bool = False,
     threads: int | None = None,
+    limits: BalanceLimits = BalanceLimits(),
 ) -> list[Trajectory]:
-    """Simulate one clip of ``task`` per CMRT (None: zero CMRT), in lockstep.
+    """Simulate one clip (plus standing tail) of ``task`` per CMRT (None: zero CMRT), in lockstep.
 
-    ``record`` also fills qpos, qvel and the CoP at every step (for traces); scores do
-    not depend on it. ``threads``: MuJoCo batch threads (default: all cores,
-    or $CMRT_THREADS).
-    """
+    ``record`` fills every array at every step and plays falls out in protective mode;
+    scores do not depend on it. ``threads``: MuJoCo batch threads (default: all cores,
+    or $CMRT_THREADS)."""
     ch = character()
     m = task.model()
     n = len(curves)
     dt = m.opt.timestep
-    n_steps = int(round(task.clip_s / dt))
+    clip_steps = int(round(task.clip_s / dt))
+    run_steps = clip_steps + int(round(task.tail_s / dt))
+    post_fall = int(round(POST_FALL_S / dt))
+    n_steps = run_steps + (post_fall if record else 0)
     times = np.arange(n_steps) * dt
     curves = [c or Cmrt.zero(task.clip_s) for c in curves]
-    disp = np.stack([c.displacement_m(times) for c in curves])  # (n, T)
+    disp = np.stack([c.displacement_m(times) for c in curves])  # (n, T): zero after L
     disp_vel = np.stack([c.velocity_m_s(times) for c in curves])
     q_ref, qd_ref, qdd_ref = task.reference(times)
     push = np.array([task.push_at(t) for t in times])
     geo = _Geometry()
     controller = MomentumBalanceController(ch, config)
+    kin = PlanarKinematics(ch.model)
     vel_stage = mujoco.mjtStage.mjSTAGE_VEL
+    nq, nb = ch.model.nq, ch.model.nbody  # the humanoid's: a prop's coordinates follow
+    act = np.array(ch.actuated_dofs)
+    stiffness = PROTECTIVE_STIFFNESS_PER_RAD * controller.limits
+    damping = PROTECTIVE_DAMPING_PER_RAD_S * controller.limits
 
     batch = mujoco.batch.Batch(m, nsim=n, nthread=threads or _threads(n), persistent=True)
     prop = PropRuntime(task.prop, m, task.params)
@@ -203,122 +263,139 @@ def simulate_batch(
     batch.forward(stage=vel_stage)
     settled_z = b["geom_xpos"][0, geo.points, 2].copy()
 
-    def buf(*shape):
-        return np.full((n, n_steps, *shape), np.nan)
-
-    nq = ch.model.nq  # the humanoid's coordinates come first; a prop's follow them
-    rec = {"com": buf(2), "cop": buf(), "sc": buf(), "lo": buf(), "hi": buf(), "fz": buf(), "lift": buf(4),
-           "cref": buf(), "ctrl": buf(m.nu), "qpos": buf(m.nq), "qvel": buf(m.nv), "ffz": buf(2)}
+    rec = _Recorder(n, n_steps, m.nq, m.nv, m.nu)
+    end = np.full(n, run_steps)  # where each simulation stops (moved on a fall)
+    next_end = run_steps
     last = np.full(n, n_steps)
-    fell = np.zeros(n, bool)
-    diverged = np.zeros(n, bool)
-    fall_time = np.full(n, np.nan)
-    reasons: list[str | None] = [None] * n
-    max_lift = np.zeros(n)
+    fall_code = np.zeros(n, int)
+    fall_step = np.full(n, -1)
+    hold = np.zeros((n, act.size))  # protective mode: the pose at the fall
+    fall_qpos, fall_speed = np.zeros((n, nq)), np.zeros(n)  # the state a fallen clip is judged by
+    airborne_for = np.zeros(n)
     active = np.arange(n)
-
     ctrl_all = np.zeros((n, m.nu))
-    bad_all = np.zeros(n, bool)
+    control_dt = config.control_every * dt
     sample_every = max(1, int(round(task.cop_sample_step_s / dt)))
-    all_ids = np.arange(n)
+    n_points = geo.points.size
+    diverged_code = 1 + REASONS.index(FallReason.DIVERGED)
+    sel, ids = slice(None), active
     for k in range(n_steps):
-        # Work happens on control steps (balance checks too), CoP sample steps, or every step
-        # when recording a trace; in between, the batch just steps (the cost floor).
-        control = k % config.control_every == 0
-        sample = record or k % sample_every == 0
-        whole = active.size == n
-        sel = slice(None) if whole else active
-        ids = all_ids[sel]
-        if control or sample:
-            geom_xpos = b["geom_xpos"][sel]
-            lo, hi = _support(geom_xpos, geo.points)
-            center = 0.5 * (lo + hi)
-            rec["sc"][sel, k], rec["lo"][sel, k], rec["hi"][sel, k] = center, lo, hi
-            point_x = geom_xpos[:, geo.points, 0]  # heel/toe x at the state the step starts from
-        if control:
-            prop.control_step(b, ids)
-            f = {name: (b[name] if whole else b[name][active]) for name in CONTROL_FIELDS}
-            com_ref = center + disp[sel, k]
-            ctrl, bad = _control(controller, f, k, q_ref, qd_ref, qdd_ref, com_ref, disp_vel[sel, k], center)
-            ctrl_all[sel], bad_all[sel] = ctrl, bad
-            b["ctrl"][sel] = ctrl
-        if control or record:
-            com = b["subtree_com"][sel, 1]
-            lift = geom_xpos[:, geo.points, 2] - settled_z
-            low_body = geo.lowest_body_z(geom_xpos, b["geom_xmat"][sel])
-            rec["com"][sel, k] = com[:, [0, 2]]
-            rec["cref"][sel, k] = center + disp[sel, k]
-            rec["lift"][sel, k] = lift
-            rec["ctrl"][sel, k] = ctrl_all[sel]
-        if k == 0 or push[k] != push[k - 1]:
-            b["xfrc_applied"][sel, ch.thorax_body, 0] = push[k]
-        if record:
-            rec["qpos"][sel, k], rec["qvel"][sel, k] = b["qpos"][sel], b["qvel"][sel]
-
-        batch.step(ids=None if whole else active, stage=vel_stage)
-
-        if sample:
-            touch = b["sensordata"][sel, : geo.points.size]  # normal force at heel_r, toe_r, heel_l, toe_l
-            fz = touch.sum(axis=1)
-            with np.errstate(all="ignore"):
-                cop = np.where(fz > 1e-9, (touch * point_x).sum(axis=1) / fz, np.nan)
-            rec["cop"][sel, k], rec["fz"][sel, k] = cop, fz
-            rec["ffz"][sel, k] = np.stack([touch[:, :2].sum(axis=1), touch[:, 2:].sum(axis=1)], axis=1)
-        if not control:
-            continue
-
-        t_next = b["time"][sel]
-        blown = bad_all[sel] | ~np.all(np.isfinite(b["qpos"][sel]), axis=1) | (np.abs(t_next - (k + 1) * dt) > 1e-9)
-        hard = (low_body < 0.0) | (com[:, 2] < FALL_COM_HEIGHT_M)
-        peak = lift.max(axis=1)
-        tipped = peak > LIFT_THRESHOLD_M
-        if not (blown.any() or hard.any() or tipped.any() or fell[ids].any()):
-            continue
-        done = np.zeros(ids.size, bool)
-        for i, sim in enumerate(ids):
-            if blown[i]:
-                diverged[sim] = fell[sim] = True
-                if np.isnan(fall_time[sim]):
-                    fall_time[sim] = times[k]
-                reasons[sim] = "numerical blow-up" + (" (controller)" if bad_all[sim] else "")
-                done[i] = True
-                continue
-            if fell[sim]:
-                max_lift[sim] = max(max_lift[sim], peak[i])
-            if hard[i]:
-                if not fell[sim]:
-                    fell[sim], fall_time[sim] = True, times[k]
-                    reasons[sim] = ("a body other than the feet touched the floor" if low_body[i] < 0.0
-                                    else "CoM dropped too low")
-                max_lift[sim] = max(max_lift[sim], LIFT_STOP_M)
-                done[i] = True
-                continue
-            if not fell[sim] and tipped[i]:
-                fell[sim], fall_time[sim] = True, times[k]
-                reasons[sim] = "a support foot tipped (heel or toe lifted)"
-                max_lift[sim] = peak[i]
-            if fell[sim] and max_lift[sim] >= LIFT_STOP_M:
-                done[i] = True
-        if done.any():
-            last[ids[done]] = k + 1
+        if k >= next_end:  # the end of the tail, a fall (scoring: after its step), or the topple played out
+            done = end[ids] <= k
+            last[ids[done]] = k
             active = ids[~done]
             if active.size == 0:
                 break
+            sel = ids = active
+            next_end = end[ids].min()
+        # Work happens on control steps (balance checks too), CoP sample steps, or every step when
+        # recording a trace; in between, the batch just steps and the ground force is read (the cost floor).
+        control = k % config.control_every == 0
+        sample = record or k % sample_every == 0
+        if control or sample:
+            geom_xpos = b["geom_xpos"][sel]
+            point_x = geom_xpos[:, geo.points, 0]  # heel/toe x at the state the step starts from
+            lo, hi = point_x.min(axis=1), point_x.max(axis=1)
+            center = 0.5 * (lo + hi)
+            rec["sc"][sel, k], rec["lo"][sel, k], rec["hi"][sel, k] = center, lo, hi
+            qpos = b["qpos"][sel]
+            rec["qpos"][sel, k] = qpos
+            com = b["subtree_com"][sel, 1]
+            rec["com"][sel, k] = com[:, [0, 2]]
+        if control or record:
+            contact = _in_contact(geom_xpos, geo.points)
+            momentum = kin.momentum(b["cinert"][sel, :nb], b["cvel"][sel, :nb])  # (k, 3): H, Lx, Lz
+            vel_x = momentum[:, 1] / kin.mass
+            roll = geo.foot_roll(qpos)
+            rec["com_vel"][sel, k] = vel_x
+            rec["xi"][sel, k] = capture_point_x(com[:, 0], com[:, 2], vel_x)
+            rec["lift"][sel, k] = geom_xpos[:, geo.points, 2] - settled_z
+            rec["contact"][sel, k] = contact
+            rec["roll"][sel, k] = roll
+            rec["cref"][sel, k] = center + disp[sel, k]
+        if control:
+            rec["jspeed"][sel, k] = np.abs(b["qvel"][sel][:, act]).max(axis=1)
+            prop.control_step(b, ids)
+            fallen = fall_code[ids] > 0
+            ctrl = np.zeros((ids.size, m.nu))
+            bad = np.zeros(ids.size, bool)
+            if not fallen.all():
+                up = np.flatnonzero(~fallen)
+                rows = ids[up]
+                f = {name: b[name][rows] for name in CONTROL_FIELDS}
+                refs = (q_ref[k], qd_ref[k], qdd_ref[k])
+                ctrl[up], bad[up] = _control(controller, f, refs, center[up] + disp[rows, k], disp_vel[rows, k],
+                                             center[up], contact[up])
+            if fallen.any():  # protective mode: a passive spring-damper about the pose at the fall
+                rows = ids[fallen]
+                q, qd = b["qpos"][rows][:, act], b["qvel"][rows][:, act]
+                ctrl[fallen] = np.clip(stiffness * (hold[rows] - q) - damping * qd, -controller.limits,
+                                       controller.limits)
+            ctrl_all[ids] = ctrl
+            b["ctrl"][sel] = ctrl
 
-    final_qpos = b["qpos"][:, :nq].copy()
+            # the balance monitor
+            grounded = contact.any(axis=1)  # support of the points on the ground (NaN: none is)
+            c_lo = np.where(grounded, np.where(contact, point_x, np.inf).min(axis=1), np.nan)
+            c_hi = np.where(grounded, np.where(contact, point_x, -np.inf).max(axis=1), np.nan)
+            airborne_for[ids] = np.where(grounded, 0.0, airborne_for[ids] + control_dt)
+            finite = ~bad & np.all(np.isfinite(qpos), axis=1) & (np.abs(b["time"][sel] - k * dt) < 1e-9)
+            code = check_balance(
+                limits, finite=finite, lowest_body_z=geo.lowest_body_z(geom_xpos, b["geom_xmat"][sel]),
+                com_x=com[:, 0], com_z=com[:, 2], com_vel_x=vel_x, airborne_for_s=airborne_for[ids],
+                foot_roll_rad=roll, support_lo_x=c_lo, support_hi_x=c_hi,
+            )
+            new = (code > 0) & (fall_code[ids] == 0)
+            if new.any():
+                sims = ids[new]
+                fall_code[sims], fall_step[sims] = code[new], k
+                hold[sims] = qpos[new][:, act]
+                fall_qpos[sims] = qpos[new][:, :nq]
+                fall_speed[sims] = np.hypot(momentum[new, 1], momentum[new, 2]) / kin.mass
+                # scoring: stop after this step; recording: play the topple out (not a blow-up: nothing to show)
+                end[sims] = np.where(record & (code[new] != diverged_code), np.maximum(run_steps, k + post_fall), k + 1)
+                next_end = end[ids].min()
+        if record:
+            rec["ctrl"][sel, k] = ctrl_all[sel]
+            rec["qvel"][sel, k] = b["qvel"][sel]
+        if k == 0 or push[k] != push[k - 1]:
+            b["xfrc_applied"][sel, ch.thorax_body, 0] = push[k]
+
+        batch.step(ids=None if active.size == n else active, stage=vel_stage)
+
+        touch = b["sensordata"][sel, :n_points]  # normal force at heel_r, toe_r, heel_l, toe_l
+        fz = touch.sum(axis=1)
+        rec["fz"][sel, k] = fz
+        if sample:
+            with np.errstate(all="ignore"):
+                rec["cop"][sel, k] = np.where(fz > 1e-9, (touch * point_x).sum(axis=1) / fz, np.nan)
+            rec["ffz"][sel, k, 0] = touch[:, :2].sum(axis=1)
+            rec["ffz"][sel, k, 1] = touch[:, 2:].sum(axis=1)
+
+    momentum = kin.momentum(b["cinert"][:, :nb], b["cvel"][:, :nb])
+    fallen = fall_code > 0  # judged at the fall, whatever a recorded topple did afterwards
+    final_qpos = np.where(fallen[:, None], fall_qpos, b["qpos"][:, :nq])
+    final_speed = np.where(fallen, fall_speed, np.hypot(momentum[:, 1], momentum[:, 2]) / kin.mass)
     success = prop.success(b)
     out = []
     for i in range(n):
-        cut = slice(0, last[i])
+        r = rec.cut(i, last[i])
+        code = fall_code[i]
+        reason = REASONS[code - 1] if code else None
+        protective = np.zeros(last[i], bool)
+        if code:
+            protective[fall_step[i] + 1 :] = True
         out.append(Trajectory(
-            time_s=times[cut], qpos=rec["qpos"][i, cut], qvel=rec["qvel"][i, cut], com_m=rec["com"][i, cut],
-            cop_x_m=rec["cop"][i, cut], support_center_x_m=rec["sc"][i, cut], support_lo_x_m=rec["lo"][i, cut],
-            support_hi_x_m=rec["hi"][i, cut], normal_force_n=rec["fz"][i, cut],
-            foot_normal_force_n=rec["ffz"][i, cut], point_lift_m=rec["lift"][i, cut],
-            cmrt_displacement_m=disp[i, cut], com_ref_x_m=rec["cref"][i, cut], ctrl_nm=rec["ctrl"][i, cut],
-            fell=bool(fell[i]), fall_time_s=None if np.isnan(fall_time[i]) else float(fall_time[i]),
-            fall_reason=reasons[i], diverged=bool(diverged[i]), max_lift_m=float(max_lift[i]),
-            final_qpos=final_qpos[i], task_success=None if success is None else bool(success[i]),
+            time_s=times[: last[i]], qpos=r["qpos"], qvel=r["qvel"], com_m=r["com"], com_vel_x_m_s=r["com_vel"],
+            capture_point_x_m=r["xi"], cop_x_m=r["cop"], support_center_x_m=r["sc"], support_lo_x_m=r["lo"],
+            support_hi_x_m=r["hi"], normal_force_n=r["fz"], foot_normal_force_n=r["ffz"], point_lift_m=r["lift"],
+            point_contact=r["contact"],
+            foot_roll_rad=r["roll"], max_joint_speed_rad_s=r["jspeed"], cmrt_displacement_m=disp[i, : last[i]],
+            com_ref_x_m=r["cref"], ctrl_nm=r["ctrl"], protective=protective, clip_s=task.clip_s,
+            fell=bool(code), fall_time_s=float(times[fall_step[i]]) if code else None, fall_reason=reason,
+            diverged=reason is FallReason.DIVERGED, final_qpos=final_qpos[i],
+            final_com_speed_m_s=float(final_speed[i]),
+            task_success=None if success is None else bool(success[i]),
         ))
     return out
 

@@ -76,8 +76,15 @@ def _v1(db: sqlite_utils.Database) -> None:
     )
 
 
+def _v2(db: sqlite_utils.Database) -> None:
+    """Success (balance held, motion performed, settled) next to every objective."""
+    db["runs"].add_column("best_success", int)
+    db["runs"].add_column("baseline_success", int)
+    db["evaluations"].add_column("success", int)
+
+
 #: MIGRATIONS[k] takes a store from version k to k + 1.
-MIGRATIONS: list[Callable[[sqlite_utils.Database], None]] = [_v1]
+MIGRATIONS: list[Callable[[sqlite_utils.Database], None]] = [_v1, _v2]
 SCHEMA_VERSION = len(MIGRATIONS)
 
 
@@ -187,10 +194,12 @@ class Store:
 
     def evaluations(self, run_id: int) -> list[dict]:
         rows = self.conn.execute(
-            "SELECT gen, idx, params, objective, fell, seconds FROM evaluations WHERE run_id = ? ORDER BY gen, idx",
+            "SELECT gen, idx, params, objective, fell, success, seconds FROM evaluations WHERE run_id = ? "
+            "ORDER BY gen, idx",
             (run_id,),
         )
-        return [{**dict(r), "params": json.loads(r["params"]), "fell": bool(r["fell"])} for r in rows]
+        return [{**dict(r), "params": json.loads(r["params"]), "fell": bool(r["fell"]),
+                 "success": None if r["success"] is None else bool(r["success"])} for r in rows]
 
     def generations(self, run_id: int) -> list[dict]:
         rows = self.conn.execute(
@@ -211,7 +220,7 @@ def _decode_run(row: dict) -> dict:
     for key in ("params", "best_params", "best_cmrt"):
         if row.get(key):
             row[key] = json.loads(row[key])
-    for key in ("best_fell", "baseline_fell"):
+    for key in ("best_fell", "baseline_fell", "best_success", "baseline_success"):
         if row.get(key) is not None:
             row[key] = bool(row[key])
     return row

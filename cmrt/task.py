@@ -20,6 +20,7 @@ import numpy as np
 from cmrt.character import SIDED_JOINTS, character, feet_flat_qpos, joint_angles_from_pose
 from cmrt.errors import CmrtError
 
+MIN_TAIL_S = 0.5
 TASKS_DIR = Path(__file__).resolve().parent.parent / "tasks"
 
 #: Parameters every task has, with defaults (seconds, newtons, metres).
@@ -32,6 +33,10 @@ DEFAULT_PARAMS: dict[str, float] = {
     "push_force_n": 0.0,  # horizontal push on the thorax, +x forward
     "push_start_s": 0.0,
     "push_duration_s": 0.0,
+    # the motion was performed if tracked over [P, P + T] at least as well as its own reference played
+    # this fraction of T late (RMS over the actuated joints; 0.1 of T: ~0.1 rad on the bend)
+    "max_tracking_lag": 0.1,
+    "tail_s": 0.5,  # standing after the clip (end pose held, no CMRT): must settle; not in the CoP objective
 }
 
 
@@ -111,6 +116,10 @@ class Task:
             raise CmrtError("a pose-change task needs duration_s > 0")
         if p["cop_sample_step_s"] <= 0:
             raise CmrtError("cop_sample_step_s must be > 0")
+        if not 0 < p["max_tracking_lag"] <= 1:
+            raise CmrtError("max_tracking_lag must be in (0, 1] (a fraction of duration_s)")
+        if p["tail_s"] < MIN_TAIL_S:
+            raise CmrtError(f"tail_s must be >= {MIN_TAIL_S:g} s (the character must be seen standing still)")
         if p["push_duration_s"] < 0:
             raise CmrtError("push_duration_s must be >= 0")
 
@@ -206,6 +215,20 @@ class Task:
         """Hash of everything that changes the physics of a clip (not name or summary)."""
         body = {k: v for k, v in self.to_dict().items() if k not in ("name", "summary")}
         return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()[:16]
+
+    def task_window_s(self) -> tuple[float, float]:
+        """[P, P + T]: where the motion happens (the whole clip for a task without one)."""
+        if self.duration_s > 0:
+            return self.preparation_s, self.preparation_s + self.duration_s
+        return 0.0, self.clip_s
+
+    def tracking_bound_rad(self, times_s: np.ndarray) -> float:
+        """RMS joint error (actuated joints, at ``times_s``) of the reference against itself played
+        ``max_tracking_lag`` x T late: the largest tracking error that still counts as the motion asked for."""
+        dofs = list(character().actuated_dofs)
+        lag = self.params["max_tracking_lag"] * self.duration_s
+        q, q_late = self.reference(times_s)[0], self.reference(times_s - lag)[0]
+        return float(np.sqrt(np.mean((q[:, dofs] - q_late[:, dofs]) ** 2))) if len(times_s) else 0.0
 
     def final_pose_error_rad(self, qpos: np.ndarray) -> float:
         """Euclidean distance of the actuated joint angles from the task's target pose."""

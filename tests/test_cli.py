@@ -17,9 +17,11 @@ def test_simulate_json_fields_and_trace(tmp_path):
     r = run("simulate", "bend", "--speed", "1.2", "--json", "--trace", str(trace))
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
-    for key in ("task", "speed", "objective", "fell", "max_cop_error_m", "final_pose_error_rad"):
+    for key in ("task", "speed", "objective", "fell", "max_cop_error_m", "final_pose_error_rad", "success",
+                "performed", "settled", "min_cop_margin_m", "peak_normal_force_bw", "airborne_s",
+                "max_joint_speed_rad_s", "tracking_error_rad"):
         assert key in out
-    assert out["task"] == "bend" and out["speed"] == 1.2 and out["fell"] is False
+    assert out["task"] == "bend" and out["speed"] == 1.2 and out["fell"] is False and out["success"] is True
     z = np.load(trace)
     for key in (
         "time_s",
@@ -30,18 +32,23 @@ def test_simulate_json_fields_and_trace(tmp_path):
         "support_center_x_m",
         "foot_normal_force_n",
         "cmrt_displacement_m",
+        "capture_point_x_m",
+        "foot_roll_rad",
+        "point_contact",
+        "max_joint_speed_rad_s",
+        "protective",
     ):
         assert key in z.files
-    assert z["qpos"].shape == (1300, 15)
+    assert z["qpos"].shape == (round((2.6 + 0.5) / 0.002), 15)  # the clip and its standing tail
 
 
 def test_library_curve_and_set_override():
     r = run("simulate", "bend", "--curve", "library", "--json")
     out = json.loads(r.stdout)
-    assert r.returncode == 0 and out["fell"] is False and out["final_pose_error_rad"] < 0.1
+    assert r.returncode == 0 and out["success"] is True and out["final_pose_error_rad"] < 0.1
     r = run("simulate", "stand", "--set", "push_force_n=250", "--set", "clip_s=4", "--json")
     out = json.loads(r.stdout)
-    assert out["params"]["push_force_n"] == 250 and out["fell"] is True
+    assert out["params"]["push_force_n"] == 250 and out["fell"] is True and out["success"] is False
 
 
 def test_curve_file(tmp_path):

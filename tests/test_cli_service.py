@@ -104,3 +104,27 @@ def test_not_a_store(tmp_path):
         r = cmrt(*args, store=path)
         assert r.returncode == 2 and "not a CMRT store" in r.stderr
     assert digest(path) == before
+
+
+def test_threshold_stops_only_on_a_success(tmp_path):
+    """A user's pose-change task with a generous threshold: candidates that keep balance but do not
+    perform the motion score under it, yet only a success may stop the run."""
+    task = tmp_path / "lunge.toml"
+    task.write_text(
+        'name = "lunge"\nspeed_param = "duration_s"\n[params]\nclip_s = 2.6\npreparation_s = 1.0\n'
+        "duration_s = 0.4\nstop_threshold = 20.0\n[end_pose_deg]\nlumbar = 30\nhip = -70\nknee = 20\n"
+        "shoulder = -60\n"
+        "[timing]\nhip = [0.0, 0.6]\nlumbar = [0.0, 0.6]\nknee = [0.4, 1.0]\nankle = [0.4, 1.0]\n"
+    )
+    path = tmp_path / "t.sqlite"
+    out = json.loads(cmrt("optimize", str(task), "--seed", "3", "--max-evals", "60", "--popsize", "6", "--json",
+                          "--no-progress", store=path, check=True).stdout)
+    data = json.loads(cmrt("export", str(out["run_id"]), "--format", "json", store=path, check=True).stdout)
+    evals = data["evaluations"]
+    last_gen = max(e["gen"] for e in evals)
+    assert any(e["objective"] < 20.0 and not e["success"] for e in evals)  # the loophole was there
+    assert not any(e["success"] and e["objective"] < 20.0 for e in evals if e["gen"] < last_gen)
+    if out["stop_reason"] == "threshold":
+        assert out["success"] is True and out["best_objective"] < 20.0
+    else:
+        assert out["stop_reason"] == "budget"

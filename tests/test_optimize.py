@@ -4,7 +4,7 @@ from cmrt.optimize import CmaState, EvalRecord, OptimizeSettings, new_state, ste
 
 
 def sphere(xs):
-    return [EvalRecord(float(np.sum((x - 0.3) ** 2)), False, 0.0) for x in xs]
+    return [EvalRecord(float(np.sum((x - 0.3) ** 2)), False, 0.0, success=True) for x in xs]
 
 
 def run(settings, n_gen, state=None):
@@ -52,3 +52,26 @@ def test_stop_rules():
     while stop_reason(state, flat) is None:
         step(state, lambda xs: [EvalRecord(1.0, True, 0.0) for _ in xs])
     assert state.evaluations >= 200 and stop_reason(state, flat).startswith("converged")
+
+
+def test_threshold_stop_needs_a_success():
+    """A low objective that is not a success (balance kept but the motion not done) never stops the run."""
+    s = OptimizeSettings(seed=1, stop_threshold=100.0, max_evals=40, min_evals=10_000, popsize=5)
+    state = new_state(s)
+
+    def lazy(xs):  # every candidate scores under the threshold, only candidates with x0 > 0.5 succeed
+        return [EvalRecord(1.0, False, 0.0, success=bool(x[0] > 0.5)) for x in xs]
+
+    reasons = []
+    while (reason := stop_reason(state, s)) is None:
+        _, records = step(state, lazy)
+        reasons.append(any(r.success for r in records))
+    if reason == "threshold":
+        assert reasons[-1] and state.best_success_objective < 100.0
+    else:
+        assert reason == "budget" and not any(reasons)
+    never = OptimizeSettings(seed=1, stop_threshold=100.0, max_evals=30, popsize=5)
+    state = new_state(never)
+    while (reason := stop_reason(state, never)) is None:
+        step(state, lambda xs: [EvalRecord(1.0, False, 0.0, success=False) for _ in xs])
+    assert reason == "budget"

@@ -51,7 +51,45 @@ def test_cop_and_ground_force_match_contacts_and_momentum_rate():
 def test_cop_stays_inside_support_while_feet_are_flat():
     task = load_task("bend").with_speed(1.2)
     traj = simulate(task)
-    flat = np.all(traj.point_lift_m < 1e-3, axis=1)
+    flat = np.all(traj.point_lift_m < 1e-3, axis=1) & np.isfinite(traj.cop_x_m)
     assert flat.all()
     inside = (traj.cop_x_m >= traj.support_lo_x_m - 1e-9) & (traj.cop_x_m <= traj.support_hi_x_m + 1e-9)
     assert inside[flat].all()
+
+
+def test_planned_ground_force_is_feasible_and_is_what_mujoco_applies():
+    """The torques ask the ground for exactly the wrench the plan needs: at states along a bend, the
+    plan's vertical force and CoP equal the contact forces MuJoCo then applies, the CoP is inside the
+    feet, every heel/toe point is pressed and the friction cone holds."""
+    from cmrt.control import ControllerConfig, MomentumBalanceController
+    from cmrt.simulate import CONTROL_FIELDS, _in_contact
+
+    ch = character()
+    m = ch.model
+    task = load_task("bend").with_speed(0.8)
+    traj = simulate(task)
+    controller = MomentumBalanceController(ch)
+    config = ControllerConfig()
+    q_ref, qd_ref, qdd_ref = task.reference(traj.time_s)
+    points = np.array(ch.foot_point_geoms)
+    d = mujoco.MjData(m)
+    for k in range(400, 1400, 40):
+        d.qpos[:], d.qvel[:] = traj.qpos[k], traj.qvel[k]
+        mujoco.mj_forward(m, d)
+        f = {name: getattr(d, name)[None].copy() for name in CONTROL_FIELDS}
+        xs = d.geom_xpos[points, 0]
+        center = np.array([0.5 * (xs.min() + xs.max())])
+        out = controller.torques(f, q_ref[k], qd_ref[k], qdd_ref[k], center, np.zeros(1), center,
+                                 _in_contact(d.geom_xpos[None], points))
+        fx, fz = out.ground_force_n[0]
+        cop = out.cop_x_m[0]
+        assert np.all(out.foot_state == 0)  # both feet flat
+        share_toe = (cop - xs.min()) / (xs.max() - xs.min())
+        assert min(share_toe, 1 - share_toe) * fz / 2 >= config.min_point_force_n - 1e-6
+        assert abs(fx) <= config.friction_coef * fz + 1e-6
+        d.ctrl[:] = out.torque_nm[0]
+        mujoco.mj_forward(m, d)
+        touch = d.sensordata[:4]
+        # MuJoCo's soft contacts regularise the constraint force: agreement to 1 % of body weight
+        assert abs(touch.sum() - fz) < 0.01 * ch.mass_kg * 9.81
+        assert abs((touch * xs).sum() / touch.sum() - cop) < 1e-3

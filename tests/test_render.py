@@ -17,7 +17,7 @@ def render(tmp_path, name, *args):
 def test_filmstrip_is_not_blank_and_anticipation_shows(tmp_path):
     zero, zinfo = render(tmp_path, "zero.png", "--curve", "zero")
     lib, linfo = render(tmp_path, "lib.png", "--curve", "library")
-    assert zinfo["clips"][0]["fell"] is True and linfo["clips"][0]["fell"] is False
+    assert zinfo["clips"][0]["success"] is False and linfo["clips"][0]["success"] is True
     for img in (zero, lib):
         assert img.ndim == 3 and img.shape[1] > 300
         assert img[..., :3].std() > 0.05  # not a blank image
@@ -28,7 +28,7 @@ def test_filmstrip_is_not_blank_and_anticipation_shows(tmp_path):
 def test_compare_stacks_two_rows(tmp_path):
     both, info = render(tmp_path, "both.png", "--curve", "library", "--compare", "zero")
     single, _ = render(tmp_path, "one.png", "--curve", "library")
-    assert [c["fell"] for c in info["clips"]] == [True, False]  # top: zero, bottom: library
+    assert [c["success"] for c in info["clips"]] == [False, True]  # top: zero, bottom: library
     assert both.shape[0] > 1.6 * single.shape[0]
 
 

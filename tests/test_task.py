@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 
+from cmrt.character import character
 from cmrt.errors import CmrtError
 from cmrt.task import available_tasks, load_task, task_from_dict
 
@@ -18,7 +19,12 @@ def test_reference_eases_between_poses():
     q, qd, qdd = bend.reference(t)
     np.testing.assert_allclose(q[0], bend.start_qpos())
     np.testing.assert_allclose(q[-1], bend.end_qpos())
-    np.testing.assert_allclose(q[3], 0.5 * (bend.start_qpos() + bend.end_qpos()))
+    # each joint is half-way at the middle of its own easing window ([timing], fractions of T)
+    start, end = bend.start_qpos(), bend.end_qpos()
+    for name, (a, b) in {"lumbar_dof": (0.0, 0.6), "knee_r": (0.4, 1.0)}.items():
+        i = character().dof("lumbar" if name == "lumbar_dof" else name)
+        mid = bend.preparation_s + 0.5 * (a + b) * bend.duration_s
+        np.testing.assert_allclose(bend.reference(np.array([mid]))[0][0, i], 0.5 * (start[i] + end[i]))
     np.testing.assert_allclose(qd[[0, 1, 2, 4, 5]], 0.0, atol=1e-9)  # at rest outside [P, P + T]
     np.testing.assert_allclose(qdd[[0, 2, 4, 5]], 0.0, atol=1e-6)
     # qd is the derivative of q

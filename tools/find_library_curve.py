@@ -56,8 +56,11 @@ def record(task, run, curve, args, wall_s: float) -> None:
     check = evaluate(task, simulate(task, curve))
     entry = {
         "task": task.name, "speed": task.speed, "cmrt": curve.to_dict(), "objective": check.objective,
-        "fell": check.fell, "task_success": check.task_success, "final_pose_error_rad": check.final_pose_error_rad,
-        "zero_cmrt_objective": run["baseline_objective"], "zero_cmrt_fell": run["baseline_fell"],
+        "success": check.success, "fell": check.fell, "task_success": check.task_success,
+        "tracking_error_rad": check.tracking_error_rad, "min_cop_margin_m": check.min_cop_margin_m,
+        "final_pose_error_rad": check.final_pose_error_rad,
+        "zero_cmrt_objective": run["baseline_objective"], "zero_cmrt_success": run["baseline_success"],
+        "zero_cmrt_fell": run["baseline_fell"],
         "evaluations": run["evaluations"], "stop_reason": run["stop_reason"], "seed": args.seed,
         "stop_threshold": task.stop_threshold, "wall_s": round(wall_s, 1), "init_run": run["init_run"] is not None,
         "params": task.params,

@@ -1,28 +1,35 @@
-"""The reactive momentum balance controller (ABC section 3; Macchietto et al. 2009).
+"""The reactive momentum balance controller (ABC section 3; Macchietto et al. 2009),
+with torques the ground can carry.
 
-Per control step it plans joint accelerations qdd* by one equality-constrained least
-squares (a KKT solve):
+Per control step it plans joint accelerations qdd by a small QP
 
     min  b_l |Ldot_x,des - (A_x qdd + a_x)|^2 + b_h |Hdot_des - (A_h qdd + a_h)|^2
-         + b_t |W (qdd_des - qdd)|^2 + eps |qdd|^2
-    s.t. J_s qdd + Jdot_s qd = 0            (support feet do not accelerate)
+         + b_t |W (qdd_des - qdd)|^2 + w_r sum_{rolling feet} |foot pitch acc - its target|^2 + eps |qdd|^2
+    s.t. support rows: each foot's contact points do not accelerate (a flat foot: x, z and
+         pitch; a foot rolling on its heel or toe: that point's x and z)
+         the ground wrench  w = A qdd + a + (0, m g, 0)  is one the ground can push with:
+           every loaded heel/toe point carries at least f_min,  |F_x| <= mu F_z,
+           CoP inside the support (rolling: exactly at the rolling edge)
 
 with  Ldot_x,des = k_l m (c_r - c) + d_l (m cdot_r - L_x),   c_r = s + d(t)  (CMRT),
       Hdot_des   = [(p_des - c) x (Ldot_des - m g)]_y,       p_des = s (support centre),
       qdd_des    = k_t (q_r - q) + d_t (qd_r - qd) + qdd_r.
 
-Torques: tau = [M qdd* + h - J_c^T f*] on the actuated rows, clipped to the motor
-limits, where f* is the ground force the *plan* implies: the minimum-norm solution of
-the three root rows of M qdd* + h = J_c^T f over the heel and toe points of both feet,
-with no unilateral or friction limits. Why this choice (docs/controller.md):
+The torques are the inverse dynamics of that plan with the ground forces it implies,
+split over the heel/toe points that carry load:  tau = [M qdd + h - J_c' f]_actuated.
+The plan satisfies the floating-base rows exactly with a wrench the ground can give
+(unilateral, inside the friction cone, CoP inside the support), so the torques ask
+nothing of the ground that it cannot do: what MuJoCo does with them is what was
+planned. When the motion asks for more than the feet can give, the QP trades tracking
+against momentum - it never pulls on the floor. A loss of balance is then what it is
+physically: the CoM drifting past the point of no return and toppling over an edge
+of the feet (``cmrt.balance``), not a launch (docs/controller.md has the measurements).
 
-* A QP that keeps contact forces unilateral inside the plan hides the failure the
-  product is about (the controller silently stops tracking instead of tipping).
-* Torques from the *measured* contact forces of the previous step are one step late
-  and tip two-foot standing in MuJoCo within a fraction of a second.
-* The plan-implied force is delay free. When the plan needs a CoP outside the feet,
-  the torques ask the ground for a pull it cannot give, the foot tips, and balance
-  is lost physically - exactly what a CMRT must prevent.
+Contact modes follow the measured contact (the heel/toe contact LCP, decided by the
+physics): a foot whose toe (heel) is off the ground - pushed over by something the
+controller does not model, a prop or a push - is planned as rolling on its heel (toe),
+with its pitch acceleration steered softly (weight w_r) back toward flat. The
+controller never plans to lift a point itself.
 
 Everything is vectorised over a leading axis of n simulations (one CMA-ES generation
 stepped in lockstep with ``mujoco.batch.Batch``); a single clip is the case n = 1, so
@@ -37,9 +44,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from cmrt.character import FOOT_POINT_RADIUS_M, Character
+from cmrt.control import kernel
+from cmrt.control.kernel import AIR, FLAT, HEEL, TOE
 from cmrt.control.planar import PlanarKinematics
 
 GRAVITY_M_S2 = 9.81
+# -DUAL_REGULARIZATION on the multipliers' diagonal of the KKT matrix: redundant support rows
+# (both feet asking the same vertical acceleration of a straight-kneed body: the legs' Jacobians
+# are singular at the knee limit) then solve in the least-squares sense instead of making the
+# matrix singular; a consistent row is met to ~1e-9 of its multiplier.
+DUAL_REGULARIZATION = 1e-9
 
 
 @dataclass(frozen=True)
@@ -50,14 +64,20 @@ class ControllerConfig:
     d_l: float = 2.0 * math.sqrt(10.0)  # 1/s, its damping (critical for k_l)
     k_t: float = 100.0  # 1/s^2, joint tracking stiffness
     d_t: float = 20.0  # 1/s, joint tracking damping (critical for k_t)
-    beta_l: float = 0.01  # weight of the linear-momentum objective
-    beta_h: float = 0.01  # weight of the angular-momentum objective
+    beta_l: float = 0.1  # weight of the linear-momentum objective
+    beta_h: float = 0.1  # weight of the angular-momentum objective
     beta_t: float = 1.0  # weight of the tracking objective
     weight_upper: float = 1.0  # W for lumbar, neck and arms
-    weight_leg: float = 0.2  # W for hips, knees, ankles: legs give way to balance
-    weight_root_pitch: float = 0.2  # W for the trunk's absolute pitch
+    weight_leg: float = 1.0  # W for hips, knees, ankles
+    weight_root_pitch: float = 1.0  # W for the trunk's absolute pitch
     regularization: float = 1e-6  # eps on |qdd|^2, keeps the KKT matrix regular
     control_every: int = 4  # physics steps per control step: 125 Hz at the 2 ms step (ABC: 60-120 Hz)
+    friction_coef: float = 0.8  # planned |F_x| <= mu F_z (the MJCF's floor friction is 1.0)
+    min_point_force_n: float = 40.0  # planned normal force of every loaded heel/toe point: no point goes slack
+    support_damping: float = 20.0  # 1/s, support rows ask the contact points' velocity to decay
+    roll_weight: float = 1.0  # w_r: cost of a rolling foot's pitch acceleration away from its return-to-flat target
+    roll_k: float = 100.0  # 1/s^2, return-to-flat stiffness of a rolling foot
+    roll_d: float = 20.0  # 1/s, its damping
 
     def tracking_weights(self, ch: Character) -> np.ndarray:
         w = np.full(ch.nv, self.weight_upper)
@@ -69,74 +89,73 @@ class ControllerConfig:
         return w
 
 
-def plan_accelerations(Q: np.ndarray, g: np.ndarray, Js: np.ndarray, rhs_s: np.ndarray) -> np.ndarray:
-    """Solve min 1/2 qdd'Q qdd - g'qdd  s.t. Js qdd = rhs_s; batched over the leading axis."""
-    nv, nc = Q.shape[-1], Js.shape[-2]
-    K = np.zeros(Q.shape[:-2] + (nv + nc, nv + nc))
-    K[..., :nv, :nv] = Q
-    K[..., :nv, nv:] = np.swapaxes(Js, -1, -2)
-    K[..., nv:, :nv] = Js
-    rhs = np.concatenate([g, rhs_s], axis=-1)
-    return np.linalg.solve(K, rhs[..., None])[..., :nv, 0]
+@dataclass(frozen=True)
+class ControlOutput:
+    """One control step for n simulations."""
 
-
-def implied_torques(M: np.ndarray, h: np.ndarray, qdd: np.ndarray, Jc: np.ndarray) -> np.ndarray:
-    """Generalised forces M qdd + h - Jc' f, f the min-norm force balancing the 3 root rows."""
-    need = (M @ qdd[..., None])[..., 0] + h
-    B = np.swapaxes(Jc[..., :3], -1, -2)  # (n, 3, n_force): root rows of Jc'
-    lam = np.linalg.solve(B @ np.swapaxes(B, -1, -2), need[..., :3, None])
-    f = (np.swapaxes(B, -1, -2) @ lam)[..., 0]
-    return need - (np.swapaxes(Jc, -1, -2) @ f[..., None])[..., 0]
+    torque_nm: np.ndarray  # (n, nu), clipped to the motor limits
+    ground_force_n: np.ndarray  # (n, 2) planned total ground force (x, z)
+    cop_x_m: np.ndarray  # (n,) planned CoP
+    foot_state: np.ndarray  # (n, 2) FLAT / HEEL / TOE / AIR per foot (right, left)
+    saturated: np.ndarray  # (n,) the torques were clipped at a motor limit
 
 
 class MomentumBalanceController:
-    """Computes motor torques for n simulations from their bound MuJoCo fields."""
+    """Computes motor torques for n simulations from their bound MuJoCo fields (cmrt.control.kernel)."""
 
     def __init__(self, ch: Character, config: ControllerConfig = ControllerConfig()):
         self.ch = ch
         self.config = config
-        self.kin = PlanarKinematics(ch.model)  # the humanoid alone: props come after it in any model
+        kin = PlanarKinematics(ch.model)  # the humanoid alone: props come after it in any model
         self.nv, self.nbody, self.nM = ch.model.nv, ch.model.nbody, ch.model.nM
+        self.chain = kin.chain.astype(bool)
+        self.m_rows, self.m_cols = kin.m_rows.astype(np.int64), kin.m_cols.astype(np.int64)
         self.w2 = config.tracking_weights(ch) ** 2
-        self.diag = config.beta_t * self.w2 + config.regularization
-        self.actuated = np.array(ch.actuated_dofs)
-        self.limits = ch.torque_limit_nm
+        self.actuated = np.array(ch.actuated_dofs, dtype=np.int64)
+        self.limits = ch.torque_limit_nm.astype(float)
         self.mass = ch.mass_kg
-        self.points = np.array(ch.foot_point_geoms)
-        self.point_bodies = ch.model.geom_bodyid[self.points]
-        self.point_offset = np.array([0.0, 0.0, FOOT_POINT_RADIUS_M])  # sphere centre -> bottom
-        self.feet = np.array(ch.foot_bodies)
+        self.points = np.array(ch.foot_point_geoms, dtype=np.int64)  # heel_r, toe_r, heel_l, toe_l
+        self.point_bodies = ch.model.geom_bodyid[self.points].astype(np.int64)
+        names = ch.dof_names
+        self.leg_dofs = np.array([[names.index(f"{j}_{s}") for j in ("hip", "knee", "ankle")] for s in ("r", "l")],
+                                 dtype=np.int64)
+        c = config
+        params = np.zeros(kernel.N_PARAMS)
+        for index, value in ((kernel.P_KL, c.k_l), (kernel.P_DL, c.d_l), (kernel.P_KT, c.k_t), (kernel.P_DT, c.d_t),
+                             (kernel.P_BL, c.beta_l), (kernel.P_BH, c.beta_h), (kernel.P_BT, c.beta_t),
+                             (kernel.P_EPS, c.regularization), (kernel.P_MASS, self.mass), (kernel.P_G, GRAVITY_M_S2),
+                             (kernel.P_MU, c.friction_coef), (kernel.P_FMIN, c.min_point_force_n),
+                             (kernel.P_DAMP, c.support_damping), (kernel.P_RW, c.roll_weight), (kernel.P_RK, c.roll_k),
+                             (kernel.P_RD, c.roll_d), (kernel.P_RADIUS, FOOT_POINT_RADIUS_M),
+                             (kernel.P_DUALREG, DUAL_REGULARIZATION)):
+            params[index] = value
+        self.params = params
 
-    def torques(self, f: dict[str, np.ndarray], q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x):
-        """Torques (n, nu). ``f`` holds (n, ...) arrays of the MuJoCo fields at the current state:
-        qpos, qvel, cdof, cdof_dot, cvel, cinert, M, qfrc_bias, qfrc_passive, subtree_com, xpos,
-        geom_xpos. References (nv,) are shared; CoM/CoP targets are (n,)."""
-        cfg, kin = self.config, self.kin
-        nv, nb = self.nv, self.nbody  # a task model may append props: use the humanoid's slices
-        qpos, qvel = f["qpos"][:, :nv], f["qvel"][:, :nv]
-        cdof, cdof_dot, cvel = f["cdof"][:, :nv], f["cdof_dot"][:, :nv], f["cvel"][:, :nb]
-        com = f["subtree_com"][:, 1]
-        A, a = kin.centroidal(cdof, cdof_dot, cvel, f["cinert"][:, :nb], qvel)
-        n = qvel.shape[0]
-        Js, jsdot = kin.frame_jacobians_and_biases(cdof, cdof_dot, cvel, qvel, f["xpos"][:, self.feet], com,
-                                                   self.feet)
-        Js, jsdot = Js.reshape(n, -1, nv), jsdot.reshape(n, -1)
-        L_x = (A[:, 0] * qvel).sum(axis=1)
+    @staticmethod
+    def foot_states(in_contact: np.ndarray) -> np.ndarray:
+        """(n, 2) support state per foot from (n, 4) heel/toe contact flags (heel_r, toe_r, heel_l, toe_l)."""
+        heel, toe = in_contact[:, 0::2], in_contact[:, 1::2]
+        return np.select([heel & toe, heel, toe], [FLAT, HEEL, TOE], AIR)
 
-        ldot_x = cfg.k_l * self.mass * (com_ref_x - com[:, 0]) + cfg.d_l * (self.mass * com_ref_vel_x - L_x)
-        # desired ground force (Ldot_z,des = 0) placed at the desired CoP
-        hdot = -com[:, 2] * ldot_x - (cop_des_x - com[:, 0]) * (self.mass * GRAVITY_M_S2)
-        qdd_des = cfg.k_t * (q_ref - qpos) + cfg.d_t * (qd_ref - qvel) + qdd_ref
+    def torques(self, f: dict[str, np.ndarray], q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x,
+                in_contact: np.ndarray) -> ControlOutput:
+        """Torques for n simulations. ``f`` holds (n, ...) arrays of the MuJoCo fields at the current state:
+        qpos, qvel, cdof, cdof_dot, cvel, cinert, M, qfrc_bias, qfrc_passive, subtree_com, geom_xpos.
+        References (nv,) are shared; CoM/CoP targets are (n,); ``in_contact`` (n, 4) says which heel/toe
+        points touch the ground."""
+        n = f["qvel"].shape[0]
+        tau = np.empty((n, self.actuated.size))
+        info = np.empty((n, kernel.N_INFO))
+        def as_f(x, dtype=float):  # one memory layout for every call: numba compiles one signature
+            return np.ascontiguousarray(x, dtype=dtype)
 
-        Ax, Ah = A[:, 0], A[:, 2]
-        Q = cfg.beta_l * Ax[:, :, None] * Ax[:, None, :] + cfg.beta_h * Ah[:, :, None] * Ah[:, None, :]
-        Q[:, np.arange(nv), np.arange(nv)] += self.diag
-        g = (cfg.beta_l * (ldot_x - a[:, 0]))[:, None] * Ax + (cfg.beta_h * (hdot - a[:, 2]))[:, None] * Ah
-        g += cfg.beta_t * self.w2 * qdd_des
-        qdd = plan_accelerations(Q, g, Js, -jsdot)
-
-        points = f["geom_xpos"][:, self.points] - self.point_offset  # (n, 4, 3)
-        Jc = kin.point_jacobians(cdof, points, com, self.point_bodies).reshape(n, -1, nv)
-        h = f["qfrc_bias"][:, :nv] - f["qfrc_passive"][:, :nv]
-        tau = implied_torques(kin.dense_mass_matrix(f["M"][:, : self.nM]), h, qdd, Jc)
-        return np.clip(tau[:, self.actuated], -self.limits, self.limits)
+        kernel.control_step(
+            *(as_f(f[k]) for k in ("cdof", "cdof_dot", "cvel", "cinert", "qpos", "qvel", "M", "qfrc_bias",
+                                   "qfrc_passive", "subtree_com", "geom_xpos")),
+            self.chain, self.m_rows, self.m_cols, self.points, self.point_bodies, self.leg_dofs, self.actuated,
+            self.limits, self.w2, self.params,
+            as_f(q_ref), as_f(qd_ref), as_f(qdd_ref), as_f(com_ref_x), as_f(com_ref_vel_x), as_f(cop_des_x),
+            as_f(in_contact, bool), tau, info,
+        )
+        return ControlOutput(torque_nm=tau, ground_force_n=info[:, :2], cop_x_m=info[:, 2],
+                             foot_state=info[:, 3:5].astype(int), saturated=info[:, 5] > 0)

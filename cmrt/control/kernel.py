@@ -1,0 +1,300 @@
+"""The controller's arithmetic for one control step, compiled (numba), one simulation at a time.
+
+The formulas are those of ``cmrt.control.controller`` (which documents them); this module
+only evaluates them without Python overhead: per simulation a few thousand flops for the
+planar centroidal momentum matrix, foot Jacobians, the QP (an active set over at most
+five wrench rows, each pass one dense KKT solve) and the torques. A batch is a loop over
+simulations, so a simulation's torques never depend on the others in its batch.
+
+Planar quantities come from MuJoCo's com-based fields (centred on the whole character's
+CoM, so spatial momentum there is the centroidal momentum): a body's ``cinert`` maps its
+twist (omega_y, v_x, v_z) to (H_y, L_x, L_z) with
+
+    [[I_yy,  m r_z, -m r_x],
+     [m r_z, m,      0    ],
+     [-m r_x, 0,     m    ]],
+
+``A`` is the chain-masked sum over bodies, its bias ``Adot qd`` is
+``sum_b P_b abias_b + v_b x* (P_b v_b)`` with ``abias_b = sum_{dofs j above b} cdof_dot_j qd_j``,
+and point Jacobians and biases follow from the same twists. Checked against MuJoCo's
+``mj_jacSubtreeCom``/``mj_angmomMat``/``subtree_linvel`` in tests/control.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+# Foot support states (also in controller.py).
+FLAT, HEEL, TOE, AIR = 0, 1, 2, 3
+# Indices into the parameter vector (built by controller.MomentumBalanceController).
+(P_KL, P_DL, P_KT, P_DT, P_BL, P_BH, P_BT, P_EPS, P_MASS, P_G, P_MU, P_FMIN, P_DAMP, P_RW, P_RK, P_RD,
+ P_RADIUS, P_DUALREG) = range(18)
+N_PARAMS = 18
+N_INFO = 6  # planned F_x, F_z, CoP x, right foot state, left foot state, torque saturated
+N_INEQ = 5  # F_z >= n f_min, two friction rows, two CoP rows
+MAX_PASSES = 8
+TOL = 1e-9
+
+
+@njit(cache=True)
+def centroidal(cdof, cdof_dot, cvel, cinert, qvel, chain):
+    """A (3, nv) with rows [L_x, L_z, H_y] and its bias (3,), for one simulation."""
+    nb, nv = chain.shape
+    A = np.zeros((3, nv))
+    bias = np.zeros(3)  # (L_x, L_z, H_y) rates at qdd = 0
+    for b in range(nb):
+        ci = cinert[b]
+        inertia, mrz, mrx, m = ci[1], ci[8], ci[6], ci[9]
+        ab0 = ab1 = ab2 = 0.0
+        for j in range(nv):
+            if chain[b, j]:
+                s0, s1, s2 = cdof[j, 1], cdof[j, 3], cdof[j, 5]
+                A[2, j] += inertia * s0 + mrz * s1 - mrx * s2  # P s: (H, L_x, L_z)
+                A[0, j] += mrz * s0 + m * s1
+                A[1, j] += -mrx * s0 + m * s2
+                ab0 += cdof_dot[j, 1] * qvel[j]
+                ab1 += cdof_dot[j, 3] * qvel[j]
+                ab2 += cdof_dot[j, 5] * qvel[j]
+        v0, v1, v2 = cvel[b, 1], cvel[b, 3], cvel[b, 5]
+        pv1 = mrz * v0 + m * v1
+        pv2 = -mrx * v0 + m * v2
+        bias[2] += inertia * ab0 + mrz * ab1 - mrx * ab2 + v2 * pv1 - v1 * pv2  # P abias + v x* (P v)
+        bias[0] += mrz * ab0 + m * ab1 + v0 * pv2
+        bias[1] += -mrx * ab0 + m * ab2 - v0 * pv1
+    return A, bias
+
+
+@njit(cache=True)
+def point_frame(cdof, cdof_dot, cvel, qvel, chain_row, body, point, com):
+    """Jacobian (3, nv) of (x, z, pitch) of a body's frame placed at ``point``, and its bias (3,)."""
+    nv = chain_row.size
+    rx, rz = point[0] - com[0], point[2] - com[2]
+    J = np.zeros((3, nv))
+    alpha = np.zeros(3)
+    for j in range(nv):
+        if chain_row[j]:
+            s0, s1, s2 = cdof[j, 1], cdof[j, 3], cdof[j, 5]
+            J[0, j] = s1 + s0 * rz
+            J[1, j] = s2 - s0 * rx
+            J[2, j] = s0
+            alpha[0] += cdof_dot[j, 1] * qvel[j]
+            alpha[1] += cdof_dot[j, 3] * qvel[j]
+            alpha[2] += cdof_dot[j, 5] * qvel[j]
+    w, vx, vz = cvel[body, 1], cvel[body, 3], cvel[body, 5]
+    vpx = vx + w * rz
+    vpz = vz - w * rx
+    bias = np.empty(3)
+    bias[0] = alpha[1] + alpha[0] * rz + w * vpz
+    bias[1] = alpha[2] - alpha[0] * rx - w * vpx
+    bias[2] = alpha[0]
+    return J, bias
+
+
+@njit(cache=True)
+def solve_qp(Q, g, E, e, C, c, c_on, dual_reg):
+    """min 1/2 x'Qx - g'x  s.t.  E x = e,  C x + c >= 0 (rows with c_on), by a primal active set.
+
+    Each pass solves the KKT system of the equalities and the active inequalities; the most
+    violated inactive row is added, or the active row with the most negative multiplier dropped.
+    -dual_reg on the multipliers' diagonal makes redundant rows (both feet asking the same
+    vertical acceleration of a straight-kneed body) solvable in the least-squares sense."""
+    nx, ne, ni = g.size, e.size, c.size
+    active = np.zeros(ni, np.bool_)
+    order = np.empty(ni, np.int64)
+    x = np.zeros(nx)
+    for _ in range(MAX_PASSES):
+        na = 0
+        for k in range(ni):
+            if active[k]:
+                order[na] = k
+                na += 1
+        size = nx + ne + na
+        K = np.zeros((size, size))
+        rhs = np.zeros(size)
+        K[:nx, :nx] = Q
+        for r in range(ne):
+            for j in range(nx):
+                K[nx + r, j] = K[j, nx + r] = E[r, j]
+            rhs[nx + r] = e[r]
+        for a in range(na):
+            k = order[a]
+            for j in range(nx):
+                K[nx + ne + a, j] = K[j, nx + ne + a] = C[k, j]
+            rhs[nx + ne + a] = -c[k]
+        rhs[:nx] = g
+        for d in range(nx, size):
+            K[d, d] = -dual_reg
+        sol = np.linalg.solve(K, rhs)
+        x = sol[:nx]
+        worst_lam, drop = 0.0, -1
+        for a in range(na):
+            lam = -sol[nx + ne + a]  # lam >= 0 at an optimum with this sign convention
+            if lam < worst_lam - TOL:
+                worst_lam, drop = lam, order[a]
+        if drop >= 0:
+            active[drop] = False
+            continue
+        worst, add = 0.0, -1
+        for k in range(ni):
+            if c_on[k] and not active[k]:
+                slack = c[k]
+                for j in range(nx):
+                    slack += C[k, j] * x[j]
+                if slack < worst - TOL:
+                    worst, add = slack, k
+        if add < 0:
+            break
+        active[add] = True
+    return x
+
+
+@njit(cache=True)
+def control_step(cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, qfrc_passive, com_all, geom_xpos,
+                 chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, limits, w2, params,
+                 q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, contact, tau_out, info_out):
+    """Torques (tau_out, (n, nu)) for n simulations; info_out (n, N_INFO) gets the plan's summary.
+
+    Arrays are the batch's bound MuJoCo fields (n, ...) - only the humanoid's leading slices are
+    read - and per-simulation targets; see controller.py for the formulation."""
+    n = qvel.shape[0]
+    nb, nv = chain.shape
+    mass, grav = params[P_MASS], params[P_G]
+    mg = mass * grav
+    radius = params[P_RADIUS]
+    for i in range(n):
+        qd = qvel[i, :nv].copy()
+        q = qpos[i, :nv]
+        com = com_all[i, 1]
+        A, a = centroidal(cdof[i], cdof_dot[i], cvel[i], cinert[i], qd, chain)
+
+        # contact points (sphere bottoms) and their foot frames
+        pts = np.empty((4, 3))
+        Jp = np.empty((4, 3, nv))
+        bp = np.empty((4, 3))
+        for p in range(4):
+            pts[p] = geom_xpos[i, points[p]]
+            pts[p, 2] -= radius
+            Jp[p], bp[p] = point_frame(cdof[i], cdof_dot[i], cvel[i], qd, chain[point_bodies[p]], point_bodies[p],
+                                       pts[p], com)
+        state = np.empty(2, np.int64)
+        for foot in range(2):
+            heel, toe = contact[i, 2 * foot], contact[i, 2 * foot + 1]
+            state[foot] = FLAT if heel and toe else (HEEL if heel else (TOE if toe else AIR))
+
+        # objective
+        L_x = A[0] @ qd
+        ldot_x = params[P_KL] * mass * (com_ref_x[i] - com[0]) + params[P_DL] * (mass * com_ref_vel_x[i] - L_x)
+        hdot = -com[2] * ldot_x - (cop_des_x[i] - com[0]) * mg
+        Q = params[P_BL] * np.outer(A[0], A[0]) + params[P_BH] * np.outer(A[2], A[2])
+        g = params[P_BL] * (ldot_x - a[0]) * A[0] + params[P_BH] * (hdot - a[2]) * A[2]
+        for j in range(nv):
+            Q[j, j] += params[P_BT] * w2[j] + params[P_EPS]
+            g[j] += params[P_BT] * w2[j] * (params[P_KT] * (q_ref[j] - q[j]) + params[P_DT] * (qd_ref[j] - qd[j])
+                                            + qdd_ref[j])
+
+        # support rows; a foot that is not flat gets a soft return-to-flat pitch target
+        E = np.empty((9, nv))
+        e = np.empty(9)
+        ne = 0
+        lo, hi = np.inf, -np.inf
+        n_flat, n_points = 0, 0
+        for foot in range(2):
+            s = state[foot]
+            heel, toe = 2 * foot, 2 * foot + 1
+            if s == FLAT or s == HEEL:
+                lo, hi = min(lo, pts[heel, 0]), max(hi, pts[heel, 0])
+            if s == FLAT or s == TOE:
+                lo, hi = min(lo, pts[toe, 0]), max(hi, pts[toe, 0])
+            if s == FLAT:
+                n_flat += 1
+                n_points += 2
+            elif s != AIR:
+                n_points += 1
+            anchor = toe if s == TOE else heel
+            if s != AIR:
+                for r in range(3 if s == FLAT else 2):
+                    E[ne] = Jp[anchor, r]
+                    e[ne] = -bp[anchor, r] - params[P_DAMP] * (Jp[anchor, r] @ qd)
+                    ne += 1
+            if s != FLAT:
+                jp = Jp[heel, 2]
+                pitch = q[2] + q[leg_dofs[foot, 0]] + q[leg_dofs[foot, 1]] + q[leg_dofs[foot, 2]]
+                target = -params[P_RK] * pitch - params[P_RD] * (jp @ qd) - bp[heel, 2]
+                Q += params[P_RW] * np.outer(jp, jp)
+                g += params[P_RW] * target * jp
+        grounded = n_points > 0
+        rolling = grounded and n_flat == 0
+
+        # wrench rows on w = A qdd + a: F_x = w0, F_z = w1 + m g, Hdot = w2
+        zc = (pts[0, 2] + pts[1, 2] + pts[2, 2] + pts[3, 2]) / 4.0
+        arm = zc - com[2]
+        mu, fmin = params[P_MU], params[P_FMIN]
+        edge = fmin * n_flat * (hi - lo)
+        R = np.zeros((N_INEQ, 3))
+        r0 = np.zeros(N_INEQ)
+        R[0, 1] = 1.0
+        r0[0] = mg - fmin * n_points
+        R[1, 0], R[1, 1], r0[1] = -1.0, mu, mu * mg
+        R[2, 0], R[2, 1], r0[2] = 1.0, mu, mu * mg
+        R[3, 0], R[3, 1], R[3, 2], r0[3] = arm, com[0] - lo, -1.0, (com[0] - lo) * mg - edge
+        R[4, 0], R[4, 1], R[4, 2], r0[4] = -arm, hi - com[0], 1.0, (hi - com[0]) * mg - edge
+        C = R @ A
+        c = R @ a + r0
+        c_on = np.zeros(N_INEQ, np.bool_)
+        if grounded:
+            c_on[:3] = True
+            if rolling:  # the CoP is exactly at the rolling edge
+                E[ne] = C[3]
+                e[ne] = -c[3]
+                ne += 1
+            else:
+                c_on[3:] = True
+        else:  # airborne: no ground force at all
+            for r in range(3):
+                E[ne] = A[r]
+                e[ne] = -a[r] - (mg if r == 1 else 0.0)
+                ne += 1
+        qdd = solve_qp(Q, g, E[:ne], e[:ne], C, c, c_on, params[P_DUALREG])
+
+        # inverse dynamics with the plan's ground forces, split over the loaded points
+        w = A @ qdd + a
+        fx, fz = w[0], w[1] + mg
+        cop = com[0] + (arm * fx - w[2]) / fz if fz > 1e-9 else com[0]
+        carries = np.zeros(4, np.bool_)
+        for foot in range(2):
+            carries[2 * foot] = state[foot] == FLAT or state[foot] == HEEL
+            carries[2 * foot + 1] = state[foot] == FLAT or state[foot] == TOE
+        count = max(1, carries.sum())
+        mean = 0.0
+        for p in range(4):
+            if carries[p]:
+                mean += pts[p, 0]
+        mean /= count
+        spread = 0.0
+        for p in range(4):
+            if carries[p]:
+                spread += (pts[p, 0] - mean) ** 2
+        M = np.zeros((nv, nv))
+        for k in range(m_rows.size):
+            M[m_rows[k], m_cols[k]] = M_sparse[i, k]
+            M[m_cols[k], m_rows[k]] = M_sparse[i, k]
+        gen = M @ qdd
+        for j in range(nv):
+            gen[j] += qfrc_bias[i, j] - qfrc_passive[i, j]
+        for p in range(4):
+            if carries[p]:
+                share = 1.0 / count
+                if spread > 1e-12:
+                    share += (pts[p, 0] - mean) * (cop - mean) / spread
+                gen -= Jp[p, 0] * (share * fx) + Jp[p, 1] * (share * fz)
+        saturated = 0.0
+        for u in range(actuated.size):
+            t = gen[actuated[u]]
+            if t > limits[u]:
+                t, saturated = limits[u], 1.0
+            elif t < -limits[u]:
+                t, saturated = -limits[u], 1.0
+            tau_out[i, u] = t
+        info_out[i, 0], info_out[i, 1], info_out[i, 2] = fx, fz, cop
+        info_out[i, 3], info_out[i, 4], info_out[i, 5] = state[0], state[1], saturated

@@ -1,0 +1,102 @@
+"""The compiled controller arithmetic against MuJoCo's own functions."""
+
+import mujoco
+import numpy as np
+import pytest
+
+from cmrt.character import FOOT_POINT_RADIUS_M, character
+from cmrt.control import kernel
+from cmrt.control.momentum import KinematicsScratch, centroidal_momentum_matrix, foot_jacobian
+from cmrt.control.planar import PlanarKinematics
+from cmrt.task import load_task
+
+
+@pytest.fixture
+def state():
+    ch = character()
+    m = ch.model
+    d = mujoco.MjData(m)
+    rng = np.random.default_rng(1)
+    d.qpos[:] = load_task("bend").reference(np.array([1.2]))[0][0]
+    d.qvel[:] = rng.normal(scale=0.8, size=m.nv)
+    mujoco.mj_forward(m, d)
+    return ch, m, d
+
+
+def _kernel_centroidal(m, d):
+    chain = PlanarKinematics(m).chain
+    return kernel.centroidal(d.cdof, d.cdof_dot, d.cvel, d.cinert, d.qvel.copy(), chain)
+
+
+def test_momentum_matrix_and_bias_match_mujoco(state):
+    ch, m, d = state
+    A, bias = _kernel_centroidal(m, d)
+    np.testing.assert_allclose(A, centroidal_momentum_matrix(m, d), rtol=0, atol=1e-12)
+    a_fd, _ = KinematicsScratch(m, ch.foot_bodies).biases(d.qpos.copy(), d.qvel.copy())
+    np.testing.assert_allclose(bias, a_fd, rtol=1e-6, atol=1e-6)
+    mujoco.mj_subtreeVel(m, d)
+    mass = m.body_subtreemass[1]
+    expected = [mass * d.subtree_linvel[1, 0], mass * d.subtree_linvel[1, 2], d.subtree_angmom[1, 1]]
+    np.testing.assert_allclose(A @ d.qvel, expected, rtol=0, atol=1e-9)
+
+
+def test_vectorised_momentum_matches_mujoco(state):
+    _, m, d = state
+    kin = PlanarKinematics(m)
+    h, lx, lz = kin.momentum(d.cinert[None], d.cvel[None])[0]
+    mujoco.mj_subtreeVel(m, d)
+    np.testing.assert_allclose([lx / kin.mass, lz / kin.mass, h],
+                               [d.subtree_linvel[1, 0], d.subtree_linvel[1, 2], d.subtree_angmom[1, 1]], atol=1e-9)
+
+
+def test_foot_point_frames_match_mujoco(state):
+    """Jacobian of a foot frame placed at the heel point, and its bias by finite differences."""
+    ch, m, d = state
+    chain = PlanarKinematics(m).chain
+    foot = ch.foot_bodies[0]
+    heel = ch.foot_points[0][0]
+    point = d.geom_xpos[heel] - np.array([0.0, 0.0, FOOT_POINT_RADIUS_M])
+    J, bias = kernel.point_frame(d.cdof, d.cdof_dot, d.cvel, d.qvel.copy(), chain[foot], foot, point,
+                                 d.subtree_com[1])
+    jacp, jacr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+    mujoco.mj_jac(m, d, jacp, jacr, point, foot)
+    np.testing.assert_allclose(J, np.stack([jacp[0], jacp[2], jacr[1]]), atol=1e-12)
+    np.testing.assert_allclose(J[2], foot_jacobian(m, d, foot)[2], atol=1e-12)
+
+    def point_velocity(q, qd):  # velocity of the material point of the foot at ``point``
+        scratch = mujoco.MjData(m)
+        scratch.qpos[:], scratch.qvel[:] = q, qd
+        mujoco.mj_forward(m, scratch)
+        local = d.xmat[foot].reshape(3, 3).T @ (point - d.xpos[foot])
+        p = scratch.xpos[foot] + scratch.xmat[foot].reshape(3, 3) @ local
+        jp, jr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+        mujoco.mj_jac(m, scratch, jp, jr, p, foot)
+        return np.array([jp[0] @ qd, jp[2] @ qd, jr[1] @ qd])
+
+    h = 1e-6
+    q, qd = d.qpos.copy(), d.qvel.copy()
+    rate = (point_velocity(q + h * qd, qd) - point_velocity(q - h * qd, qd)) / (2 * h)
+    np.testing.assert_allclose(bias, rate, rtol=1e-5, atol=1e-5)
+
+
+def test_qp_respects_its_constraints():
+    """A small QP with an active inequality: KKT conditions hold."""
+    rng = np.random.default_rng(0)
+    n = 6
+    L = rng.normal(size=(n, n))
+    Q = L @ L.T + np.eye(n)
+    g = rng.normal(size=n)
+    E = rng.normal(size=(2, n))
+    e = rng.normal(size=2)
+    C = rng.normal(size=(3, n))
+    x_free = kernel.solve_qp(Q, g, E, e, np.zeros((0, n)), np.zeros(0), np.zeros(0, bool), 0.0)
+    c = -(C @ x_free) + np.array([-0.5, 1.0, 1.0])  # the first row is violated by the unconstrained optimum
+    x = kernel.solve_qp(Q, g, E, e, C, c, np.ones(3, bool), 0.0)
+    np.testing.assert_allclose(E @ x, e, atol=1e-9)
+    slack = C @ x + c
+    assert np.all(slack >= -1e-9)
+    assert abs(slack[0]) < 1e-9  # active
+    # stationarity with a non-negative multiplier on the active row only
+    lam, *_ = np.linalg.lstsq(np.vstack([E, C[:1]]).T, Q @ x - g, rcond=None)
+    assert lam[-1] >= -1e-9
+    np.testing.assert_allclose(np.vstack([E, C[:1]]).T @ lam, Q @ x - g, atol=1e-8)
