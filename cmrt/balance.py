@@ -83,17 +83,13 @@ def check_balance(
     Shapes (n,) except ``foot_roll_rad`` (n, 2). ``support_lo_x``/``hi`` span the points on
     the ground (NaN when none is)."""
     xi = capture_point_x(com_x, com_z, com_vel_x)
+    failed = np.empty((len(REASONS) + 1,) + finite.shape, bool)
+    failed[0] = False  # column 0: balanced (argmax of an all-False column is 0)
+    failed[1] = ~finite
+    failed[2] = lowest_body_z < 0.0
+    failed[3] = com_z < limits.com_height_m
+    failed[4] = airborne_for_s >= limits.airborne_s
+    failed[5] = (np.abs(foot_roll_rad) > limits.roll_rad).any(axis=-1)
     with np.errstate(invalid="ignore"):
-        outside = (xi < support_lo_x - limits.capture_margin_m) | (xi > support_hi_x + limits.capture_margin_m)
-    checks = [
-        ~finite,
-        lowest_body_z < 0.0,
-        com_z < limits.com_height_m,
-        airborne_for_s >= limits.airborne_s,
-        np.any(np.abs(foot_roll_rad) > limits.roll_rad, axis=-1),
-        outside,
-    ]
-    code = np.zeros(finite.shape, int)
-    for i, failed in reversed(list(enumerate(checks))):  # the first failed check wins
-        code = np.where(failed, i + 1, code)
-    return code
+        failed[6] = (xi < support_lo_x - limits.capture_margin_m) | (xi > support_hi_x + limits.capture_margin_m)
+    return failed.argmax(axis=0)  # the first failed check wins

@@ -1,13 +1,16 @@
 """``cmrt bench``: where the time of a CMRT evaluation goes, measured in one run.
 
-(a) the floor: the clip's physics alone for N simulations on a ``mujoco.batch.Batch``
-    (all cores' threads, zero control, from the settled state);
-(b) the batched evaluator: N candidates in lockstep with the vectorised controller;
+(a) the floor: the clip's physics alone (clip and standing tail, as many steps as an
+    evaluation) for N simulations on a ``mujoco.batch.Batch`` (all cores' threads, zero
+    control, from the settled state);
+(b) the batched evaluator: N candidates in lockstep with the compiled controller;
 (c) per-candidate serial evaluation (one clip after another, one thread);
 (d) one full generation of N candidates with each optimizer backend.
 
-Each figure is the best of ``repeat`` alternating rounds (these machines are noisy:
-compare ratios from one run, not absolute seconds across runs).
+(a)-(c) run in ``repeat`` alternating rounds and each round's batched/floor ratio is
+taken within the round: these machines are noisy, so the figures are the median (and
+min, max) over rounds, and ratios from one run are what to compare, not seconds across
+runs.
 """
 
 from __future__ import annotations
@@ -56,26 +59,27 @@ def run_bench(task: Task, population: int = 16, repeat: int = 3, backends=BACKEN
         for _ in range(n_steps):
             batch.step()
 
-    timings: dict[str, float] = {}
+    rounds: dict[str, list[float]] = {"physics": [], "batched": [], "serial": []}
+    generations: dict[str, list[float]] = {}
 
-    def timed(key: str, fn) -> None:
+    def timed(fn) -> float:
         t0 = time.perf_counter()
         fn()
-        timings[key] = min(timings.get(key, np.inf), time.perf_counter() - t0)
+        return time.perf_counter() - t0
 
-    simulate_batch(task, curves[:2])  # warm-up: settled state, imports
+    simulate_batch(task, curves[:2])  # warm-up: settled state, compiled controller
     fells = [tr.fell for tr in simulate_batch(task, curves)]
     for _ in range(repeat):  # alternate so machine noise hits each figure alike
-        timed("physics", physics)
-        timed("batched", lambda: simulate_batch(task, curves))
-        timed("serial", lambda: [evaluate_candidate(task, x) for x in xs])
+        rounds["physics"].append(timed(physics))
+        rounds["batched"].append(timed(lambda: simulate_batch(task, curves)))
+        rounds["serial"].append(timed(lambda: [evaluate_candidate(task, x) for x in xs]))
     for b in backends:  # one backend alive at a time: idle workers/clusters would steal CPU
         with Evaluator(b, workers=workers) as ev:
             ev(task, xs[:2])  # warm-up: worker processes, clusters, per-process caches
-            for _ in range(repeat):
-                timed(f"gen_{b}", lambda ev=ev: ev(task, xs))
+            generations[b] = [timed(lambda ev=ev: ev(task, xs)) for _ in range(repeat)]
 
-    per = {k: v / population for k, v in timings.items()}
+    ratios = np.array(rounds["batched"]) / np.array(rounds["physics"])
+    per = {k: float(np.median(v)) / population for k, v in rounds.items()}
     out = {
         "task": task.name, "speed": task.speed, "population": population, "steps_per_clip": n_steps,
         "control_hz": 1.0 / (m.opt.timestep * ControllerConfig().control_every),
@@ -83,9 +87,11 @@ def run_bench(task: Task, population: int = 16, repeat: int = 3, backends=BACKEN
         "physics_only_s_per_clip": per["physics"],
         "batched_s_per_clip": per["batched"],
         "serial_s_per_clip": per["serial"],
-        "ratio_batched_to_physics": per["batched"] / per["physics"],
-        "ratio_serial_to_physics": per["serial"] / per["physics"],
-        "generation_s_per_clip": {b: per[f"gen_{b}"] for b in backends},
+        "ratio_batched_to_physics": float(np.median(ratios)),
+        "ratio_batched_to_physics_min": float(ratios.min()),
+        "ratio_batched_to_physics_max": float(ratios.max()),
+        "ratio_serial_to_physics": float(np.median(np.array(rounds["serial"]) / np.array(rounds["physics"]))),
+        "generation_s_per_clip": {b: float(np.median(v)) / population for b, v in generations.items()},
         "machine": f"{platform.machine()}, {threads} cores, mujoco {mujoco.__version__}",
         "repeat": repeat,
     }

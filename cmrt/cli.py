@@ -542,7 +542,7 @@ def cmd_bench(args) -> int:
         return 0
     print(
         f"{r['task']} speed {r['speed']}, population {r['population']}, {r['steps_per_clip']} steps/clip, "
-        f"control {r['control_hz']:.0f} Hz ({r['machine']}, best of {r['repeat']})"
+        f"control {r['control_hz']:.0f} Hz ({r['machine']}, median of {r['repeat']} alternating rounds)"
     )
     floor = r["physics_only_s_per_clip"]
     rows = [
@@ -553,6 +553,8 @@ def cmd_bench(args) -> int:
     rows += [(f"generation, backend {b}", v) for b, v in r["generation_s_per_clip"].items()]
     for name, v in rows:
         print(f"  {name:32s} {1e3 * v:8.2f} ms/clip   x{v / floor:5.2f}")
+    print(f"  batched / floor within each round: median {r['ratio_batched_to_physics']:.2f} "
+          f"(min {r['ratio_batched_to_physics_min']:.2f}, max {r['ratio_batched_to_physics_max']:.2f})")
     return 0
 
 
@@ -707,7 +709,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--speed", type=float, default=0.4)
     s.add_argument("--set", action="append", metavar="KEY=VALUE")
     s.add_argument("--population", type=int, default=16)
-    s.add_argument("--repeat", type=int, default=3)
+    s.add_argument("--repeat", type=int, default=5)
     s.add_argument("--backends", help=f"comma-separated subset of {','.join(BACKENDS)}")
     s.add_argument("--workers", type=int, default=os.cpu_count() or 1)
 

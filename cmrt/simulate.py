@@ -278,7 +278,8 @@ def simulate_batch(
     sample_every = max(1, int(round(task.cop_sample_step_s / dt)))
     n_points = geo.points.size
     diverged_code = 1 + REASONS.index(FallReason.DIVERGED)
-    sel, ids = slice(None), active
+    sel, ids, step_ids = slice(None), active, None
+    rec_fz = rec["fz"]
     for k in range(n_steps):
         if k >= next_end:  # the end of the tail, a fall (scoring: after its step), or the topple played out
             done = end[ids] <= k
@@ -286,7 +287,7 @@ def simulate_batch(
             active = ids[~done]
             if active.size == 0:
                 break
-            sel = ids = active
+            sel = ids = step_ids = active
             next_end = end[ids].min()
         # Work happens on control steps (balance checks too), CoP sample steps, or every step when
         # recording a trace; in between, the batch just steps and the ground force is read (the cost floor).
@@ -304,26 +305,31 @@ def simulate_batch(
             rec["com"][sel, k] = com[:, [0, 2]]
         if control or record:
             contact = _in_contact(geom_xpos, geo.points)
-            momentum = kin.momentum(b["cinert"][sel, :nb], b["cvel"][sel, :nb])  # (k, 3): H, Lx, Lz
-            vel_x = momentum[:, 1] / kin.mass
+            momentum = kin.linear_momentum(b["cinert"][sel, :nb], b["cvel"][sel, :nb])  # (k, 2): L_x, L_z
+            vel_x = momentum[:, 0] / kin.mass
             roll = geo.foot_roll(qpos)
-            rec["com_vel"][sel, k] = vel_x
-            rec["xi"][sel, k] = capture_point_x(com[:, 0], com[:, 2], vel_x)
-            rec["lift"][sel, k] = geom_xpos[:, geo.points, 2] - settled_z
-            rec["contact"][sel, k] = contact
-            rec["roll"][sel, k] = roll
-            rec["cref"][sel, k] = center + disp[sel, k]
+            if record:  # trace-only quantities
+                rec["com_vel"][sel, k] = vel_x
+                rec["xi"][sel, k] = capture_point_x(com[:, 0], com[:, 2], vel_x)
+                rec["lift"][sel, k] = geom_xpos[:, geo.points, 2] - settled_z
+                rec["contact"][sel, k] = contact
+                rec["roll"][sel, k] = roll
+                rec["cref"][sel, k] = center + disp[sel, k]
         if control:
             rec["jspeed"][sel, k] = np.abs(b["qvel"][sel][:, act]).max(axis=1)
             prop.control_step(b, ids)
             fallen = fall_code[ids] > 0
-            ctrl = np.zeros((ids.size, m.nu))
-            bad = np.zeros(ids.size, bool)
-            if not fallen.all():
+            refs = (q_ref[k], qd_ref[k], qdd_ref[k])
+            if not fallen.any():  # everyone under control: the bound arrays themselves, no copies
+                f = {name: b[name][sel] for name in CONTROL_FIELDS}
+                ctrl, bad = _control(controller, f, refs, center + disp[sel, k], disp_vel[sel, k], center, contact)
+            else:
+                ctrl = np.zeros((ids.size, m.nu))
+                bad = np.zeros(ids.size, bool)
+            if fallen.any() and not fallen.all():
                 up = np.flatnonzero(~fallen)
                 rows = ids[up]
                 f = {name: b[name][rows] for name in CONTROL_FIELDS}
-                refs = (q_ref[k], qd_ref[k], qdd_ref[k])
                 ctrl[up], bad[up] = _control(controller, f, refs, center[up] + disp[rows, k], disp_vel[rows, k],
                                              center[up], contact[up])
             if fallen.any():  # protective mode: a passive spring-damper about the pose at the fall
@@ -351,7 +357,7 @@ def simulate_batch(
                 fall_code[sims], fall_step[sims] = code[new], k
                 hold[sims] = qpos[new][:, act]
                 fall_qpos[sims] = qpos[new][:, :nq]
-                fall_speed[sims] = np.hypot(momentum[new, 1], momentum[new, 2]) / kin.mass
+                fall_speed[sims] = np.hypot(momentum[new, 0], momentum[new, 1]) / kin.mass
                 # scoring: stop after this step; recording: play the topple out (not a blow-up: nothing to show)
                 end[sims] = np.where(record & (code[new] != diverged_code), np.maximum(run_steps, k + post_fall), k + 1)
                 next_end = end[ids].min()
@@ -361,21 +367,27 @@ def simulate_batch(
         if k == 0 or push[k] != push[k - 1]:
             b["xfrc_applied"][sel, ch.thorax_body, 0] = push[k]
 
-        batch.step(ids=None if active.size == n else active, stage=vel_stage)
+        batch.step(ids=step_ids, stage=vel_stage)
 
         touch = b["sensordata"][sel, :n_points]  # normal force at heel_r, toe_r, heel_l, toe_l
+        if not sample:  # the steps in between: the ground force only (peak force, time airborne)
+            if step_ids is None:  # all active: write straight into the buffer's column
+                np.add.reduce(touch, axis=1, out=rec_fz[:, k])
+            else:
+                rec_fz[sel, k] = touch.sum(axis=1)
+            continue
         fz = touch.sum(axis=1)
-        rec["fz"][sel, k] = fz
+        rec_fz[sel, k] = fz
         if sample:
             with np.errstate(all="ignore"):
                 rec["cop"][sel, k] = np.where(fz > 1e-9, (touch * point_x).sum(axis=1) / fz, np.nan)
             rec["ffz"][sel, k, 0] = touch[:, :2].sum(axis=1)
             rec["ffz"][sel, k, 1] = touch[:, 2:].sum(axis=1)
 
-    momentum = kin.momentum(b["cinert"][:, :nb], b["cvel"][:, :nb])
+    momentum = kin.linear_momentum(b["cinert"][:, :nb], b["cvel"][:, :nb])
     fallen = fall_code > 0  # judged at the fall, whatever a recorded topple did afterwards
     final_qpos = np.where(fallen[:, None], fall_qpos, b["qpos"][:, :nq])
-    final_speed = np.where(fallen, fall_speed, np.hypot(momentum[:, 1], momentum[:, 2]) / kin.mass)
+    final_speed = np.where(fallen, fall_speed, np.hypot(momentum[:, 0], momentum[:, 1]) / kin.mass)
     success = prop.success(b)
     out = []
     for i in range(n):

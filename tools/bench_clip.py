@@ -29,7 +29,7 @@ def main() -> None:
     args = ap.parse_args()
     task = load_task(args.task).with_speed(args.speed)
     m = task.model()
-    n_steps = int(round(task.clip_s / m.opt.timestep))
+    n_steps = int(round((task.clip_s + task.tail_s) / m.opt.timestep))  # what an evaluation simulates
     state = settled_state(task, ControllerConfig())
     curve = library_curve(task)
 

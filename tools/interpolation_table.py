@@ -33,13 +33,13 @@ def main() -> None:
                 r = interpolate(task)
                 interp = evaluate(task, simulate(task, r.curve, record=False))
                 zero = evaluate(task, simulate(task, record=False))
-                row = {"speed": speed, "kind": kind, "zero_objective": zero.objective, "zero_fell": zero.fell,
-                       "interpolated_objective": interp.objective, "interpolated_fell": interp.fell,
+                row = {"speed": speed, "kind": kind, "zero_objective": zero.objective, "zero_success": zero.success,
+                       "interpolated_objective": interp.objective, "interpolated_success": interp.success,
                        "from": [v for v, _ in r.sources], "weight": r.weight}
                 if kind == "interpolated":
                     with Evaluator("batch") as ev:
                         run = optimize_now(store, task, ev, seed=1, max_evals=args.max_evals)
-                    row.update(direct_objective=run["best_objective"], direct_fell=run["best_fell"],
+                    row.update(direct_objective=run["best_objective"], direct_success=run["best_success"],
                                ratio=interp.objective / run["best_objective"])
                 rows.append(row)
     if args.json:
@@ -48,12 +48,12 @@ def main() -> None:
     print("| T (s) | from | zero CMRT | interpolated | optimized directly | interpolated / direct |")
     print("|---|---|---|---|---|---|")
     for r in rows:
-        fell = lambda f: " (fell)" if f else ""  # noqa: E731
-        direct = (f"{r['direct_objective']:.3f}{fell(r['direct_fell'])} | {r['ratio']:.2f}"
+        fail = lambda ok: "" if ok else " (not a success)"  # noqa: E731
+        direct = (f"{r['direct_objective']:.3f}{fail(r['direct_success'])} | {r['ratio']:.2f}"
                   if "direct_objective" in r else "- | -")
         src = " & ".join(f"{v:g}" for v in r["from"]) + (" (extrapolated)" if r["kind"] == "extrapolated" else "")
-        print(f"| {r['speed']:g} | {src} | {r['zero_objective']:.3f}{fell(r['zero_fell'])} | "
-              f"{r['interpolated_objective']:.3f}{fell(r['interpolated_fell'])} | {direct} |")
+        print(f"| {r['speed']:g} | {src} | {r['zero_objective']:.3f}{fail(r['zero_success'])} | "
+              f"{r['interpolated_objective']:.3f}{fail(r['interpolated_success'])} | {direct} |")
 
 
 if __name__ == "__main__":

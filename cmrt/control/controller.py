@@ -146,8 +146,14 @@ class MomentumBalanceController:
         n = f["qvel"].shape[0]
         tau = np.empty((n, self.actuated.size))
         info = np.empty((n, kernel.N_INFO))
-        def as_f(x, dtype=float):  # one memory layout for every call: numba compiles one signature
-            return np.ascontiguousarray(x, dtype=dtype)
+        def as_f(x, dtype=float):
+            """C-contiguous and read-only, like MuJoCo's bound batch fields: numba compiles one signature
+            (a writable copy and a read-only view are different types to it: 30 s of compiling each)."""
+            x = np.ascontiguousarray(x, dtype=dtype)
+            if x.flags.writeable:
+                x = x.view()
+                x.flags.writeable = False
+            return x
 
         kernel.control_step(
             *(as_f(f[k]) for k in ("cdof", "cdof_dot", "cvel", "cinert", "qpos", "qvel", "M", "qfrc_bias",
