@@ -107,7 +107,7 @@ def render(
     scores = [evaluate(task, tr) for tr in trajs]
     end_s = max(tr.time_s[-1] for tr in trajs)  # the clip, its standing tail, or a topple
     if out.suffix.lower() == ".png":
-        times = np.linspace(task.preparation_s - 0.2, end_s, n_frames)
+        times = np.linspace(max(0.0, task.preparation_s - 0.2), end_s, n_frames)
     else:
         times = np.arange(0.0, end_s, 1.0 / fps)
     with tqdm(total=len(times) * len(trajs), desc="render", unit="frame", file=sys.stderr,

@@ -57,7 +57,8 @@ def main() -> None:
     print(f"{'task':<26} {'curve':<8} {'success':<8} {'fall':<42} {'GRF/BW':>6} {'air s':>6} {'joint':>6} "
           f"{'margin':>7} {'track':>6}")
     for r in table:
-        label = r["task"] + "".join(f" {k.split('_')[0]}={v:g}" for k, v in r["params"].items())
+        short = {"push_force_n": "push {:g} N", "push_duration_s": "x {:g} s", "duration_s": "T {:g} s"}
+        label = " ".join([r["task"]] + [short[k].format(v) for k, v in r["params"].items()])
         fall = f"{r['fall_time_s']:.2f} s {r['fall_reason']}" if r["fell"] else "-"
         track = "-" if r["tracking_error_rad"] != r["tracking_error_rad"] else f"{r['tracking_error_rad']:.3f}"
         print(f"{label:<26} {r['curve']:<8} {str(r['success']):<8} {fall:<42} {r['peak_normal_force_bw']:6.2f} "
