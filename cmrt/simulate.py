@@ -178,6 +178,21 @@ def _support(geom_xpos: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.
     return xs.min(axis=1), xs.max(axis=1)
 
 
+def _ground_support(contact: np.ndarray, point_x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per simulation: is any heel/toe point on the floor, and [lo, hi] of those that are (NaN if none)."""
+    grounded = contact.any(axis=1)
+    lo = np.where(grounded, np.where(contact, point_x, np.inf).min(axis=1), np.nan)
+    hi = np.where(grounded, np.where(contact, point_x, -np.inf).max(axis=1), np.nan)
+    return grounded, lo, hi
+
+
+def _protective_torques(q: np.ndarray, qd: np.ndarray, hold: np.ndarray, limits: np.ndarray) -> np.ndarray:
+    """After a fall: a passive spring-damper about the pose it fell in - muscle tone without a goal, so it
+    cannot add energy (the CoM only goes down)."""
+    tau = PROTECTIVE_STIFFNESS_PER_RAD * limits * (hold - q) - PROTECTIVE_DAMPING_PER_RAD_S * limits * qd
+    return np.clip(tau, -limits, limits)
+
+
 def _control(controller, f, refs, com_ref, com_ref_vel, center, contact):
     """Torques for the given rows; a row whose plan is singular or non-finite gets zeros and bad=True."""
     with np.errstate(all="ignore"):
@@ -249,8 +264,6 @@ def simulate_batch(
     vel_stage = mujoco.mjtStage.mjSTAGE_VEL
     nq, nb = ch.model.nq, ch.model.nbody  # the humanoid's: a prop's coordinates follow
     act = np.array(ch.actuated_dofs)
-    stiffness = PROTECTIVE_STIFFNESS_PER_RAD * controller.limits
-    damping = PROTECTIVE_DAMPING_PER_RAD_S * controller.limits
 
     batch = mujoco.batch.Batch(m, nsim=n, nthread=threads or _threads(n), persistent=True)
     prop = PropRuntime(task.prop, m, task.params)
@@ -332,18 +345,15 @@ def simulate_batch(
                 f = {name: b[name][rows] for name in CONTROL_FIELDS}
                 ctrl[up], bad[up] = _control(controller, f, refs, center[up] + disp[rows, k], disp_vel[rows, k],
                                              center[up], contact[up])
-            if fallen.any():  # protective mode: a passive spring-damper about the pose at the fall
+            if fallen.any():
                 rows = ids[fallen]
-                q, qd = b["qpos"][rows][:, act], b["qvel"][rows][:, act]
-                ctrl[fallen] = np.clip(stiffness * (hold[rows] - q) - damping * qd, -controller.limits,
-                                       controller.limits)
+                ctrl[fallen] = _protective_torques(b["qpos"][rows][:, act], b["qvel"][rows][:, act], hold[rows],
+                                                   controller.limits)
             ctrl_all[ids] = ctrl
             b["ctrl"][sel] = ctrl
 
             # the balance monitor
-            grounded = contact.any(axis=1)  # support of the points on the ground (NaN: none is)
-            c_lo = np.where(grounded, np.where(contact, point_x, np.inf).min(axis=1), np.nan)
-            c_hi = np.where(grounded, np.where(contact, point_x, -np.inf).max(axis=1), np.nan)
+            grounded, c_lo, c_hi = _ground_support(contact, point_x)
             airborne_for[ids] = np.where(grounded, 0.0, airborne_for[ids] + control_dt)
             finite = ~bad & np.all(np.isfinite(qpos), axis=1) & (np.abs(b["time"][sel] - k * dt) < 1e-9)
             code = check_balance(

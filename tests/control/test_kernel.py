@@ -2,25 +2,11 @@
 
 import mujoco
 import numpy as np
-import pytest
 
-from cmrt.character import FOOT_POINT_RADIUS_M, character
+from cmrt.character import FOOT_POINT_RADIUS_M
 from cmrt.control import kernel
 from cmrt.control.momentum import KinematicsScratch, centroidal_momentum_matrix, foot_jacobian
 from cmrt.control.planar import PlanarKinematics
-from cmrt.task import load_task
-
-
-@pytest.fixture
-def state():
-    ch = character()
-    m = ch.model
-    d = mujoco.MjData(m)
-    rng = np.random.default_rng(1)
-    d.qpos[:] = load_task("bend").reference(np.array([1.2]))[0][0]
-    d.qvel[:] = rng.normal(scale=0.8, size=m.nv)
-    mujoco.mj_forward(m, d)
-    return ch, m, d
 
 
 def _kernel_centroidal(m, d):
@@ -29,7 +15,7 @@ def _kernel_centroidal(m, d):
 
 
 def test_momentum_matrix_and_bias_match_mujoco(state):
-    ch, m, d = state
+    ch, m, d, _ = state
     A, bias = _kernel_centroidal(m, d)
     np.testing.assert_allclose(A, centroidal_momentum_matrix(m, d), rtol=0, atol=1e-12)
     a_fd, _ = KinematicsScratch(m, ch.foot_bodies).biases(d.qpos.copy(), d.qvel.copy())
@@ -41,7 +27,7 @@ def test_momentum_matrix_and_bias_match_mujoco(state):
 
 
 def test_vectorised_momentum_matches_mujoco(state):
-    _, m, d = state
+    _, m, d, _ = state
     kin = PlanarKinematics(m)
     h, lx, lz = kin.momentum(d.cinert[None], d.cvel[None])[0]
     mujoco.mj_subtreeVel(m, d)
@@ -51,7 +37,7 @@ def test_vectorised_momentum_matches_mujoco(state):
 
 def test_foot_point_frames_match_mujoco(state):
     """Jacobian of a foot frame placed at the heel point, and its bias by finite differences."""
-    ch, m, d = state
+    ch, m, d, _ = state
     chain = PlanarKinematics(m).chain
     foot = ch.foot_bodies[0]
     heel = ch.foot_points[0][0]

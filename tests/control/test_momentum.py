@@ -2,23 +2,8 @@
 
 import mujoco
 import numpy as np
-import pytest
 
-from cmrt.character import character
 from cmrt.control.momentum import KinematicsScratch, centroidal_momentum_matrix, foot_jacobian
-from cmrt.task import load_task
-
-
-@pytest.fixture
-def state():
-    ch = character()
-    m = ch.model
-    d = mujoco.MjData(m)
-    rng = np.random.default_rng(0)
-    d.qpos[:] = load_task("bend").reference(np.array([1.2]))[0][0]
-    d.qvel[:] = rng.normal(scale=0.8, size=m.nv)
-    mujoco.mj_forward(m, d)
-    return ch, m, d, rng
 
 
 def momentum(m, d, q, qd):
