@@ -23,6 +23,7 @@ if "MUJOCO_GL" not in _os.environ:
     _gpu = _os.path.exists("/dev/nvidia0") or any(_os.path.exists(f"/dev/dri/renderD{i}") for i in range(128, 136))
     _os.environ["MUJOCO_GL"] = "egl" if _gpu else "osmesa"
 
+from cmrt.balance import BalanceLimits, FallReason  # noqa: E402
 from cmrt.character import character, load_model  # noqa: E402
 from cmrt.control import ControllerConfig, MomentumBalanceController  # noqa: E402
 from cmrt.curve import Cmrt  # noqa: E402
@@ -40,11 +41,13 @@ from cmrt.store import Store, open_store  # noqa: E402
 from cmrt.task import Task, available_tasks, load_task  # noqa: E402
 
 __all__ = [
+    "BalanceLimits",
     "Cmrt",
     "CmrtError",
     "ControllerConfig",
     "Evaluation",
     "Evaluator",
+    "FallReason",
     "MomentumBalanceController",
     "OptimizeSettings",
     "Store",
