@@ -13,11 +13,14 @@ A loss of balance is declared when one of these holds (checked in this order):
   body is toppling over the edge of its support;
 * ``CAPTURE_POINT``: the instantaneous capture point xi = c_x + v_x / omega,
   omega = sqrt(g / (c_z - ground)), lies more than ``capture_margin_m`` beyond the
-  support interval of the points on the ground. With the CoP at most at that edge,
-  xi moves away from it (xi' = omega (xi - p)): the inverted pendulum cannot come back
-  without a step. In our push sweeps (docs/controller.md) every clip whose capture
-  point left the support fell and every clip that recovered kept it inside, so the
-  margin only guards against a one-sample excursion.
+  support the feet on the ground span (heel to toe of every foot that touches it: a
+  foot rolled onto its toe comes back down flat while xi is behind the toe). With the
+  CoP at most at that edge, xi moves away from it (xi' = omega (xi - p)): the inverted
+  pendulum cannot come back without a step. In our push sweeps (docs/controller.md)
+  every clip whose capture point left the support fell and every clip that recovered
+  kept it inside, so the margin only guards against a one-sample excursion. The check
+  does not apply while the hands lean on a prop (the simulator passes an unbounded
+  support then): a body pushing a slab is held up by it, not an inverted pendulum.
 
 A foot rocking by millimetres, or the CoP touching an edge, is not a fall: it shows up
 in ``min_cop_margin_m`` instead. The checks are pure functions of arrays so that they

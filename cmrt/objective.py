@@ -14,7 +14,7 @@ A clip is a **success** when
   [P, P + T] with an RMS joint error no larger than that of its own reference played
   ``max_tracking_lag`` x T late (0.1 of T by default; ~0.1 rad on the bend): a motion done
   late or half-heartedly is not the motion asked for; a task with a
-  prop met its goal (ball caught and held, slab toppled, pad hit); pure standing has
+  prop met its goal (ball caught and held, slab toppled, pad struck); pure standing has
   nothing to perform (``performed`` is None);
 * the character **settled**: at the end of the tail its CoM moves slower than
   ``SETTLED_COM_SPEED_M_S``.
@@ -37,10 +37,12 @@ import numpy as np
 
 from cmrt.character import character
 from cmrt.control.controller import GRAVITY_M_S2
+from cmrt.props import CONTACT_FORCE_N
 from cmrt.simulate import Trajectory
 from cmrt.task import Task
 
 MIN_FOOT_FORCE_FRACTION = 0.05
+IMPACT_WINDOW_S = 0.1  # peak ground force is reported outside this window after the first hand-prop contact
 AIRBORNE_FORCE_FRACTION = 0.01  # total foot normal force below this fraction of body weight: airborne
 FINAL_POSE_TOLERANCE_RAD = 0.1
 SETTLED_COM_SPEED_M_S = 0.05
@@ -76,6 +78,12 @@ class Evaluation:
     final_com_speed_m_s: float
     n_samples: int
     task_success: bool | None = None
+    # hand-prop interaction (None without a prop), before any fall: the first contact, the largest force
+    # and the impulse over the clip; for a ball, how far the hands holding it sagged below the reference
+    first_contact_s: float | None = None
+    peak_contact_force_n: float | None = None
+    contact_impulse_n_s: float | None = None
+    ball_sag_m: float | None = None
 
 
 def _sample_index(task: Task, traj: Trajectory) -> np.ndarray:
@@ -136,7 +144,12 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
     norm = float(np.linalg.norm(e))
     margin = np.minimum(traj.cop_x_m[idx] - traj.support_lo_x_m[idx], traj.support_hi_x_m[idx] - traj.cop_x_m[idx])
     before = _before_fall(traj)
-    fz = traj.normal_force_n[before]
+    contact = _contact_summary(traj, before)
+    grf = before.copy()
+    if contact["first_contact_s"] is not None:  # the impact itself is not a plausibility violation
+        start = contact["first_contact_s"]
+        grf &= ~((traj.time_s >= start) & (traj.time_s < start + IMPACT_WINDOW_S))
+    fz = traj.normal_force_n[grf]
     fz = fz[np.isfinite(fz)]
     dt = float(traj.time_s[1] - traj.time_s[0]) if traj.time_s.size > 1 else 0.0
     speeds = traj.max_joint_speed_rad_s[before]
@@ -190,4 +203,18 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
         final_com_speed_m_s=traj.final_com_speed_m_s,
         n_samples=int(e.size),
         task_success=traj.task_success,
+        **contact,
+        ball_sag_m=traj.prop_extras.get("ball_sag_m"),
     )
+
+
+def _contact_summary(traj: Trajectory, before: np.ndarray) -> dict:
+    """First hand-prop contact, peak force and impulse before any fall (all None without a prop)."""
+    force = traj.prop_force_n
+    if not np.isfinite(force).any():
+        return {"first_contact_s": None, "peak_contact_force_n": None, "contact_impulse_n_s": None}
+    f = np.nan_to_num(force[before])  # the same samples whether or not a topple was played out after
+    dt = float(traj.time_s[1] - traj.time_s[0])
+    touching = np.flatnonzero(f > CONTACT_FORCE_N)
+    return {"first_contact_s": float(traj.time_s[before][touching[0]]) if touching.size else None,
+            "peak_contact_force_n": float(f.max()), "contact_impulse_n_s": float(f.sum() * dt)}

@@ -1,4 +1,4 @@
-"""Task props added to the character's model: a thrown ball, a domino slab, a wall pad.
+"""Task props added to the character's model: a thrown ball, a free slab, a punching pad.
 
 A task file names its prop in ``[prop] kind = "..."``; the prop's numbers live in the
 task's ``[params]`` (so ``--set ball_mass_kg=1`` works) and the model is rebuilt (and
@@ -6,22 +6,32 @@ cached per process) for each distinct set of them. Props are appended after the
 humanoid with ``MjSpec``, so every humanoid body, joint, dof, geom and sensor keeps its
 index and the controller works on the leading slices of the batch arrays.
 
-* ``ball``: a sphere on planar joints (slide x, slide z, hinge y), thrown at the hands at
-  ``ball_speed_m_s``. It flies level (``gravcomp = 1``) so its arrival point and time
-  are set exactly by the task; when its centre comes within reach of the right hand a
-  ``connect`` equality (inactive in the model) is switched on for that simulation with
-  its anchor at the ball's current position, and gravity is given back to the ball: the
-  hands now hold 7 kg. Catching is modelled as a grip, not as friction between two
-  capsules and a sphere, which a planar model cannot hold.
-* ``slab``: a ``slab_mass_kg`` block standing on the floor in front of the character,
-  hinged at its far bottom edge; it topples when pushed past that edge.
-* ``wall``: a fixed pad at ``wall_x_m`` in front of the character (a punching target);
-  its contact stiffness is ``wall_timeconst_s``.
+* ``ball``: a sphere on planar joints, held still until it is released on a ballistic arc
+  (gravity on) that brings it to the hands at ``ball_arrival_s`` with speed
+  ``ball_speed_m_s``, descending at ``ball_angle_deg``, after ``ball_flight_s`` of flight.
+  When it touches the fingertips a ``connect`` equality to each forearm is switched on
+  (the grip, made at contact). Caught = gripped and held with the hands at most
+  ``max_ball_sag_m`` below where the reference holds them. Once the grip has brought the
+  ball to the hands' velocity (at most ``GRIP_SETTLE_S`` later), its mass is moved into the
+  two forearms (per-simulation model fields, ``mj_setConst``): from then on MuJoCo's own
+  dynamics of the character - the
+  momentum matrix, the mass matrix, gravity - carry the load, and so does the controller
+  (it knows what the character holds). The ball body keeps ``BALL_RESIDUAL_MASS_KG`` and
+  stops colliding.
+* ``slab``: a free block (planar joints: it can slide and tip) standing on the floor in
+  front of the character; floor friction 1.0 (MuJoCo takes the larger of the two geoms').
+  Toppled when it has rotated past its balance angle and is falling (``TOPPLED_DEG``).
+* ``wall``: a fixed pad (a punching target); its contact stiffness is ``wall_timeconst_s``.
+
+Contact with a prop is measured every physics step: touch sensors around the forearms
+(hands included) for the slab and the pad, and for the ball the force the hands apply to
+it, m (a - g), from its acceleration.
 """
 
 from __future__ import annotations
 
 import functools
+import math
 
 import mujoco
 import numpy as np
@@ -30,16 +40,28 @@ from cmrt.character import MODEL_PATH
 
 PROP_KINDS = ("ball", "slab", "wall")
 BALL_RADIUS_M = 0.12
+FOREARM_RADIUS_M = 0.035
 HAND_OFFSET_M = np.array([0.0, 0.0, -0.40])  # forearm frame -> fingertip end of the capsule
-CATCH_MARGIN_M = 0.03
+GRIP_TOLERANCE_M = 0.005  # the ball counts as touching the fingertips within this gap
+GRIP_TIMECONST_S = 0.01  # the grip's constraint time constant (MuJoCo's default 0.02 lets 12 kg wobble)
+GRIP_SETTLE_S = 0.06  # at the latest this long after the grip the load is handed to the forearms
+GRIP_SETTLED_M_S = 0.05  # ... or as soon as the ball moves with the point it is held at to within this
+BALL_RESIDUAL_MASS_KG = 0.05  # what the ball body keeps once its mass is in the forearms
+CONTACT_FORCE_N = 1.0  # a hand-prop force above this counts as contact
+TOPPLED_DEG = 30.0  # a slab rotated this far has passed its balance angle and is falling
+GRAVITY_M_S2 = 9.81
 
-#: Task parameters each prop reads when the model is built, with defaults.
+#: Task parameters each prop reads when the model is built or the clip runs, with defaults.
 PROP_PARAMS: dict[str, dict[str, float]] = {
-    "ball": {"ball_mass_kg": 7.0, "ball_speed_m_s": 4.0, "ball_arrival_s": 1.35, "ball_height_m": 1.36,
-             "ball_reach_m": 0.86},
-    "slab": {"slab_mass_kg": 140.0, "slab_x_m": 0.62, "slab_thickness_m": 0.08, "slab_height_m": 1.9},
-    "wall": {"wall_x_m": 0.58, "wall_timeconst_s": 0.01},
+    "ball": {"ball_mass_kg": 7.0, "ball_speed_m_s": 4.0, "ball_angle_deg": 10.0, "ball_flight_s": 0.4,
+             "ball_arrival_s": 1.35, "ball_height_m": 1.36, "ball_reach_m": 0.86, "max_ball_sag_m": 0.1},
+    "slab": {"slab_mass_kg": 140.0, "slab_x_m": 0.62, "slab_thickness_m": 0.25, "slab_height_m": 1.8},
+    "wall": {"wall_x_m": 0.58, "wall_timeconst_s": 0.01, "strike_impulse_n_s": 3.0, "max_contact_s": 0.3},
 }
+#: Parameters that change the compiled model (the others only change how a clip runs).
+MODEL_PARAMS = {"ball": ("ball_mass_kg",), "slab": ("slab_mass_kg", "slab_x_m", "slab_thickness_m",
+                                                    "slab_height_m"), "wall": ("wall_x_m", "wall_timeconst_s")}
+SLAB_WIDTH_M = 0.6
 
 
 def _free_planar(body, prefix: str) -> None:
@@ -51,116 +73,308 @@ def _free_planar(body, prefix: str) -> None:
         j.armature = 0.0
 
 
+def ball_release(p: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    """(x, z) position and velocity at release that bring the ball to the catch point on time."""
+    angle = math.radians(p["ball_angle_deg"])
+    v_arrive = p["ball_speed_m_s"] * np.array([-math.cos(angle), -math.sin(angle)])
+    gravity = np.array([0.0, -GRAVITY_M_S2])
+    tau = p["ball_flight_s"]
+    v0 = v_arrive - gravity * tau
+    p0 = np.array([p["ball_reach_m"], p["ball_height_m"]]) - v0 * tau - 0.5 * gravity * tau**2
+    return p0, v0
+
+
 @functools.lru_cache(maxsize=32)
 def build_model(kind: str | None, values: tuple[tuple[str, float], ...] = ()) -> mujoco.MjModel:
     """The humanoid plus one prop (or none), compiled once per distinct parameter set."""
     spec = mujoco.MjSpec.from_file(str(MODEL_PATH))
     p = dict(values)
     if kind == "ball":
-        body = spec.worldbody.add_body(name="ball", pos=[p["ball_reach_m"], 0, p["ball_height_m"]], gravcomp=1.0)
+        body = spec.worldbody.add_body(name="ball", pos=[0, 0, 0])
         _free_planar(body, "ball")
         body.add_geom(name="ball", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[BALL_RADIUS_M, 0, 0],
                       mass=p["ball_mass_kg"], contype=1, conaffinity=1, rgba=[0.8, 0.3, 0.1, 1])
         for side in ("r", "l"):  # both hands grip: the load is shared by the two arms
-            spec.add_equality(name=f"catch_{side}", type=mujoco.mjtEq.mjEQ_CONNECT, name1=f"forearm_{side}",
-                              name2="ball", objtype=mujoco.mjtObj.mjOBJ_BODY, active=False)
+            eq = spec.add_equality(name=f"catch_{side}", type=mujoco.mjtEq.mjEQ_CONNECT, name1=f"forearm_{side}",
+                                   name2="ball", objtype=mujoco.mjtObj.mjOBJ_BODY, active=False)
+            eq.solref = [GRIP_TIMECONST_S, 1.0]
     elif kind == "slab":
         t, h = p["slab_thickness_m"], p["slab_height_m"]
-        body = spec.worldbody.add_body(name="slab", pos=[p["slab_x_m"] + t, 0, 0])  # frame at the far bottom edge
-        j = body.add_joint(name="slab_tip", type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 1, 0])
-        j.limited = mujoco.mjtLimited.mjLIMITED_FALSE
-        j.armature = 0.0
-        body.add_geom(name="slab", type=mujoco.mjtGeom.mjGEOM_BOX, size=[t / 2, 0.35, h / 2],
-                      pos=[-t / 2, 0, h / 2 + 0.002], mass=p["slab_mass_kg"], contype=1, conaffinity=1,
+        body = spec.worldbody.add_body(name="slab", pos=[p["slab_x_m"] + t / 2, 0, h / 2 + 0.001])
+        _free_planar(body, "slab")
+        body.add_geom(name="slab", type=mujoco.mjtGeom.mjGEOM_BOX, size=[t / 2, SLAB_WIDTH_M / 2, h / 2],
+                      mass=p["slab_mass_kg"], contype=1, conaffinity=1, friction=[1.0, 0.005, 0.0001],
                       rgba=[0.5, 0.5, 0.6, 1])
+        _hand_touch_sensors(spec)
     elif kind == "wall":
         # in a body of its own (fixed, no joints): geoms of the world body itself would be
         # numbered before the humanoid's and shift their indices
         body = spec.worldbody.add_body(name="wall", pos=[p["wall_x_m"] + 0.05, 0, 1.3])
         body.add_geom(name="wall", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.05, 0.4, 0.4], contype=1,
                       conaffinity=1, solref=[p["wall_timeconst_s"], 1.0], rgba=[0.3, 0.3, 0.8, 1])
+        _hand_touch_sensors(spec)
     elif kind is not None:
         raise ValueError(kind)
     return spec.compile()
 
 
+def _hand_touch_sensors(spec: mujoco.MjSpec) -> None:
+    """Touch sensors around each forearm (hand included): the normal force of what the arms touch. They
+    come after the humanoid's four foot sensors; before any fall the arms touch only the prop."""
+    for side in ("r", "l"):
+        body = spec.body(f"forearm_{side}")
+        body.add_site(name=f"hand_touch_{side}", type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+                      size=[FOREARM_RADIUS_M + 0.01, 0.2, 0], pos=[0, 0, -0.2], rgba=[0, 0, 0, 0])
+        spec.add_sensor(name=f"hand_touch_{side}", type=mujoco.mjtSensor.mjSENS_TOUCH,
+                        objtype=mujoco.mjtObj.mjOBJ_SITE, objname=f"hand_touch_{side}")
+
+
 def model_values(kind: str | None, params: dict[str, float]) -> tuple[tuple[str, float], ...]:
     if kind is None:
         return ()
-    return tuple((k, float(params[k])) for k in sorted(PROP_PARAMS[kind]))
+    return tuple((k, float(params[k])) for k in sorted(MODEL_PARAMS[kind]))
 
 
-class PropRuntime:
-    """Per-clip behaviour of a prop inside the batched simulation loop."""
+def prop_runtime(kind: str | None, model: mujoco.MjModel, params: dict[str, float]) -> Prop:
+    return {None: Prop, "ball": Ball, "slab": Slab, "wall": Pad}[kind](model, params)
 
-    def __init__(self, kind: str | None, model: mujoco.MjModel, params: dict[str, float]):
-        self.kind, self.model, self.params = kind, model, params
-        if kind == "ball":
-            self.ball_body = model.body("ball").id
-            self.ball_dofs = slice(model.joint("ball_x").dofadr[0], model.joint("ball_x").dofadr[0] + 3)
-            self.ball_qpos = slice(model.joint("ball_x").qposadr[0], model.joint("ball_x").qposadr[0] + 3)
-            self.hand_body = model.body("forearm_r").id
-            self.hand_bodies = (model.body("forearm_r").id, model.body("forearm_l").id)
-        if kind == "slab":
-            self.slab_qpos = model.joint("slab_tip").qposadr[0]
+
+class Prop:
+    """Per-clip behaviour of a prop inside the batched simulation loop (this base: no prop)."""
+
+    kind: str | None = None
+
+    def __init__(self, model: mujoco.MjModel, params: dict[str, float]):
+        self.model, self.params = model, params
+        self.sensors = None  # sensordata indices of the hands' touch sensors, if the prop has them
+        if any(model.sensor(i).name == "hand_touch_r" for i in range(model.nsensor)):
+            self.sensors = [model.sensor(f"hand_touch_{side}").adr[0] for side in ("r", "l")]
 
     def fields(self) -> set[str]:
-        return {"ball": {"xmat", "eq_active"}, "wall": {"xmat"}}.get(self.kind, set())
+        """Batch fields the prop reads or writes besides the simulator's own."""
+        return set()
 
     def settle_hold(self, b: dict) -> None:
         """Keep the prop still while the character settles."""
-        if self.kind == "ball":
-            b["qvel"][:, self.ball_dofs] = 0.0
 
-    def start(self, batch, b: dict) -> None:
-        """Set the prop going at the start of the clip (the ball is thrown)."""
-        if self.kind == "ball":
-            p = self.params
-            start_x = p["ball_reach_m"] + p["ball_speed_m_s"] * p["ball_arrival_s"]
-            b["qpos"][:, self.ball_qpos] = [start_x - p["ball_reach_m"], 0.0, 0.0]
-            b["qvel"][:, self.ball_dofs] = [-p["ball_speed_m_s"], 0.0, 0.0]
-            self.eq_data = batch.expand("eq_data")
-            self.gravcomp = batch.expand("body_gravcomp")
-            self.caught = np.zeros(b["qpos"].shape[0], bool)
+    #: the prop acts every physics step (a ball released or caught at the right instant), not every control step
+    every_step = False
 
-    def control_step(self, b: dict, ids: np.ndarray) -> None:
-        """Called before each control step: the catch; the punch's hit."""
-        if self.kind == "wall":
-            if not hasattr(self, "hit"):
-                self.hit = np.zeros(b["qpos"].shape[0], bool)
-            hand_body = self.model.body("forearm_r").id
-            R = b["xmat"][ids, hand_body].reshape(-1, 3, 3)
-            tip = b["xpos"][ids, hand_body] + R @ HAND_OFFSET_M
-            self.hit[ids] |= tip[:, 0] + 0.035 >= self.params["wall_x_m"] - 0.002  # fist (capsule end) at the pad
-            return
-        if self.kind != "ball":
-            return
-        ids = ids[~self.caught[ids]]
-        if ids.size == 0:
-            return
-        hand_origin = b["xpos"][ids, self.hand_body]
-        R = b["xmat"][ids, self.hand_body].reshape(-1, 3, 3)
-        hand = hand_origin + R @ HAND_OFFSET_M
-        ball = b["xpos"][ids, self.ball_body]
-        near = np.hypot(ball[:, 0] - hand[:, 0], ball[:, 2] - hand[:, 2]) < BALL_RADIUS_M + CATCH_MARGIN_M
-        for i in np.flatnonzero(near):
-            sim = ids[i]
-            for eq, body in enumerate(self.hand_bodies):
-                Rb = b["xmat"][sim, body].reshape(3, 3)
-                self.eq_data[sim, eq, 0:3] = Rb.T @ (ball[i] - b["xpos"][sim, body])  # anchor in the forearm frame
-                self.eq_data[sim, eq, 3:6] = 0.0  # the ball's centre
-                b["eq_active"][sim, eq] = 1.0
-            self.gravcomp[sim, self.ball_body] = 0.0
-            self.caught[sim] = True
+    def start(self, batch, b: dict, n: int, end_qpos: np.ndarray) -> None:
+        """Set up the clip's start (``end_qpos``: the task's target pose)."""
+        self.carried_kg = np.zeros(n)
 
-    def success(self, b: dict) -> np.ndarray | None:
-        """Per simulation: was the task's goal reached? None for pure pose changes."""
-        n = b["qpos"].shape[0]
-        if self.kind == "ball":
-            held = b["xpos"][:, self.ball_body, 2] > 0.5
-            return self.caught & held
-        if self.kind == "slab":
-            return b["qpos"][:, self.slab_qpos] > np.radians(30)  # toppled well past its edge
-        if self.kind == "wall":
-            return self.hit if hasattr(self, "hit") else np.zeros(n, bool)
+    def step(self, batch, b: dict, ids: np.ndarray, t: float) -> None:
+        """Called before a step at time ``t`` for the active simulations."""
+
+    def extras(self, b: dict, rows: np.ndarray) -> dict[str, np.ndarray]:
+        """Figures of the prop for simulations ``rows`` now (e.g. how far a held ball sagged)."""
+        return {}
+
+    def contact_force(self, b: dict, sel) -> np.ndarray | None:
+        """Force between the character's hands and the prop during the step just taken (N), or None."""
+        if self.sensors is None:
+            return None
+        data = b["sensordata"][sel]
+        return data[:, self.sensors[0]] + data[:, self.sensors[1]]
+
+    def success(self, b: dict, rows: np.ndarray, contact_force_n: np.ndarray, times: np.ndarray,
+                window: tuple[float, float]) -> np.ndarray | None:
+        """For simulations ``rows``, now (at the end of the run, or at a fall): was the goal reached?
+        None for pure pose changes. ``contact_force_n`` (rows, steps) is the history so far."""
         return None
+
+
+class Ball(Prop):
+    kind = "ball"
+    every_step = True
+
+    def __init__(self, model, params):
+        super().__init__(model, params)
+        self.body = model.body("ball").id
+        self.geom = model.geom("ball").id
+        adr = model.joint("ball_x")
+        self.dofs = slice(adr.dofadr[0], adr.dofadr[0] + 3)
+        self.qpos = slice(adr.qposadr[0], adr.qposadr[0] + 3)
+        self.forearms = (model.body("forearm_r").id, model.body("forearm_l").id)
+        self.release_pos, self.release_vel = ball_release(params)
+        self.release_s = params["ball_arrival_s"] - params["ball_flight_s"]
+
+    def fields(self):
+        return {"xmat", "eq_active", "qacc"}
+
+    def _hold(self, b: dict, rows) -> None:
+        b["qpos"][rows, self.qpos] = [*self.release_pos, 0.0]
+        b["qvel"][rows, self.dofs] = 0.0
+
+    def settle_hold(self, b):
+        self._hold(b, slice(None))
+
+    def start(self, batch, b, n, end_qpos):
+        super().start(batch, b, n, end_qpos)
+        self.reference_tip_z = fingertip_z(self.model, end_qpos)
+        self.eq_data = batch.expand("eq_data")
+        self.gravcomp = batch.expand("body_gravcomp")
+        self.mass = batch.expand("body_mass")
+        self.inertia = batch.expand("body_inertia")
+        self.ipos = batch.expand("body_ipos")
+        self.iquat = batch.expand("body_iquat")
+        self.contype = batch.expand("geom_contype")
+        self.conaffinity = batch.expand("geom_conaffinity")
+        self.batch = batch
+        self.gravcomp[:, self.body] = 1.0  # held in the thrower's hand until the release
+        self._hold(b, slice(None))
+        self.released = np.zeros(n, bool)
+        self.grip_s = np.full(n, np.nan)
+        self.handed_over = np.zeros(n, bool)
+        self.drift = np.zeros((n, 2))
+        self.handover_s = np.full(n, np.nan)
+
+    def step(self, batch, b, ids, t):
+        release = ids[~self.released[ids]]
+        if release.size and t >= self.release_s - 1e-9:
+            b["qvel"][release, self.dofs] = [*self.release_vel, 0.0]
+            self.gravcomp[release, self.body] = 0.0
+            self.released[release] = True
+        elif release.size:
+            self._hold(b, release)
+        free = ids[self.released[ids] & np.isnan(self.grip_s[ids])]
+        if free.size:
+            hand = self.forearms[0]
+            R = b["xmat"][free, hand].reshape(-1, 3, 3)
+            tip = b["xpos"][free, hand] + R @ HAND_OFFSET_M
+            ball = b["xpos"][free, self.body]
+            gap = np.hypot(ball[:, 0] - tip[:, 0], ball[:, 2] - tip[:, 2]) - BALL_RADIUS_M - FOREARM_RADIUS_M
+            for sim in free[gap <= GRIP_TOLERANCE_M]:  # the grip, made at contact
+                for eq, body in enumerate(self.forearms):
+                    Rb = b["xmat"][sim, body].reshape(3, 3)
+                    self.eq_data[sim, eq, 0:3] = Rb.T @ (b["xpos"][sim, self.body] - b["xpos"][sim, body])
+                    self.eq_data[sim, eq, 3:6] = 0.0  # the ball's centre
+                    b["eq_active"][sim, eq] = 1.0
+                self.grip_s[sim] = t
+        held = ids[~self.handed_over[ids] & ~np.isnan(self.grip_s[ids])]
+        due = held[self._settled(b, held, t)]
+        if due.size:
+            for sim in due:
+                self._hand_over(b, sim)
+            self.handover_s[due] = t
+            anchors = self.eq_data.copy()  # mj_setConst recomputes connect anchors from qpos0: keep ours
+            batch.set_const()
+            self.eq_data[:] = anchors
+
+    def _settled(self, b: dict, rows: np.ndarray, t: float) -> np.ndarray:
+        """Has the grip brought the ball to the hands' motion? The drift of the ball away from its anchor
+        on the right forearm, step to step, is their relative velocity."""
+        if rows.size == 0:
+            return np.zeros(0, bool)
+        body = self.forearms[0]
+        R = b["xmat"][rows, body].reshape(-1, 3, 3)
+        anchor = b["xpos"][rows, body] + (R @ self.eq_data[rows, 0, 0:3, None])[..., 0]
+        drift = (b["xpos"][rows, self.body] - anchor)[:, [0, 2]]
+        dt = self.model.opt.timestep
+        rate = np.hypot(*(drift - self.drift[rows]).T) / dt
+        self.drift[rows] = drift
+        fresh = t - self.grip_s[rows] < 2 * dt  # no previous drift yet
+        return ~fresh & ((rate < GRIP_SETTLED_M_S) | (t - self.grip_s[rows] >= GRIP_SETTLE_S - 1e-9))
+
+    def _hand_over(self, b: dict, sim: int) -> None:
+        """Move the ball's mass into the forearms (half each, at the ball's place in their frames)."""
+        m_ball = self.mass[sim, self.body] - BALL_RESIDUAL_MASS_KG
+        half = 0.5 * m_ball
+        own = 0.4 * half * BALL_RADIUS_M**2  # a solid sphere's inertia about its centre
+        for body in self.forearms:
+            R = b["xmat"][sim, body].reshape(3, 3)
+            r = R.T @ (b["xpos"][sim, self.body] - b["xpos"][sim, body])  # ball centre, forearm frame
+            m_f, c_f = self.mass[sim, body], self.ipos[sim, body].copy()
+            q = self.iquat[sim, body]
+            Rf = np.empty(9)
+            mujoco.mju_quat2Mat(Rf, q)
+            Rf = Rf.reshape(3, 3)
+            total = m_f + half
+            c = (m_f * c_f + half * r) / total
+            inertia = Rf @ np.diag(self.inertia[sim, body]) @ Rf.T + own * np.eye(3)
+            for mass, point in ((m_f, c_f), (half, r)):
+                d = point - c
+                inertia += mass * (d @ d * np.eye(3) - np.outer(d, d))
+            values, vectors = np.linalg.eigh(inertia)
+            if np.linalg.det(vectors) < 0:
+                vectors[:, 0] = -vectors[:, 0]
+            quat = np.empty(4)
+            mujoco.mju_mat2Quat(quat, vectors.ravel())
+            self.mass[sim, body], self.ipos[sim, body] = total, c
+            self.inertia[sim, body], self.iquat[sim, body] = values, quat
+        self.mass[sim, self.body] = BALL_RESIDUAL_MASS_KG
+        self.inertia[sim, self.body] = 0.4 * BALL_RESIDUAL_MASS_KG * BALL_RADIUS_M**2
+        self.contype[sim, self.geom] = self.conaffinity[sim, self.geom] = 0
+        self.carried_kg[sim] = m_ball
+        self.handed_over[sim] = True
+
+    def contact_force(self, b, sel):
+        """|m (a - g)| of the ball: what the hands (or anything else) apply to it."""
+        acc = b["qacc"][sel, self.dofs]
+        mass = self.mass[sel, self.body]
+        return mass * np.hypot(acc[:, 0], acc[:, 1] + GRAVITY_M_S2)
+
+    def success(self, b, rows, contact_force_n, times, window):
+        """Caught, and held where the reference holds the hands: they sag at most ``max_ball_sag_m``."""
+        sag = self.extras(b, rows)["ball_sag_m"]
+        return ~np.isnan(self.grip_s[rows]) & (sag <= self.params["max_ball_sag_m"])
+
+    def extras(self, b, rows):
+        hand = self.forearms[0]
+        R = b["xmat"][rows, hand].reshape(-1, 3, 3)
+        tip_z = (b["xpos"][rows, hand] + R @ HAND_OFFSET_M)[:, 2]
+        grip = self.grip_s[rows]
+        return {"grip_s": grip, "handover_s": self.handover_s[rows],
+                "ball_sag_m": np.where(np.isnan(grip), np.nan, self.reference_tip_z - tip_z)}
+
+
+def fingertip_z(model: mujoco.MjModel, qpos: np.ndarray) -> float:
+    """Height of the right fingertip in pose ``qpos`` (the humanoid's coordinates)."""
+    d = mujoco.MjData(model)
+    d.qpos[: qpos.size] = qpos
+    mujoco.mj_kinematics(model, d)
+    hand = model.body("forearm_r").id
+    return float((d.xpos[hand] + d.xmat[hand].reshape(3, 3) @ HAND_OFFSET_M)[2])
+
+
+class Slab(Prop):
+    kind = "slab"
+
+    def __init__(self, model, params):
+        super().__init__(model, params)
+        self.pitch = model.joint("slab_pitch").qposadr[0]
+
+    def success(self, b, rows, contact_force_n, times, window):
+        return b["qpos"][rows, self.pitch] > math.radians(TOPPLED_DEG)  # rotated away, past its balance angle
+
+
+class Pad(Prop):
+    kind = "wall"
+
+    def success(self, b, rows, contact_force_n, times, window):
+        """A strike: enough impulse delivered inside the task window, no contact before it, and no
+        contact lasting longer than ``max_contact_s`` (no leaning on the pad)."""
+        return strike_success(contact_force_n, times, window, self.params["strike_impulse_n_s"],
+                              self.params["max_contact_s"])
+
+
+def strike_success(force_n: np.ndarray, times: np.ndarray, window: tuple[float, float], impulse_n_s: float,
+                   max_contact_s: float) -> np.ndarray:
+    """Per row of ``force_n`` (n, steps): a strike in [start, end] of at least ``impulse_n_s``, nothing
+    touching before ``start``, and no contact episode longer than ``max_contact_s``."""
+    dt = float(times[1] - times[0])
+    f = np.nan_to_num(force_n)
+    touching = f > CONTACT_FORCE_N
+    inside = (times >= window[0]) & (times <= window[1])
+    impulse = (f * inside).sum(axis=1) * dt
+    early = (touching & (times < window[0])).any(axis=1)
+    longest = np.array([_longest_run(row) for row in touching]) * dt
+    return (impulse >= impulse_n_s) & ~early & (longest <= max_contact_s)
+
+
+def _longest_run(flags: np.ndarray) -> int:
+    if not flags.any():
+        return 0
+    edges = np.diff(np.concatenate([[0], flags.astype(np.int8), [0]]))
+    return int((np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)).max())

@@ -28,7 +28,7 @@ Forces on the hands (a ball, a bag, a slab) never enter it.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import mujoco
 import mujoco.batch
@@ -39,7 +39,7 @@ from cmrt.character import FOOT_POINT_RADIUS_M, character
 from cmrt.control import ControllerConfig, MomentumBalanceController
 from cmrt.control.planar import PlanarKinematics
 from cmrt.curve import Cmrt
-from cmrt.props import PropRuntime, model_values
+from cmrt.props import CONTACT_FORCE_N, model_values, prop_runtime
 from cmrt.task import Task
 
 SETTLE_S = 1.5
@@ -79,6 +79,7 @@ class Trajectory:
     point_lift_m: np.ndarray  # (n, 4): heel_r, toe_r, heel_l, toe_l above settled height
     point_contact: np.ndarray  # (n, 4): 1 where that point touches the floor (control steps), else 0
     foot_roll_rad: np.ndarray  # (n, 2): pitch of each foot (0 flat; < 0 toes up)
+    prop_force_n: np.ndarray  # force between the character and the task's prop, every step (NaN: no prop)
     max_joint_speed_rad_s: np.ndarray  # largest |qvel| of the actuated joints (control steps)
     cmrt_displacement_m: np.ndarray
     com_ref_x_m: np.ndarray
@@ -91,7 +92,8 @@ class Trajectory:
     diverged: bool
     final_qpos: np.ndarray  # the humanoid's at the end of the tail, or at the fall
     final_com_speed_m_s: float  # |CoM velocity| at the end of the tail, or at the fall
-    task_success: bool | None = None  # goal reached (ball caught and held, slab toppled, target hit)
+    task_success: bool | None = None  # goal reached (ball caught and held, slab toppled, pad struck)
+    prop_extras: dict[str, float] = field(default_factory=dict)  # e.g. grip_s, ball_sag_m for a ball
 
     @property
     def max_lift_m(self) -> float:
@@ -105,6 +107,7 @@ class Trajectory:
         out["fall_time_s"] = np.array(np.nan if self.fall_time_s is None else self.fall_time_s)
         out["fall_reason"] = np.array("" if self.fall_reason is None else self.fall_reason.value)
         out["task_success"] = np.array(np.nan if self.task_success is None else float(self.task_success))
+        out.update({k: np.array(v) for k, v in self.prop_extras.items()})
         return out
 
 
@@ -152,7 +155,7 @@ def settled_state(task: Task, config: ControllerConfig) -> dict[str, np.ndarray]
     if key not in _SETTLED:
         ch = character()
         m = task.model()
-        prop = PropRuntime(task.prop, m, task.params)
+        prop = prop_runtime(task.prop, m, task.params)
         batch = mujoco.batch.Batch(m, nsim=1, nthread=1, persistent=True)
         f = {k: batch.bind(k) for k in set(CONTROL_FIELDS) | set(STATE_FIELDS) | {"ctrl"}}
         f["qpos"][0, : q0.size] = q0
@@ -179,10 +182,14 @@ def _support(geom_xpos: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def _ground_support(contact: np.ndarray, point_x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per simulation: is any heel/toe point on the floor, and [lo, hi] of those that are (NaN if none)."""
-    grounded = contact.any(axis=1)
-    lo = np.where(grounded, np.where(contact, point_x, np.inf).min(axis=1), np.nan)
-    hi = np.where(grounded, np.where(contact, point_x, -np.inf).max(axis=1), np.nan)
+    """Per simulation: is any heel/toe point on the floor, and [lo, hi] spanned by the feet that touch it
+    (NaN if none). A foot rolled onto its toe still spans heel to toe: a capture point between them brings
+    it back down flat; only beyond the rolling edge is the body going over."""
+    foot_down = contact[:, 0::2] | contact[:, 1::2]  # (n, 2): right, left
+    on = np.repeat(foot_down, 2, axis=1)  # both points of a foot that touches
+    grounded = foot_down.any(axis=1)
+    lo = np.where(grounded, np.where(on, point_x, np.inf).min(axis=1), np.nan)
+    hi = np.where(grounded, np.where(on, point_x, -np.inf).max(axis=1), np.nan)
     return grounded, lo, hi
 
 
@@ -193,18 +200,30 @@ def _protective_torques(q: np.ndarray, qd: np.ndarray, hold: np.ndarray, limits:
     return np.clip(tau, -limits, limits)
 
 
-def _control(controller, f, refs, com_ref, com_ref_vel, center, contact):
+def _judge_prop(prop, b, rows, force, times, window, goal, extras) -> None:
+    """The prop's verdict and figures for simulations ``rows`` as they are now (a fall freezes them, so
+    a recorded topple cannot change them)."""
+    if rows.size == 0:
+        return
+    verdict = prop.success(b, rows, force, times, window)
+    if verdict is not None:
+        goal[rows] = verdict
+    for key, values in prop.extras(b, rows).items():
+        extras.setdefault(key, np.full(goal.size, np.nan))[rows] = values
+
+
+def _control(controller, f, refs, com_ref, com_ref_vel, center, contact, mass):
     """Torques for the given rows; a row whose plan is singular or non-finite gets zeros and bad=True."""
     with np.errstate(all="ignore"):
         try:
-            ctrl = controller.torques(f, *refs, com_ref, com_ref_vel, center, contact).torque_nm
+            ctrl = controller.torques(f, *refs, com_ref, com_ref_vel, center, contact, mass).torque_nm
         except np.linalg.LinAlgError:  # find the culprits one by one; the others are unaffected
             ctrl = np.full((com_ref.size, controller.limits.size), np.nan)
             for i in range(com_ref.size):
                 fi = {name: v[i : i + 1] for name, v in f.items()}
                 try:
                     ctrl[i] = controller.torques(fi, *refs, com_ref[i : i + 1], com_ref_vel[i : i + 1],
-                                                 center[i : i + 1], contact[i : i + 1]).torque_nm[0]
+                                                 center[i : i + 1], contact[i : i + 1], mass[i : i + 1]).torque_nm[0]
                 except np.linalg.LinAlgError:
                     pass
     bad = ~np.all(np.isfinite(ctrl), axis=1)
@@ -217,6 +236,7 @@ class _Recorder:
 
     SHAPES = {"com": (2,), "com_vel": (), "xi": (), "cop": (), "sc": (), "lo": (), "hi": (), "fz": (),
               "ffz": (2,), "lift": (4,), "contact": (4,), "roll": (2,), "jspeed": (), "cref": (), "ctrl": None,
+              "prop_force": (),
               "qpos": None, "qvel": None}
 
     def __init__(self, n: int, n_steps: int, nq: int, nv: int, nu: int):
@@ -266,13 +286,13 @@ def simulate_batch(
     act = np.array(ch.actuated_dofs)
 
     batch = mujoco.batch.Batch(m, nsim=n, nthread=threads or _threads(n), persistent=True)
-    prop = PropRuntime(task.prop, m, task.params)
+    prop = prop_runtime(task.prop, m, task.params)
     names = set(CONTROL_FIELDS) | set(STATE_FIELDS) | {"ctrl", "xfrc_applied", "sensordata", "geom_xmat", "time"}
     b = {k: batch.bind(k) for k in names | prop.fields()}
     for k, v in settled_state(task, config).items():
         b[k][:] = v
     b["time"][:] = 0.0
-    prop.start(batch, b)
+    prop.start(batch, b, n, task.end_qpos())
     batch.forward(stage=vel_stage)
     settled_z = b["geom_xpos"][0, geo.points, 2].copy()
 
@@ -284,6 +304,8 @@ def simulate_batch(
     fall_step = np.full(n, -1)
     hold = np.zeros((n, act.size))  # protective mode: the pose at the fall
     fall_qpos, fall_speed = np.zeros((n, nq)), np.zeros(n)  # the state a fallen clip is judged by
+    goal = np.full(n, np.nan)  # the prop's goal: 1/0 (NaN: a pose change), judged at the end or at the fall
+    extras: dict[str, np.ndarray] = {}
     airborne_for = np.zeros(n)
     active = np.arange(n)
     ctrl_all = np.zeros((n, m.nu))
@@ -293,6 +315,7 @@ def simulate_batch(
     diverged_code = 1 + REASONS.index(FallReason.DIVERGED)
     sel, ids, step_ids = slice(None), active, None
     rec_fz = rec["fz"]
+    has_contact_force = prop.contact_force(b, slice(None)) is not None
     for k in range(n_steps):
         if k >= next_end:  # the end of the tail, a fall (scoring: after its step), or the topple played out
             done = end[ids] <= k
@@ -306,6 +329,8 @@ def simulate_batch(
         # recording a trace; in between, the batch just steps and the ground force is read (the cost floor).
         control = k % config.control_every == 0
         sample = record or k % sample_every == 0
+        if control or prop.every_step:
+            prop.step(batch, b, ids, times[k])
         if control or sample:
             geom_xpos = b["geom_xpos"][sel]
             point_x = geom_xpos[:, geo.points, 0]  # heel/toe x at the state the step starts from
@@ -319,7 +344,7 @@ def simulate_batch(
         if control or record:
             contact = _in_contact(geom_xpos, geo.points)
             momentum = kin.linear_momentum(b["cinert"][sel, :nb], b["cvel"][sel, :nb])  # (k, 2): L_x, L_z
-            vel_x = momentum[:, 0] / kin.mass
+            vel_x = momentum[:, 0] / (ch.mass_kg + prop.carried_kg[ids])
             roll = geo.foot_roll(qpos)
             if record:  # trace-only quantities
                 rec["com_vel"][sel, k] = vel_x
@@ -330,12 +355,13 @@ def simulate_batch(
                 rec["cref"][sel, k] = center + disp[sel, k]
         if control:
             rec["jspeed"][sel, k] = np.abs(b["qvel"][sel][:, act]).max(axis=1)
-            prop.control_step(b, ids)
             fallen = fall_code[ids] > 0
             refs = (q_ref[k], qd_ref[k], qdd_ref[k])
+            mass = ch.mass_kg + prop.carried_kg  # what the controller knows it carries
             if not fallen.any():  # everyone under control: the bound arrays themselves, no copies
                 f = {name: b[name][sel] for name in CONTROL_FIELDS}
-                ctrl, bad = _control(controller, f, refs, center + disp[sel, k], disp_vel[sel, k], center, contact)
+                ctrl, bad = _control(controller, f, refs, center + disp[sel, k], disp_vel[sel, k], center, contact,
+                                     mass[sel])
             else:
                 ctrl = np.zeros((ids.size, m.nu))
                 bad = np.zeros(ids.size, bool)
@@ -344,7 +370,7 @@ def simulate_batch(
                 rows = ids[up]
                 f = {name: b[name][rows] for name in CONTROL_FIELDS}
                 ctrl[up], bad[up] = _control(controller, f, refs, center[up] + disp[rows, k], disp_vel[rows, k],
-                                             center[up], contact[up])
+                                             center[up], contact[up], mass[rows])
             if fallen.any():
                 rows = ids[fallen]
                 ctrl[fallen] = _protective_torques(b["qpos"][rows][:, act], b["qvel"][rows][:, act], hold[rows],
@@ -354,6 +380,9 @@ def simulate_batch(
 
             # the balance monitor
             grounded, c_lo, c_hi = _ground_support(contact, point_x)
+            if has_contact_force and k > 0:  # leaning on a prop: the pendulum's capture point does not apply
+                leaning = rec["prop_force"][ids, k - 1] > CONTACT_FORCE_N
+                c_lo, c_hi = np.where(leaning, -np.inf, c_lo), np.where(leaning, np.inf, c_hi)
             airborne_for[ids] = np.where(grounded, 0.0, airborne_for[ids] + control_dt)
             finite = ~bad & np.all(np.isfinite(qpos), axis=1) & (np.abs(b["time"][sel] - k * dt) < 1e-9)
             code = check_balance(
@@ -367,7 +396,8 @@ def simulate_batch(
                 fall_code[sims], fall_step[sims] = code[new], k
                 hold[sims] = qpos[new][:, act]
                 fall_qpos[sims] = qpos[new][:, :nq]
-                fall_speed[sims] = np.hypot(momentum[new, 0], momentum[new, 1]) / kin.mass
+                fall_speed[sims] = np.hypot(momentum[new, 0], momentum[new, 1]) / (ch.mass_kg + prop.carried_kg[sims])
+                _judge_prop(prop, b, sims, rec["prop_force"][sims, :k], times[:k], task.task_window_s(), goal, extras)
                 # scoring: stop after this step; recording: play the topple out (not a blow-up: nothing to show)
                 end[sims] = np.where(record & (code[new] != diverged_code), np.maximum(run_steps, k + post_fall), k + 1)
                 next_end = end[ids].min()
@@ -379,6 +409,8 @@ def simulate_batch(
 
         batch.step(ids=step_ids, stage=vel_stage)
 
+        if has_contact_force:
+            rec["prop_force"][sel, k] = prop.contact_force(b, sel)
         touch = b["sensordata"][sel, :n_points]  # normal force at heel_r, toe_r, heel_l, toe_l
         if not sample:  # the steps in between: the ground force only (peak force, time airborne)
             if step_ids is None:  # all active: write straight into the buffer's column
@@ -397,8 +429,11 @@ def simulate_batch(
     momentum = kin.linear_momentum(b["cinert"][:, :nb], b["cvel"][:, :nb])
     fallen = fall_code > 0  # judged at the fall, whatever a recorded topple did afterwards
     final_qpos = np.where(fallen[:, None], fall_qpos, b["qpos"][:, :nq])
-    final_speed = np.where(fallen, fall_speed, np.hypot(momentum[:, 0], momentum[:, 1]) / kin.mass)
-    success = prop.success(b)
+    final_speed = np.where(fallen, fall_speed, np.hypot(momentum[:, 0], momentum[:, 1])
+                           / (ch.mass_kg + prop.carried_kg))
+    standing = np.flatnonzero(fall_code == 0)  # the others were judged when they fell
+    _judge_prop(prop, b, standing, rec["prop_force"][standing, :run_steps], times[:run_steps],
+                task.task_window_s(), goal, extras)
     out = []
     for i in range(n):
         r = rec.cut(i, last[i])
@@ -412,12 +447,13 @@ def simulate_batch(
             capture_point_x_m=r["xi"], cop_x_m=r["cop"], support_center_x_m=r["sc"], support_lo_x_m=r["lo"],
             support_hi_x_m=r["hi"], normal_force_n=r["fz"], foot_normal_force_n=r["ffz"], point_lift_m=r["lift"],
             point_contact=r["contact"],
-            foot_roll_rad=r["roll"], max_joint_speed_rad_s=r["jspeed"], cmrt_displacement_m=disp[i, : last[i]],
+            foot_roll_rad=r["roll"], prop_force_n=r["prop_force"], max_joint_speed_rad_s=r["jspeed"],
+            cmrt_displacement_m=disp[i, : last[i]], prop_extras={k: float(v[i]) for k, v in extras.items()},
             com_ref_x_m=r["cref"], ctrl_nm=r["ctrl"], protective=protective, clip_s=task.clip_s,
             fell=bool(code), fall_time_s=float(times[fall_step[i]]) if code else None, fall_reason=reason,
             diverged=reason is FallReason.DIVERGED, final_qpos=final_qpos[i],
             final_com_speed_m_s=float(final_speed[i]),
-            task_success=None if success is None else bool(success[i]),
+            task_success=None if np.isnan(goal[i]) else bool(goal[i]),
         ))
     return out
 

@@ -58,6 +58,7 @@ class Task:
     param_ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
     start_pose_deg: dict[str, float] = field(default_factory=dict)
     end_pose_deg: dict[str, float] | None = None
+    via_pose_deg: dict[str, float] | None = None  # optional pose passed through at via_fraction of T
     balance_joint: str | None = "ankle"
     timing: dict[str, tuple[float, float]] = field(default_factory=dict)
     prop: str | None = None
@@ -114,6 +115,11 @@ class Task:
             raise CmrtError(f"preparation_s + duration_s exceeds clip_s ({p['clip_s']:g} s)")
         if self.end_pose_deg is not None and p["duration_s"] <= 0:
             raise CmrtError("a pose-change task needs duration_s > 0")
+        if self.via_pose_deg is not None:
+            if self.end_pose_deg is None or self.timing:
+                raise CmrtError("a via pose needs an end pose and no [timing] (each segment eases as a whole)")
+            if not 0.0 < p.get("via_fraction", -1.0) < 1.0:
+                raise CmrtError("a via pose needs via_fraction in (0, 1) in [params]")
         if p["cop_sample_step_s"] <= 0:
             raise CmrtError("cop_sample_step_s must be > 0")
         if not 0 < p["max_tracking_lag"] <= 1:
@@ -143,13 +149,24 @@ class Task:
             return self.start_qpos()
         return _pose_qpos(tuple(sorted(self.end_pose_deg.items())), self.balance_joint)
 
+    def via_qpos(self) -> np.ndarray:
+        return _pose_qpos(tuple(sorted(self.via_pose_deg.items())), self.balance_joint)
+
+    def keyframes(self) -> list[tuple[float, np.ndarray]]:
+        """(fraction of T, qpos) of the poses the motion passes: start, [via], end."""
+        keys = [(0.0, self.start_qpos())]
+        if self.via_pose_deg is not None:
+            keys.append((self.params["via_fraction"], self.via_qpos()))
+        return keys + [(1.0, self.end_qpos())]
+
     def reference(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Reference q, qd, qdd at times ``t_s`` (shape (n, nv)).
 
-        Each joint eases from the start to the end pose over its window of the task
-        phase [P, P + T] (``[timing]``: fractions of T, default [0, 1]). The root pitch
-        that keeps the right foot flat, -(hip + knee + ankle), follows the leg joints.
-        The root's x and z are not tracked; they ease with the hip for completeness.
+        Each joint eases from the start to the end pose (through the via pose, if any, at
+        ``via_fraction`` of T) over its window of the task phase [P, P + T] (``[timing]``:
+        fractions of T, default [0, 1]). The root pitch that keeps the right foot flat,
+        -(hip + knee + ankle), follows the leg joints. The root's x and z are not tracked;
+        they ease with the hip for completeness.
         """
         t = np.atleast_1d(np.asarray(t_s, dtype=float))
         q0, q1 = self.start_qpos(), self.end_qpos()
@@ -160,13 +177,16 @@ class Task:
         ch = character()
         dq = q1 - q0
         windows = self.joint_windows()
-        for i, name in enumerate(ch.dof_names):
-            a, b = windows.get(name, (0.0, 1.0))
-            span = (b - a) * self.duration_s
-            s, ds, dds = smoothstep5((t - self.preparation_s - a * self.duration_s) / span)
-            q[:, i] += s * dq[i]
-            qd[:, i] = ds / span * dq[i]
-            qdd[:, i] = dds / span**2 * dq[i]
+        keys = self.keyframes()
+        for (fa, qa), (fb, qb) in zip(keys, keys[1:], strict=False):
+            for i, name in enumerate(ch.dof_names):
+                a, b = windows.get(name, (0.0, 1.0)) if len(keys) == 2 else (fa, fb)
+                span = (b - a) * self.duration_s
+                s, ds, dds = smoothstep5((t - self.preparation_s - a * self.duration_s) / span)
+                step = qb[i] - qa[i]
+                q[:, i] += s * step
+                qd[:, i] += ds / span * step
+                qdd[:, i] += dds / span**2 * step
         legs = [ch.dof(j) for j in ("hip_r", "knee_r", "ankle_r")]
         root_x, root_z, root_pitch = ch.root_dofs
         for arr in (q, qd, qdd):
@@ -205,6 +225,8 @@ class Task:
         }
         if self.end_pose_deg is not None:
             out["end_pose_deg"] = dict(self.end_pose_deg)
+        if self.via_pose_deg is not None:
+            out["via_pose_deg"] = dict(self.via_pose_deg)
         if self.prop:
             out["prop"] = {"kind": self.prop}
         if self.speed_param:
@@ -281,6 +303,7 @@ def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task"
         "param_ranges",
         "start_pose_deg",
         "end_pose_deg",
+        "via_pose_deg",
         "timing",
         "prop",
     }
@@ -307,7 +330,7 @@ def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task"
     speed_param = raw.get("speed_param")
     if speed_param is not None and speed_param not in params:
         raise CmrtError(f"{source}: speed_param '{speed_param}' is not a parameter")
-    for table in ("start_pose_deg", "end_pose_deg"):
+    for table in ("start_pose_deg", "end_pose_deg", "via_pose_deg"):
         for key, value in raw.get(table, {}).items():
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise CmrtError(f"{source}: {table}.{key} must be a number of degrees")
@@ -324,6 +347,7 @@ def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task"
         param_ranges=ranges,
         start_pose_deg={k: float(v) for k, v in raw.get("start_pose_deg", {}).items()},
         end_pose_deg={k: float(v) for k, v in raw["end_pose_deg"].items()} if "end_pose_deg" in raw else None,
+        via_pose_deg={k: float(v) for k, v in raw["via_pose_deg"].items()} if "via_pose_deg" in raw else None,
         balance_joint=raw.get("balance_joint", "ankle") or None,
         timing=timing,
         prop=prop,
@@ -337,4 +361,6 @@ def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task"
         raise CmrtError(f"{source}: timing: {exc}") from None
     task.start_qpos()  # fail now on unknown joints or unbalanceable poses
     task.end_qpos()
+    if task.via_pose_deg is not None:
+        task.via_qpos()
     return task

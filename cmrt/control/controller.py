@@ -123,7 +123,7 @@ class MomentumBalanceController:
         params = np.zeros(kernel.N_PARAMS)
         for index, value in ((kernel.P_KL, c.k_l), (kernel.P_DL, c.d_l), (kernel.P_KT, c.k_t), (kernel.P_DT, c.d_t),
                              (kernel.P_BL, c.beta_l), (kernel.P_BH, c.beta_h), (kernel.P_BT, c.beta_t),
-                             (kernel.P_EPS, c.regularization), (kernel.P_MASS, self.mass), (kernel.P_G, GRAVITY_M_S2),
+                             (kernel.P_EPS, c.regularization), (kernel.P_G, GRAVITY_M_S2),
                              (kernel.P_MU, c.friction_coef), (kernel.P_FMIN, c.min_point_force_n),
                              (kernel.P_DAMP, c.support_damping), (kernel.P_RW, c.roll_weight), (kernel.P_RK, c.roll_k),
                              (kernel.P_RD, c.roll_d), (kernel.P_RADIUS, FOOT_POINT_RADIUS_M),
@@ -138,11 +138,12 @@ class MomentumBalanceController:
         return np.select([heel & toe, heel, toe], [FLAT, HEEL, TOE], AIR)
 
     def torques(self, f: dict[str, np.ndarray], q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x,
-                in_contact: np.ndarray) -> ControlOutput:
+                in_contact: np.ndarray, mass_kg: np.ndarray | None = None) -> ControlOutput:
         """Torques for n simulations. ``f`` holds (n, ...) arrays of the MuJoCo fields at the current state:
         qpos, qvel, cdof, cdof_dot, cvel, cinert, M, qfrc_bias, qfrc_passive, subtree_com, geom_xpos.
         References (nv,) are shared; CoM/CoP targets are (n,); ``in_contact`` (n, 4) says which heel/toe
-        points touch the ground."""
+        points touch the ground; ``mass_kg`` (n,) the character's mass with what it carries (default:
+        its own)."""
         n = f["qvel"].shape[0]
         tau = np.empty((n, self.actuated.size))
         info = np.empty((n, kernel.N_INFO))
@@ -161,7 +162,7 @@ class MomentumBalanceController:
             self.chain, self.m_rows, self.m_cols, self.points, self.point_bodies, self.leg_dofs, self.actuated,
             self.limits, self.w2, self.params,
             as_f(q_ref), as_f(qd_ref), as_f(qdd_ref), as_f(com_ref_x), as_f(com_ref_vel_x), as_f(cop_des_x),
-            as_f(in_contact, bool), tau, info,
+            as_f(in_contact, bool), as_f(np.full(n, self.mass) if mass_kg is None else mass_kg), tau, info,
         )
         return ControlOutput(torque_nm=tau, ground_force_n=info[:, :2], cop_x_m=info[:, 2],
                              foot_state=info[:, 3:5].astype(int), saturated=info[:, 5] > 0)

@@ -28,9 +28,9 @@ from numba import njit
 # Foot support states (also in controller.py).
 FLAT, HEEL, TOE, AIR = 0, 1, 2, 3
 # Indices into the parameter vector (built by controller.MomentumBalanceController).
-(P_KL, P_DL, P_KT, P_DT, P_BL, P_BH, P_BT, P_EPS, P_MASS, P_G, P_MU, P_FMIN, P_DAMP, P_RW, P_RK, P_RD,
- P_RADIUS, P_DUALREG) = range(18)
-N_PARAMS = 18
+(P_KL, P_DL, P_KT, P_DT, P_BL, P_BH, P_BT, P_EPS, P_G, P_MU, P_FMIN, P_DAMP, P_RW, P_RK, P_RD,
+ P_RADIUS, P_DUALREG) = range(17)
+N_PARAMS = 17
 N_INFO = 6  # planned F_x, F_z, CoP x, right foot state, left foot state, torque saturated
 N_INEQ = 5  # F_z >= n f_min, two friction rows, two CoP rows
 MAX_PASSES = 8
@@ -152,17 +152,19 @@ def solve_qp(Q, g, E, e, C, c, c_on, dual_reg):
 @njit(cache=True)
 def control_step(cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, qfrc_passive, com_all, geom_xpos,
                  chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, limits, w2, params,
-                 q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, contact, tau_out, info_out):
+                 q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, contact, mass_all, tau_out, info_out):
     """Torques (tau_out, (n, nu)) for n simulations; info_out (n, N_INFO) gets the plan's summary.
 
     Arrays are the batch's bound MuJoCo fields (n, ...) - only the humanoid's leading slices are
-    read - and per-simulation targets; see controller.py for the formulation."""
+    read - and per-simulation targets; ``mass_all`` (n,) is each character's mass with what it
+    carries (a caught ball's mass moves into the forearms); see controller.py for the formulation."""
     n = qvel.shape[0]
     nb, nv = chain.shape
-    mass, grav = params[P_MASS], params[P_G]
-    mg = mass * grav
+    grav = params[P_G]
     radius = params[P_RADIUS]
     for i in range(n):
+        mass = mass_all[i]
+        mg = mass * grav
         qd = qvel[i, :nv].copy()
         q = qpos[i, :nv]
         com = com_all[i, 1]

@@ -1,0 +1,145 @@
+"""The props as the paper sets them: a ball that weighs, a free slab pushed, a pad struck."""
+
+import mujoco
+import numpy as np
+import pytest
+
+from cmrt import evaluate, library_curve, load_task, simulate
+from cmrt.props import (
+    BALL_RADIUS_M,
+    FOREARM_RADIUS_M,
+    GRIP_TOLERANCE_M,
+    HAND_OFFSET_M,
+    ball_release,
+    strike_success,
+)
+from cmrt.task import task_from_dict
+
+from .test_simulate import assert_plausible
+
+NQ = 15  # the humanoid's coordinates come first in a trace's qpos; the prop's follow
+
+
+def fingertip(task, qpos, qvel=None, side="r"):
+    """World (x, z) of a fingertip, and its velocity if ``qvel`` is given."""
+    m = task.model()
+    d = mujoco.MjData(m)
+    d.qpos[:], d.qvel[:] = qpos, (0.0 if qvel is None else qvel)
+    mujoco.mj_forward(m, d)
+    body = m.body(f"forearm_{side}").id
+    point = d.xpos[body] + d.xmat[body].reshape(3, 3) @ HAND_OFFSET_M
+    jacp = np.zeros((3, m.nv))
+    mujoco.mj_jac(m, d, jacp, None, point, body)
+    return point[[0, 2]], (jacp @ d.qvel)[[0, 2]]
+
+
+def point_velocity(task, qpos, qvel, point_xz):
+    """Velocity (x, z) of the right forearm's material point at ``point_xz``."""
+    m = task.model()
+    d = mujoco.MjData(m)
+    d.qpos[:], d.qvel[:] = qpos, qvel
+    mujoco.mj_forward(m, d)
+    jacp = np.zeros((3, m.nv))
+    mujoco.mj_jac(m, d, jacp, None, np.array([point_xz[0], 0.0, point_xz[1]]), m.body("forearm_r").id)
+    return (jacp @ qvel)[[0, 2]]
+
+
+@pytest.fixture(scope="module")
+def catch():
+    task = load_task("catch")
+    return task, simulate(task)
+
+
+def test_the_ball_flies_under_gravity_and_arrives_on_time(catch):
+    task, traj = catch
+    p = task.params
+    release = p["ball_arrival_s"] - p["ball_flight_s"]
+    flight = (traj.time_s > release + 0.01) & (traj.time_s < traj.prop_extras["grip_s"] - 0.01)
+    t, x, z = traj.time_s[flight], traj.qpos[flight, NQ], traj.qpos[flight, NQ + 1]
+    az = np.polyfit(t, z, 2)[0] * 2
+    vx = np.polyfit(t, x, 1)[0]
+    assert abs(az + 9.81) < 0.05  # a ballistic arc, not a level flight
+    p0, v0 = ball_release(p)
+    assert abs(vx - v0[0]) < 1e-3
+    assert np.all(traj.qpos[traj.time_s < release - 0.01, NQ] == p0[0])  # held by the thrower until then
+    assert abs(traj.prop_extras["grip_s"] - p["ball_arrival_s"]) < 0.05
+
+
+def test_the_grip_is_made_at_contact_and_the_load_is_then_carried(catch):
+    task, traj = catch
+    k = int(np.searchsorted(traj.time_s, traj.prop_extras["grip_s"]))
+    tip, _ = fingertip(task, traj.qpos[k])
+    ball = traj.qpos[k, NQ : NQ + 2]
+    gap = np.hypot(*(ball - tip)) - BALL_RADIUS_M - FOREARM_RADIUS_M
+    assert gap <= GRIP_TOLERANCE_M and gap > -0.03  # touching, not grabbed from a distance
+    # the grip's impact is over by the hand-over: the ball moves with the forearm point it is held at
+    after = int(np.searchsorted(traj.time_s, traj.prop_extras["handover_s"]))
+    held_v = point_velocity(task, traj.qpos[after], traj.qvel[after], traj.qpos[after, NQ : NQ + 2])
+    ball_v = traj.qvel[after, NQ : NQ + 2]
+    assert np.hypot(*(ball_v - held_v)) < 0.1 * np.hypot(*ball_v) + 0.05
+
+
+def test_a_ball_the_character_can_hold_is_held_where_the_reference_says():
+    """8 kg: caught without anticipation, the hands sag less than 10 cm (the controller knows the load)."""
+    task = load_task("catch").with_params(ball_mass_kg=8.0)
+    ev = evaluate(task, simulate(task, record=False))
+    assert ev.success and ev.task_success and ev.ball_sag_m < 0.05
+    assert_plausible(ev)
+
+
+def test_catch_falls_forward_without_anticipation_and_the_library_saves_it(catch):
+    task, traj = catch
+    zero = evaluate(task, traj)
+    assert not zero.success and zero.fell
+    k = int(np.searchsorted(traj.time_s, zero.fall_time_s)) - 1
+    assert traj.capture_point_x_m[k] > traj.support_center_x_m[k]  # over the toes, from the weight
+    lib = evaluate(task, simulate(task, library_curve(task), record=False))
+    assert lib.success and lib.ball_sag_m <= task.params["max_ball_sag_m"]
+    assert_plausible(lib)
+
+
+def test_push_is_a_push_on_a_free_slab():
+    task = load_task("push")
+    m = task.model()
+    assert [m.joint(j).name for j in range(m.njnt) if m.joint(j).name.startswith("slab")] == [
+        "slab_x", "slab_z", "slab_pitch"]  # free to slide and tip
+    zero_traj = simulate(task)
+    zero = evaluate(task, zero_traj)
+    assert not zero.success and zero.task_success is False  # the slab stays up
+    lib_traj = simulate(task, library_curve(task))
+    lib = evaluate(task, lib_traj)
+    assert lib.success and lib.task_success and lib.peak_contact_force_n <= 1000.0
+    for traj in (zero_traj, lib_traj):
+        force = np.nan_to_num(traj.prop_force_n)
+        k = int(np.flatnonzero(force > 1.0)[0])
+        _, v = fingertip(task, traj.qpos[k], traj.qvel[k])
+        assert abs(v[0]) < 1.0  # reached, not struck
+    touching = np.nan_to_num(lib_traj.prop_force_n) > 1.0
+    assert touching.sum() * 0.002 >= 0.3  # pushed, not tapped
+    assert_plausible(lib)
+
+
+def test_punch_strikes_the_pad_and_does_not_lean_on_it():
+    task = load_task("punch")
+    lib = evaluate(task, simulate(task, library_curve(task), record=False))
+    assert lib.success and lib.first_contact_s >= task.preparation_s
+    assert lib.contact_impulse_n_s >= task.params["strike_impulse_n_s"]
+    assert_plausible(lib)
+    # a punch that stays out (the v0.1 task): the fist rests on the pad for the rest of the clip - a lean
+    raw = task.to_dict()
+    raw["end_pose_deg"] = raw.pop("via_pose_deg")
+    leaning = task_from_dict(raw)
+    ev = evaluate(leaning, simulate(leaning, record=False))
+    assert ev.task_success is False and not ev.success
+    assert ev.contact_impulse_n_s > task.params["strike_impulse_n_s"]  # plenty of impulse, but leaning
+
+
+def test_strike_rule_on_synthetic_forces():
+    times = np.arange(0.0, 2.0, 0.01)
+    window = (1.0, 1.5)
+    hit = np.where((times >= 1.2) & (times < 1.25), 200.0, 0.0)  # 10 N s in 50 ms
+    lean = np.where(times >= 1.2, 30.0, 0.0)  # 24 N s, but for 0.8 s
+    early = np.where((times >= 0.7) & (times < 0.75), 200.0, 0.0) + hit
+    weak = hit * 0.2
+    ok = strike_success(np.stack([hit, lean, early, weak]), times, window, impulse_n_s=3.0, max_contact_s=0.3)
+    assert ok.tolist() == [True, False, False, False]
