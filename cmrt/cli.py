@@ -61,6 +61,8 @@ def resolve_curve(spec: str, task: Task, store_path: str | None = None) -> tuple
         return Cmrt.zero(task.clip_s), "zero"
     if spec == "library":
         return library_curve(task), "library"
+    if spec in ("library-plain", "library-robust"):
+        return library_curve(task, robust=spec == "library-robust"), spec
     if spec.isdigit():
         with _store(store_path, create=False) as store:
             curve = query.run_curve(store, int(spec))
@@ -210,7 +212,7 @@ def cmd_demo(args) -> int:
         with _store(args.store) as store:
             progress = _Progress(3000, enabled=sys.stderr.isatty())
             try:
-                run = jobs.optimize_now(store, task, evaluator, progress, seed=1)
+                run = jobs.optimize_now(store, task, evaluator, progress, seed=1, init="none")
             finally:
                 progress.close()
             stored = query.best_run(store, task)
@@ -234,12 +236,19 @@ def _submit_kwargs(args) -> dict:
         popsize=args.popsize,
         sigma0=args.sigma0,
         min_evals=args.min_evals,
-        init_run=args.init,
+        init=args.init,
+        stall_generations=args.stall_generations,
     )
 
 
+def _opt_task(args, speed: float | None):
+    """The task an optimization runs: with ``--robust``, scored on its ensemble."""
+    task = resolve_task(args.task, speed, args.set)
+    return task.with_robust() if args.robust else task
+
+
 def cmd_submit(args) -> int:
-    task = resolve_task(args.task, args.speed, args.set)
+    task = _opt_task(args, args.speed)
     with _store(args.store) as store:
         run_id = jobs.submit(store, task, **_submit_kwargs(args))
     _emit(
@@ -285,6 +294,10 @@ def _result(run: dict) -> dict:
         "evaluations": run["evaluations"],
         "generations": run["generations"],
         "stop_reason": run["stop_reason"],
+        "restarts": run.get("restarts") or 0,
+        "init": run.get("init_source") or "none",
+        "robust": run.get("robust") is not None,
+        "robustness": run.get("robustness"),
         "wall_s": run["wall_s"],
         "best_cmrt": run["best_cmrt"],
     }
@@ -297,17 +310,23 @@ def _print_result(r: dict) -> None:
 
     print(
         f"run {r['run_id']} {r['task']}{speed}: {r['status']} ({r['stop_reason']}) after {r['evaluations']} "
-        f"evaluations, {r['wall_s']:.1f} s"
+        f"evaluations, {r['restarts']} restarts, {r['wall_s']:.1f} s; start: {r['init']}"
     )
     base = outcome(r["baseline_success"], r["baseline_fell"])
     print(f"  zero CMRT:      objective {r['baseline_objective']:.4f}  {base}")
-    print(f"  optimized CMRT: objective {r['best_objective']:.4f}  {outcome(r['success'], r['fell'])}")
+    kind = "robust CMRT:   " if r["robust"] else "optimized CMRT:"
+    print(f"  {kind} objective {r['best_objective']:.4f}  {outcome(r['success'], r['fell'])}")
+    rb = r.get("robustness")
+    if rb:
+        margin = "n/a" if rb["min_cop_margin_m"] is None else f"{rb['min_cop_margin_m'] * 100:.1f} cm"
+        print(f"  validation:     {rb['validation_survived']}/{rb['validation_total']} perturbed clips succeed, "
+              f"{rb['validation_fell']} fall; min CoP margin {margin}")
 
 
 def cmd_optimize(args) -> int:
     if args.speeds:
         return _optimize_family(args)
-    task = resolve_task(args.task, args.speed, args.set)
+    task = _opt_task(args, args.speed)
     evaluator = Evaluator(args.backend, args.workers, args.scheduler)  # fails before the store is touched
     try:
         with _store(args.store) as store:
@@ -328,9 +347,9 @@ def _optimize_family(args) -> int:
         speeds = [float(v) for v in args.speeds.split(",")]
     except ValueError:
         raise CmrtError(f"--speeds must be comma-separated numbers, got '{args.speeds}'") from None
-    if args.speed is not None or args.init is not None:
-        raise CmrtError("--speeds replaces --speed and --init")
-    tasks = [resolve_task(args.task, v, args.set) for v in speeds]  # validate every speed first
+    if args.speed is not None or isinstance(args.init, int):
+        raise CmrtError("--speeds replaces --speed and a run id as --init (each member starts from the previous)")
+    tasks = [_opt_task(args, v) for v in speeds]  # validate every speed first
     evaluator = Evaluator(args.backend, args.workers, args.scheduler)
     results, previous = [], None
     try:
@@ -338,7 +357,9 @@ def _optimize_family(args) -> int:
             for task in tasks:
                 progress = _Progress(args.max_evals, enabled=not args.no_progress)
                 try:
-                    kw = {**_submit_kwargs(args), "init_run": previous}
+                    kw = _submit_kwargs(args)
+                    if previous is not None:
+                        kw["init"] = previous
                     if previous is not None:  # stay near the neighbour: one family shape, interpolable
                         kw["sigma0"] = args.family_sigma0
                     run = jobs.optimize_now(store, task, evaluator, progress, **kw)
@@ -598,6 +619,15 @@ def cmd_render(args) -> int:
     return 0
 
 
+def _init_arg(value: str) -> str | int:
+    if value in ("auto", "none"):
+        return value
+    try:
+        return int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be auto, none or a run id, got '{value}'") from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="cmrt", description="Anticipatory balance: center-of-mass reference trajectories.")
     sub = p.add_subparsers(dest="verb", required=True, parser_class=_Parser)
@@ -621,8 +651,15 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument("--max-evals", type=int, default=3000)
         sp.add_argument("--min-evals", type=int, default=700, help="no slow-convergence stop before this")
         sp.add_argument("--popsize", type=int, default=10)
+        sp.add_argument("--stall-generations", type=int, default=20,
+                        help="a search whose best improved < 0.1%% over this many generations has stalled: it "
+                        "restarts with a doubled population (IPOP) unless it already succeeded past --min-evals")
         sp.add_argument("--sigma0", type=float, default=0.5)
-        sp.add_argument("--init", type=int, metavar="RUN", help="warm start from a stored run's best CMRT")
+        sp.add_argument("--robust", action="store_true",
+                        help="score every candidate on the task's ensemble of perturbed clips ([robust] table)")
+        sp.add_argument("--init", type=_init_arg, default="auto", metavar="auto|none|RUN",
+                        help="start point: the nearest stored/library CMRT of the task (auto, default), "
+                        "the zero CMRT (none), or a stored run's best")
 
     def backend_args(sp):
         sp.add_argument("--backend", choices=BACKENDS, default="batch")
@@ -633,7 +670,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = add("simulate", "simulate one clip of a task with a CMRT", cmd_simulate)
     task_args(s)
-    s.add_argument("--curve", default="zero", help="zero | library | RUN | FILE.json (default zero)")
+    s.add_argument("--curve", default="zero", help="zero | library (robust where shipped) | library-plain | "
+                   "library-robust | RUN | FILE.json (default zero)")
     s.add_argument("--trace", metavar="FILE.npz", help="save the trajectories")
 
     s = add("submit", "queue an optimization job", cmd_submit)

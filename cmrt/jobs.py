@@ -24,11 +24,13 @@ from dataclasses import dataclass
 from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
 from cmrt.objective import evaluate
-from cmrt.optimize import CmaState, OptimizeSettings, best_cmrt, new_state, step, stop_reason
+from cmrt.optimize import CmaState, OptimizeSettings, best_cmrt, new_state, restart_if_stalled, step, stop_reason
 from cmrt.parallel import Evaluator
 from cmrt.simulate import simulate
 from cmrt.store import Store
 from cmrt.task import Task, task_from_dict
+from cmrt.validate import robustness
+from cmrt.warmstart import resolve_init
 
 DEFAULT_STALE_AFTER_S = 120.0
 
@@ -57,25 +59,28 @@ def submit(
     popsize: int = 10,
     sigma0: float = 0.5,
     min_evals: int = 700,
-    init_run: int | None = None,
+    init: str | int | None = "auto",
     backend: str = "batch",
+    stall_generations: int = OptimizeSettings.stall_generations,
 ) -> int:
-    """Queue an optimization of ``task``; returns the run id."""
+    """Queue an optimization of ``task``; returns the run id.
+
+    ``init``: "auto" starts from the nearest known successful CMRT of the task (store, then
+    library; cold if none), "none" from the zero CMRT, a run id from that run's best."""
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise CmrtError("seed must be an integer")
-    if max_evals < 1 or popsize < 2 or sigma0 <= 0 or min_evals < 0:
-        raise CmrtError("need max_evals >= 1, popsize >= 2, sigma0 > 0, min_evals >= 0")
-    if init_run is not None:
-        src = store.run(init_run)
-        if src["best_params"] is None:
-            raise CmrtError(f"run {init_run} has no result to start from")
-        if abs(src["params"]["clip_s"] - task.clip_s) > 1e-12:
-            raise CmrtError(f"run {init_run} is for a {src['params']['clip_s']:g} s clip, not {task.clip_s:g} s")
+    if max_evals < 1 or popsize < 2 or sigma0 <= 0 or min_evals < 0 or stall_generations < 1:
+        raise CmrtError("need max_evals >= 1, popsize >= 2, sigma0 > 0, min_evals >= 0, stall_generations >= 1")
+    start = resolve_init(store, task, init)
     row = {
         "task": task.name, "speed": task.speed, "params": json.dumps(task.params, sort_keys=True),
         "task_hash": task.content_hash(), "task_source": json.dumps(task.to_dict(), sort_keys=True),
         "seed": seed, "max_evals": max_evals, "popsize": popsize, "sigma0": sigma0, "min_evals": min_evals,
-        "stop_threshold": task.stop_threshold, "init_run": init_run, "backend": backend,
+        "stop_threshold": task.stop_threshold, "backend": backend,
+        "init_run": init if isinstance(init, int) and not isinstance(init, bool) else None,
+        "robust": json.dumps(task.robust.to_table()) if task.robust.enabled else None,
+        "init_source": start.source, "init_params": None if start.params is None else json.dumps(list(start.params)),
+        "restarts": 0, "stall_generations": stall_generations,
         "status": "queued", "created_at": time.time(),
     }
     with store.transaction() as conn:
@@ -126,6 +131,7 @@ def settings_for(run: dict, x0: tuple[float, ...] | None = None) -> OptimizeSett
     return OptimizeSettings(
         seed=run["seed"], max_evals=run["max_evals"], min_evals=run["min_evals"], popsize=run["popsize"],
         sigma0=run["sigma0"], stop_threshold=run["stop_threshold"] or 0.0, x0=x0,
+        stall_generations=run.get("stall_generations") or OptimizeSettings.stall_generations,
     )
 
 
@@ -145,7 +151,9 @@ def run_claimed(
     """Optimize a claimed run to its end (or until the claim is lost). Returns the run row."""
     run = store.run(claim.run_id)
     task = task_of(run)
-    x0 = tuple(store.run(run["init_run"])["best_params"]) if run["init_run"] is not None else None
+    x0 = tuple(run["init_params"]) if run.get("init_params") else None
+    if x0 is None and run["init_run"] is not None:  # queued by a cmrt before schema 3
+        x0 = tuple(store.run(run["init_run"])["best_params"])
     settings = settings_for(run, x0)
     checkpoint = store.last_checkpoint(claim.run_id)
     state = CmaState.loads(checkpoint[1]) if checkpoint else new_state(settings)
@@ -160,6 +168,7 @@ def run_claimed(
     t_start = time.perf_counter()
     while (reason := stop_reason(state, settings)) is None:
         xs, records = step(state, lambda xs: evaluator(task, xs))
+        restart_if_stalled(state, settings)
         now = time.time()
         wall = wall_before + time.perf_counter() - t_start
         gen = state.generation - 1
@@ -167,10 +176,11 @@ def run_claimed(
             _fenced_update(
                 conn, claim,
                 "heartbeat_at = ?, evaluations = ?, generations = ?, best_objective = ?, best_params = ?, "
-                "best_fell = ?, best_success = ?, best_cmrt = ?, wall_s = ?, eval_s = COALESCE(eval_s, 0) + ?",
+                "best_fell = ?, best_success = ?, best_cmrt = ?, wall_s = ?, eval_s = COALESCE(eval_s, 0) + ?, "
+                "restarts = ?",
                 (now, state.evaluations, state.generation, state.best_objective,
                  json.dumps(state.best_x.tolist()), int(state.best_fell), int(state.best_success),
-                 best_cmrt(state, task.clip_s).to_json(), wall, sum(r.seconds for r in records)),
+                 best_cmrt(state, task.clip_s).to_json(), wall, sum(r.seconds for r in records), state.restarts),
             )
             conn.executemany(
                 "INSERT INTO evaluations (run_id, gen, idx, params, objective, fell, success, seconds) "
@@ -187,9 +197,10 @@ def run_claimed(
             )
         if on_generation:
             on_generation(state, records, wall)
+    figures = robustness(task, best_cmrt(state, task.clip_s))  # the validation ensemble (cmrt.validate)
     with store.transaction() as conn:
-        _fenced_update(conn, claim, "status = 'done', stop_reason = ?, finished_at = ?, heartbeat_at = ?",
-                       (reason, time.time(), time.time()))
+        _fenced_update(conn, claim, "status = 'done', stop_reason = ?, finished_at = ?, heartbeat_at = ?, "
+                       "robustness = ?", (reason, time.time(), time.time(), json.dumps(figures)))
     return store.run(claim.run_id)
 
 

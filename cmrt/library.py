@@ -27,14 +27,27 @@ def _physics(params: dict) -> dict:
     return {k: v for k, v in params.items() if k != "stop_threshold"}
 
 
-def library_curve(task: Task, path: Path = LIBRARY_PATH) -> Cmrt:
+def library_curve(task: Task, path: Path = LIBRARY_PATH, robust: bool | None = None) -> Cmrt:
     """The shipped CMRT for this task at exactly this speed.
 
-    Other parameters may differ (that is the expectation-mismatch demo: the 7 kg catch
+    The library holds a plain CMRT (optimized on the nominal clip) and a robust one
+    (optimized on the task's ensemble, ``cmrt.ensemble``) per entry; ``robust=None`` takes
+    the robust one where there is one, True/False ask for that kind only.
+    Other parameters may differ (that is the expectation-mismatch demo: the 12 kg catch
     CMRT used on a 1 kg ball); if several entries share the speed, the one whose
     parameters all match wins, else the one for the task file's defaults.
     """
-    same_speed = [e for e in load_entries(path) if e["task"] == task.name
+    entries = load_entries(path)
+    if robust is None:  # the robust CMRT where there is one for this task and speed, else the plain one
+        try:
+            return _lookup([e for e in entries if e.get("robust", False)], task)
+        except CmrtError:
+            return _lookup([e for e in entries if not e.get("robust", False)], task)
+    return _lookup([e for e in entries if e.get("robust", False) == robust], task)
+
+
+def _lookup(entries: list[dict], task: Task) -> Cmrt:
+    same_speed = [e for e in entries if e["task"] == task.name
                   and (task.speed is None or abs(e["speed"] - task.speed) <= SPEED_TOLERANCE)]
     for entry in same_speed:
         if "params" in entry and _physics(entry["params"]) == _physics(task.params):
@@ -47,7 +60,7 @@ def library_curve(task: Task, path: Path = LIBRARY_PATH) -> Cmrt:
             if "params" not in entry or _physics(entry["params"]) == defaults:
                 return Cmrt.from_dict(entry["cmrt"])
         return Cmrt.from_dict(same_speed[0]["cmrt"])
-    speeds = [e["speed"] for e in load_entries(path) if e["task"] == task.name]
+    speeds = sorted({e["speed"] for e in entries if e["task"] == task.name})
     have = f" (library has speeds {', '.join(f'{s:g}' for s in speeds)})" if speeds else ""
     raise CmrtError(f"no library CMRT for task '{task.name}' at speed {task.speed}{have}")
 
@@ -59,9 +72,10 @@ def save_entry(entry: dict, path: Path = LIBRARY_PATH) -> None:
         from cmrt.task import load_task
 
         params = e.get("params") or load_task(e["task"]).with_speed(e["speed"]).params  # older entries: defaults
-        return (e["task"], e["speed"], json.dumps(_physics(params), sort_keys=True))
+        return (e["task"], e["speed"], json.dumps(_physics(params), sort_keys=True), e.get("robust", False))
 
     entries = [e for e in load_entries(path) if key(e) != key(entry)]
     entries.append(entry)
-    entries.sort(key=lambda e: (e["task"], e["speed"], json.dumps(e.get("params", {}), sort_keys=True)))
+    entries.sort(key=lambda e: (e["task"], e["speed"], json.dumps(e.get("params", {}), sort_keys=True),
+                                e.get("robust", False)))
     path.write_text(json.dumps({"entries": entries}, indent=2) + "\n")

@@ -1,19 +1,28 @@
 """CMA-ES driver (pycma ask/tell) over the 8 CMRT parameters. Knows nothing of SQLite.
 
-Stopping rules (ABC section 4.1):
+Stopping rules (ABC section 4.1), checked between generations:
 
 * ``threshold``: a *successful* candidate (balance held, motion performed, settled:
   ``cmrt.objective``) scores below the task's ``stop_threshold``;
-* ``budget``: ``max_evals`` evaluations done;
-* ``converged``: only after ``min_evals`` evaluations (700, as in the paper), the best
-  objective improved by less than ``stall_tol`` (relative) over ``stall_generations``
-  generations, or pycma's own termination criteria fire.
+* ``budget``: the next generation would pass ``max_evals`` evaluations;
+* ``converged``: the search stalled - its best objective improved by less than
+  ``stall_tol`` (relative) over ``stall_generations`` generations, or pycma's own
+  termination criteria fired - after a success was found and ``min_evals`` (700, as in
+  the paper) evaluations were done.
+
+A search that stalls *without* a success (or before ``min_evals``) is not stopped but
+restarted (IPOP-CMA-ES, Auger & Hansen 2005): a fresh CMA-ES from the same start point
+and step size with the population multiplied by ``popsize_factor``. A larger population
+smooths the falls' rugged landscape and is what turns the failing seeds into successes
+(README: reliability). A run whose start came from another CMRT (a warm start) has
+that CMRT injected as its first candidate, so a start that already succeeds is seen.
 
 Determinism: pycma seeds numpy's *global* RNG unless told otherwise; we pass
 ``seed=nan`` and our own ``randn`` drawing from a private ``numpy.random.Generator``
-seeded by the run's seed. The whole :class:`CmaState` (pycma object + generator +
-bookkeeping) is pickled after every generation, so a resumed run continues with
-exactly the samples an uninterrupted one would draw.
+seeded by the run's seed; restarts keep drawing from the same generator. The whole
+:class:`CmaState` (pycma object + generator + bookkeeping) is pickled after every
+generation, so a resumed run continues - across restarts too - with exactly the
+samples an uninterrupted one would draw.
 """
 
 from __future__ import annotations
@@ -45,6 +54,8 @@ class OptimizeSettings:
     stall_generations: int = 20
     stall_tol: float = 1e-3
     x0: tuple[float, ...] | None = None  # warm start (parameters of a stored result)
+    max_restarts: int = 9  # IPOP restarts when the search stalls without a success
+    popsize_factor: float = 2.0  # each restart multiplies the population by this
 
 
 @dataclass(frozen=True)
@@ -81,6 +92,16 @@ class CmaState:
     best_history: list[float] = field(default_factory=list)
     # the best successful candidate (the threshold stop looks at it; it is usually the best overall)
     best_success_objective: float = float("inf")
+    restarts: int = 0
+    restart_history: list[float] = field(default_factory=list)  # best of the current restart, per generation
+    randn: _Randn | None = None  # the private generator every restart draws from
+
+    def __setstate__(self, state: dict) -> None:
+        """Checkpoints written before restarts existed resume too."""
+        state.setdefault("restarts", 0)
+        state.setdefault("restart_history", list(state.get("best_history", [])))
+        state.setdefault("randn", state["es"].opts["randn"])
+        self.__dict__.update(state)
 
     def dumps(self) -> bytes:
         return pickle.dumps(self, protocol=pickle.HIGHEST_PROTOCOL)
@@ -90,18 +111,30 @@ class CmaState:
         return pickle.loads(blob)
 
 
-def new_state(settings: OptimizeSettings) -> CmaState:
+def _new_es(settings: OptimizeSettings, randn: _Randn, popsize: int) -> cma.CMAEvolutionStrategy:
     x0 = np.zeros(N_PARAMS) if settings.x0 is None else np.asarray(settings.x0, dtype=float)
     opts = {
-        "popsize": settings.popsize,
+        "popsize": popsize,
         "seed": np.nan,
-        "randn": _Randn(settings.seed),
+        "randn": randn,
         "verbose": -9,
         "verb_log": 0,
         "verb_disp": 0,
         "maxfevals": np.inf,  # our own budget rule decides
     }
-    return CmaState(es=cma.CMAEvolutionStrategy(x0, settings.sigma0, opts))
+    es = cma.CMAEvolutionStrategy(x0, settings.sigma0, opts)
+    if settings.x0 is not None:
+        es.inject([x0], force=True)  # the warm start itself is the first candidate
+    return es
+
+
+def new_state(settings: OptimizeSettings) -> CmaState:
+    randn = _Randn(settings.seed)
+    return CmaState(es=_new_es(settings, randn, settings.popsize), randn=randn)
+
+
+def popsize_of(state: CmaState) -> int:
+    return int(state.es.popsize)
 
 
 def step(state: CmaState, evaluate: Callable[[Sequence[np.ndarray]], list[EvalRecord]]) -> tuple[list, list]:
@@ -120,17 +153,14 @@ def step(state: CmaState, evaluate: Callable[[Sequence[np.ndarray]], list[EvalRe
     if wins:
         state.best_success_objective = min(state.best_success_objective, min(wins))
     state.best_history.append(state.best_objective)
+    gen_best = min(objectives)
+    state.restart_history.append(min(gen_best, state.restart_history[-1]) if state.restart_history else gen_best)
     return xs, records
 
 
-def stop_reason(state: CmaState, settings: OptimizeSettings) -> str | None:
-    if state.best_success_objective < settings.stop_threshold:
-        return "threshold"
-    if state.evaluations >= settings.max_evals:
-        return "budget"
-    if state.evaluations < settings.min_evals:
-        return None
-    h = state.best_history
+def _stalled(state: CmaState, settings: OptimizeSettings) -> str | None:
+    """Why the current (re)start has stopped making progress, or None."""
+    h = state.restart_history
     if len(h) > settings.stall_generations:
         old, new = h[-settings.stall_generations - 1], h[-1]
         if old - new <= settings.stall_tol * max(abs(old), 1e-12):
@@ -139,6 +169,43 @@ def stop_reason(state: CmaState, settings: OptimizeSettings) -> str | None:
     if cma_stop:
         return "converged:" + ",".join(sorted(cma_stop))
     return None
+
+
+def _restart_popsize(state: CmaState, settings: OptimizeSettings) -> int | None:
+    """The population of the next restart, or None when the stalled search should stop instead: it has
+    its success and the paper's minimum effort, or restarts (or budget for two generations) ran out."""
+    if state.best_success_objective < np.inf and state.evaluations >= settings.min_evals:
+        return None
+    popsize = int(round(settings.popsize * settings.popsize_factor ** (state.restarts + 1)))
+    if state.restarts >= settings.max_restarts or state.evaluations + 2 * popsize > settings.max_evals:
+        return None
+    return popsize
+
+
+def stop_reason(state: CmaState, settings: OptimizeSettings) -> str | None:
+    if state.best_success_objective < settings.stop_threshold:
+        return "threshold"
+    if state.evaluations >= settings.max_evals or (
+            state.evaluations and state.evaluations + popsize_of(state) > settings.max_evals):
+        return "budget"  # never past max_evals, but at least one generation
+    why = _stalled(state, settings)
+    if why and _restart_popsize(state, settings) is None:
+        return why
+    return None
+
+
+def restart_if_stalled(state: CmaState, settings: OptimizeSettings) -> bool:
+    """After a generation: restart a stalled search with a larger population (IPOP) unless it should stop.
+    Called before the checkpoint is written, so a resumed run sees the restart as it happened."""
+    if state.best_success_objective < settings.stop_threshold or not _stalled(state, settings):
+        return False
+    popsize = _restart_popsize(state, settings)
+    if popsize is None:
+        return False
+    state.es = _new_es(settings, state.randn, popsize)
+    state.restarts += 1
+    state.restart_history = []
+    return True
 
 
 def best_cmrt(state: CmaState, clip_s: float) -> Cmrt:

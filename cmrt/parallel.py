@@ -24,10 +24,12 @@ import joblib
 import numpy as np
 
 from cmrt.curve import Cmrt
+from cmrt.ensemble import combine, training_members
 from cmrt.errors import CmrtError
 from cmrt.objective import evaluate
 from cmrt.optimize import EvalRecord
-from cmrt.simulate import simulate, simulate_batch
+from cmrt.props import PROP_MASS_PARAM
+from cmrt.simulate import simulate_batch
 from cmrt.task import Task
 
 BACKENDS = ("batch", "serial", "loky", "loky+batch", "dask", "dask+batch")
@@ -35,20 +37,32 @@ BACKENDS = ("batch", "serial", "loky", "loky+batch", "dask", "dask+batch")
 
 def evaluate_candidate(task: Task, x: np.ndarray) -> EvalRecord:
     """Simulate and score one parameter vector (module-level: picklable for workers)."""
-    t0 = time.perf_counter()
-    ev = evaluate(task, simulate(task, Cmrt.from_params(x, task.clip_s), record=False))
-    return EvalRecord(objective=float(ev.objective), fell=bool(ev.fell), seconds=time.perf_counter() - t0,
-                      success=bool(ev.success))
+    return evaluate_batch(task, [x], threads=1)[0]
 
 
 def evaluate_batch(task: Task, xs: Sequence[np.ndarray], threads: int | None = None) -> list[EvalRecord]:
-    """Simulate and score candidates in lockstep; seconds are the batch's wall time shared equally."""
+    """Simulate and score candidates in lockstep; seconds are the batch's wall time shared equally.
+
+    A robust task (``task.robust.enabled``) runs every candidate's ensemble members in the same batch and
+    scores each candidate by ``ensemble.combine``: a success only if every member is one."""
     t0 = time.perf_counter()
-    trajs = simulate_batch(task, [Cmrt.from_params(x, task.clip_s) for x in xs], threads=threads)
-    scores = [evaluate(task, tr) for tr in trajs]
+    curves = [Cmrt.from_params(x, task.clip_s) for x in xs]
+    if not task.robust.enabled:
+        scores = [evaluate(task, tr) for tr in simulate_batch(task, curves, threads=threads)]
+        each = (time.perf_counter() - t0) / max(len(xs), 1)
+        return [EvalRecord(objective=float(e.objective), fell=bool(e.fell), seconds=each, success=bool(e.success))
+                for e in scores]
+    members = training_members(task, task.robust, task.prop in PROP_MASS_PARAM)
+    trajs = simulate_batch(task, [c for c in curves for _ in members], threads=threads,
+                           perturbations=members * len(curves))
+    scores = [evaluate(members[j % len(members)].task_variant(task), tr) for j, tr in enumerate(trajs)]
     each = (time.perf_counter() - t0) / max(len(xs), 1)
-    return [EvalRecord(objective=float(e.objective), fell=bool(e.fell), seconds=each, success=bool(e.success))
-            for e in scores]
+    out = []
+    for i in range(len(curves)):
+        group = scores[i * len(members) : (i + 1) * len(members)]
+        out.append(EvalRecord(objective=combine([float(e.objective) for e in group], task.robust),
+                              fell=any(e.fell for e in group), seconds=each, success=all(e.success for e in group)))
+    return out
 
 
 def _chunks(xs: Sequence[np.ndarray], k: int) -> list[list[np.ndarray]]:

@@ -47,6 +47,8 @@ GRIP_TIMECONST_S = 0.01  # the grip's constraint time constant (MuJoCo's default
 GRIP_SETTLE_S = 0.06  # at the latest this long after the grip the load is handed to the forearms
 GRIP_SETTLED_M_S = 0.05  # ... or as soon as the ball moves with the point it is held at to within this
 BALL_RESIDUAL_MASS_KG = 0.05  # what the ball body keeps once its mass is in the forearms
+#: the task parameter holding each massive prop's mass (ensembles scale it per simulation)
+PROP_MASS_PARAM = {"ball": "ball_mass_kg", "slab": "slab_mass_kg"}
 CONTACT_FORCE_N = 1.0  # a hand-prop force above this counts as contact
 TOPPLED_DEG = 30.0  # a slab rotated this far has passed its balance angle and is falling
 GRAVITY_M_S2 = 9.81
@@ -160,9 +162,19 @@ class Prop:
     #: the prop acts every physics step (a ball released or caught at the right instant), not every control step
     every_step = False
 
-    def start(self, batch, b: dict, n: int, end_qpos: np.ndarray) -> None:
-        """Set up the clip's start (``end_qpos``: the task's target pose)."""
+    #: the body whose mass an ensemble member may scale (None: the prop has no mass that matters)
+    mass_body: str | None = None
+
+    def start(self, batch, b: dict, n: int, end_qpos: np.ndarray, mass_scale: np.ndarray | None = None) -> None:
+        """Set up the clip's start (``end_qpos``: the task's target pose; ``mass_scale`` (n,): each
+        simulation's prop mass as a multiple of the task's)."""
         self.carried_kg = np.zeros(n)
+        if self.mass_body is not None and mass_scale is not None and np.any(mass_scale != 1.0):
+            body = self.model.body(self.mass_body).id
+            mass, inertia = batch.expand("body_mass"), batch.expand("body_inertia")
+            mass[:, body] *= mass_scale
+            inertia[:, body] *= mass_scale[:, None]
+            batch.set_const()  # derived quantities (subtree masses) follow the new masses
 
     def step(self, batch, b: dict, ids: np.ndarray, t: float) -> None:
         """Called before a step at time ``t`` for the active simulations."""
@@ -188,6 +200,7 @@ class Prop:
 class Ball(Prop):
     kind = "ball"
     every_step = True
+    mass_body = "ball"
 
     def __init__(self, model, params):
         super().__init__(model, params)
@@ -210,8 +223,8 @@ class Ball(Prop):
     def settle_hold(self, b):
         self._hold(b, slice(None))
 
-    def start(self, batch, b, n, end_qpos):
-        super().start(batch, b, n, end_qpos)
+    def start(self, batch, b, n, end_qpos, mass_scale=None):
+        super().start(batch, b, n, end_qpos, mass_scale)
         self.reference_tip_z = fingertip_z(self.model, end_qpos)
         self.eq_data = batch.expand("eq_data")
         self.gravcomp = batch.expand("body_gravcomp")
@@ -340,6 +353,7 @@ def fingertip_z(model: mujoco.MjModel, qpos: np.ndarray) -> float:
 
 class Slab(Prop):
     kind = "slab"
+    mass_body = "slab"
 
     def __init__(self, model, params):
         super().__init__(model, params)

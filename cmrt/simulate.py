@@ -28,6 +28,7 @@ Forces on the hands (a ball, a bag, a slab) never enter it.
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import mujoco
@@ -39,6 +40,7 @@ from cmrt.character import FOOT_POINT_RADIUS_M, character
 from cmrt.control import ControllerConfig, MomentumBalanceController
 from cmrt.control.planar import PlanarKinematics
 from cmrt.curve import Cmrt
+from cmrt.ensemble import NOMINAL, Perturbation
 from cmrt.props import CONTACT_FORCE_N, model_values, prop_runtime
 from cmrt.task import Task
 
@@ -200,14 +202,16 @@ def _protective_torques(q: np.ndarray, qd: np.ndarray, hold: np.ndarray, limits:
     return np.clip(tau, -limits, limits)
 
 
-def _judge_prop(prop, b, rows, force, times, window, goal, extras) -> None:
+def _judge_prop(prop, b, rows, force, times, windows, goal, extras) -> None:
     """The prop's verdict and figures for simulations ``rows`` as they are now (a fall freezes them, so
-    a recorded topple cannot change them)."""
+    a recorded topple cannot change them). ``windows`` (n, 2): each simulation's task window."""
     if rows.size == 0:
         return
-    verdict = prop.success(b, rows, force, times, window)
-    if verdict is not None:
-        goal[rows] = verdict
+    for window in np.unique(windows[rows], axis=0):
+        same = np.all(windows[rows] == window, axis=1)
+        verdict = prop.success(b, rows[same], force[same], times, tuple(window))
+        if verdict is not None:
+            goal[rows[same]] = verdict
     for key, values in prop.extras(b, rows).items():
         extras.setdefault(key, np.full(goal.size, np.nan))[rows] = values
 
@@ -258,12 +262,14 @@ def simulate_batch(
     record: bool = False,
     threads: int | None = None,
     limits: BalanceLimits = BalanceLimits(),
+    perturbations: Sequence[Perturbation] | None = None,
 ) -> list[Trajectory]:
     """Simulate one clip (plus standing tail) of ``task`` per CMRT (None: zero CMRT), in lockstep.
 
     ``record`` fills every array at every step and plays falls out in protective mode;
     scores do not depend on it. ``threads``: MuJoCo batch threads (default: all cores,
-    or $CMRT_THREADS)."""
+    or $CMRT_THREADS). ``perturbations``: one per CMRT (an ensemble member: an extra push,
+    the prop's mass scaled, the motion's timing scaled; default: the nominal clip)."""
     ch = character()
     m = task.model()
     n = len(curves)
@@ -276,8 +282,28 @@ def simulate_batch(
     curves = [c or Cmrt.zero(task.clip_s) for c in curves]
     disp = np.stack([c.displacement_m(times) for c in curves])  # (n, T): zero after L
     disp_vel = np.stack([c.velocity_m_s(times) for c in curves])
-    q_ref, qd_ref, qdd_ref = task.reference(times)
-    push = np.array([task.push_at(t) for t in times])
+    members = list(perturbations) if perturbations is not None else [NOMINAL] * n
+    if len(members) != n:
+        raise ValueError("one perturbation per CMRT")
+    # the motion's reference, once per distinct timing; rows index their variant
+    scales = sorted({p.time_scale for p in members})
+    variant_tasks = [Perturbation(time_scale=s).task_variant(task) for s in scales]
+    variant_of = np.array([scales.index(p.time_scale) for p in members])
+    variant_refs = [vt.reference(times) for vt in variant_tasks]
+    if len(scales) == 1:
+        q_ref, qd_ref, qdd_ref = variant_refs[0]
+    else:
+        q_ref, qd_ref, qdd_ref = (np.stack([r[i] for r in variant_refs]) for i in range(3))
+
+    def refs_at(k: int, rows) -> tuple:
+        if len(scales) == 1:
+            return q_ref[k], qd_ref[k], qdd_ref[k]
+        v = variant_of[rows]
+        return q_ref[v, k], qd_ref[v, k], qdd_ref[v, k]
+
+    push = np.array([task.push_at(t) for t in times])[None, :] + np.stack([p.push_at(times) for p in members])
+    push_changes = np.concatenate([[True], np.any(np.diff(push, axis=1) != 0, axis=0)])
+    mass_scale = np.array([p.prop_mass_scale for p in members])
     geo = _Geometry()
     controller = MomentumBalanceController(ch, config)
     kin = PlanarKinematics(ch.model)
@@ -292,10 +318,11 @@ def simulate_batch(
     for k, v in settled_state(task, config).items():
         b[k][:] = v
     b["time"][:] = 0.0
-    prop.start(batch, b, n, task.end_qpos())
+    prop.start(batch, b, n, task.end_qpos(), mass_scale)
     batch.forward(stage=vel_stage)
     settled_z = b["geom_xpos"][0, geo.points, 2].copy()
 
+    windows = np.array([vt.task_window_s() for vt in variant_tasks])[variant_of]  # (n, 2): [P, P + T] per row
     rec = _Recorder(n, n_steps, m.nq, m.nv, m.nu)
     end = np.full(n, run_steps)  # where each simulation stops (moved on a fall)
     next_end = run_steps
@@ -356,12 +383,11 @@ def simulate_batch(
         if control:
             rec["jspeed"][sel, k] = np.abs(b["qvel"][sel][:, act]).max(axis=1)
             fallen = fall_code[ids] > 0
-            refs = (q_ref[k], qd_ref[k], qdd_ref[k])
             mass = ch.mass_kg + prop.carried_kg  # what the controller knows it carries
             if not fallen.any():  # everyone under control: the bound arrays themselves, no copies
                 f = {name: b[name][sel] for name in CONTROL_FIELDS}
-                ctrl, bad = _control(controller, f, refs, center + disp[sel, k], disp_vel[sel, k], center, contact,
-                                     mass[sel])
+                ctrl, bad = _control(controller, f, refs_at(k, ids), center + disp[sel, k], disp_vel[sel, k], center,
+                                     contact, mass[sel])
             else:
                 ctrl = np.zeros((ids.size, m.nu))
                 bad = np.zeros(ids.size, bool)
@@ -369,8 +395,8 @@ def simulate_batch(
                 up = np.flatnonzero(~fallen)
                 rows = ids[up]
                 f = {name: b[name][rows] for name in CONTROL_FIELDS}
-                ctrl[up], bad[up] = _control(controller, f, refs, center[up] + disp[rows, k], disp_vel[rows, k],
-                                             center[up], contact[up], mass[rows])
+                ctrl[up], bad[up] = _control(controller, f, refs_at(k, rows), center[up] + disp[rows, k],
+                                             disp_vel[rows, k], center[up], contact[up], mass[rows])
             if fallen.any():
                 rows = ids[fallen]
                 ctrl[fallen] = _protective_torques(b["qpos"][rows][:, act], b["qvel"][rows][:, act], hold[rows],
@@ -397,15 +423,15 @@ def simulate_batch(
                 hold[sims] = qpos[new][:, act]
                 fall_qpos[sims] = qpos[new][:, :nq]
                 fall_speed[sims] = np.hypot(momentum[new, 0], momentum[new, 1]) / (ch.mass_kg + prop.carried_kg[sims])
-                _judge_prop(prop, b, sims, rec["prop_force"][sims, :k], times[:k], task.task_window_s(), goal, extras)
+                _judge_prop(prop, b, sims, rec["prop_force"][sims, :k], times[:k], windows, goal, extras)
                 # scoring: stop after this step; recording: play the topple out (not a blow-up: nothing to show)
                 end[sims] = np.where(record & (code[new] != diverged_code), np.maximum(run_steps, k + post_fall), k + 1)
                 next_end = end[ids].min()
         if record:
             rec["ctrl"][sel, k] = ctrl_all[sel]
             rec["qvel"][sel, k] = b["qvel"][sel]
-        if k == 0 or push[k] != push[k - 1]:
-            b["xfrc_applied"][sel, ch.thorax_body, 0] = push[k]
+        if push_changes[k]:
+            b["xfrc_applied"][sel, ch.thorax_body, 0] = push[sel, k]
 
         batch.step(ids=step_ids, stage=vel_stage)
 
@@ -432,8 +458,7 @@ def simulate_batch(
     final_speed = np.where(fallen, fall_speed, np.hypot(momentum[:, 0], momentum[:, 1])
                            / (ch.mass_kg + prop.carried_kg))
     standing = np.flatnonzero(fall_code == 0)  # the others were judged when they fell
-    _judge_prop(prop, b, standing, rec["prop_force"][standing, :run_steps], times[:run_steps],
-                task.task_window_s(), goal, extras)
+    _judge_prop(prop, b, standing, rec["prop_force"][standing, :run_steps], times[:run_steps], windows, goal, extras)
     out = []
     for i in range(n):
         r = rec.cut(i, last[i])

@@ -83,8 +83,18 @@ def _v2(db: sqlite_utils.Database) -> None:
     db["evaluations"].add_column("success", int)
 
 
+def _v3(db: sqlite_utils.Database) -> None:
+    """Where a run started (warm starts), its IPOP restarts, robust ensembles and their validation."""
+    db["runs"].add_column("init_source", str)  # "none", "run 12", "library (speed 0.4)"
+    db["runs"].add_column("init_params", str)  # JSON: the start point itself, so a resume never re-resolves it
+    db["runs"].add_column("restarts", int)
+    db["runs"].add_column("stall_generations", int)  # NULL: the default (OptimizeSettings)
+    db["runs"].add_column("robust", str)  # JSON: the training ensemble's specification (NULL: plain run)
+    db["runs"].add_column("robustness", str)  # JSON: the best CMRT on the validation ensemble
+
+
 #: MIGRATIONS[k] takes a store from version k to k + 1.
-MIGRATIONS: list[Callable[[sqlite_utils.Database], None]] = [_v1, _v2]
+MIGRATIONS: list[Callable[[sqlite_utils.Database], None]] = [_v1, _v2, _v3]
 SCHEMA_VERSION = len(MIGRATIONS)
 
 
@@ -209,6 +219,13 @@ class Store:
         )
         return [{**dict(r), "mean": json.loads(r["mean"])} for r in rows]
 
+    def successful_runs(self, task_name: str) -> list[dict]:
+        """Finished runs of a task whose best CMRT is a success (warm-start candidates), oldest first."""
+        rows = self.conn.execute(
+            "SELECT * FROM runs WHERE task = ? AND status = 'done' AND best_success = 1 AND best_params IS NOT NULL "
+            "ORDER BY id", (task_name,))
+        return [_decode_run(dict(r)) for r in rows]
+
     def last_checkpoint(self, run_id: int) -> tuple[int, bytes] | None:
         row = self.conn.execute(
             "SELECT gen, checkpoint FROM generations WHERE run_id = ? ORDER BY gen DESC LIMIT 1", (run_id,)
@@ -217,7 +234,7 @@ class Store:
 
 
 def _decode_run(row: dict) -> dict:
-    for key in ("params", "best_params", "best_cmrt"):
+    for key in ("params", "best_params", "best_cmrt", "init_params", "robust", "robustness"):
         if row.get(key):
             row[key] = json.loads(row[key])
     for key in ("best_fell", "baseline_fell", "best_success", "baseline_success"):

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from cmrt.character import SIDED_JOINTS, character, feet_flat_qpos, joint_angles_from_pose
+from cmrt.ensemble import RobustSpec
 from cmrt.errors import CmrtError
 
 MIN_TAIL_S = 0.5
@@ -64,6 +65,7 @@ class Task:
     prop: str | None = None
     speed_param: str | None = None
     source: str = ""
+    robust: RobustSpec = RobustSpec()  # the [robust] table: the ensemble a robust run is scored on
 
     # --- parameters -------------------------------------------------------------
     def __getattr__(self, key: str) -> float:
@@ -96,6 +98,10 @@ class Task:
         task = replace(self, params=params)
         task.validate()
         return task
+
+    def with_robust(self, enabled: bool = True) -> Task:
+        """A copy scored on its robust ensemble (``cmrt.ensemble``), or on the nominal clip alone."""
+        return replace(self, robust=replace(self.robust, enabled=enabled))
 
     def with_speed(self, speed: float | None) -> Task:
         if speed is None:
@@ -231,11 +237,15 @@ class Task:
             out["prop"] = {"kind": self.prop}
         if self.speed_param:
             out["speed_param"] = self.speed_param
+        if self.robust != RobustSpec():
+            out["robust"] = self.robust.to_table()
         return out
 
     def content_hash(self) -> str:
-        """Hash of everything that changes the physics of a clip (not name or summary)."""
-        body = {k: v for k, v in self.to_dict().items() if k not in ("name", "summary")}
+        """Hash of everything that changes the physics of a clip or its score (not name or summary; the
+        ensemble only when robust scoring is on: a robust objective is another problem's)."""
+        skip = ("name", "summary") if self.robust.enabled else ("name", "summary", "robust")
+        body = {k: v for k, v in self.to_dict().items() if k not in skip}
         return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()[:16]
 
     def task_window_s(self) -> tuple[float, float]:
@@ -293,6 +303,10 @@ def load_task(name_or_path: str) -> Task:
     return task_from_dict(raw, source=str(path), default_name=path.stem)
 
 
+def _bad_robust(source: str):
+    raise CmrtError(f"{source}: [robust] must be a table")
+
+
 def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task") -> Task:
     allowed = {
         "name",
@@ -306,6 +320,7 @@ def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task"
         "via_pose_deg",
         "timing",
         "prop",
+        "robust",
     }
     unknown = set(raw) - allowed
     if unknown:
@@ -353,6 +368,8 @@ def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task"
         prop=prop,
         speed_param=speed_param,
         source=source,
+        robust=RobustSpec.from_table(raw.get("robust", {}), source) if isinstance(raw.get("robust", {}), dict)
+        else _bad_robust(source),
     )
     task.validate()
     try:

@@ -14,7 +14,7 @@ from .service_helpers import FAST_BEND, cmrt
 def store_with_run(tmp_path_factory):
     path = tmp_path_factory.mktemp("svc") / "s.sqlite"
     r = cmrt("optimize", *FAST_BEND, "--seed", "2", "--max-evals", "20", "--popsize", "5", "--backend", "serial",
-             "--json", "--no-progress", store=path, check=True)
+             "--init", "none", "--json", "--no-progress", store=path, check=True)
     return path, json.loads(r.stdout)
 
 
@@ -23,6 +23,9 @@ def test_optimize_json(store_with_run):
     for key in ("run_id", "best_objective", "evaluations", "fell", "wall_s"):
         assert key in out
     assert out["evaluations"] == 20 and out["status"] == "done"
+    assert out["init"] == "none" and out["restarts"] == 0 and out["robust"] is False
+    rb = out["robustness"]  # every run is replayed on the validation ensemble
+    assert rb["validation_total"] == 20 and 0 <= rb["validation_survived"] <= 20
 
 
 def test_queries(store_with_run):
@@ -56,7 +59,8 @@ def test_export(store_with_run, tmp_path):
 def test_submit_and_worker(tmp_path):
     path = tmp_path / "q.sqlite"
     sub = json.loads(cmrt("submit", "bend", "--speed", "0.5", "--set", "cop_sample_step_s=0.02", "--seed", "4",
-                          "--max-evals", "6", "--popsize", "3", "--json", store=path, check=True).stdout)
+                          "--max-evals", "6", "--popsize", "3", "--init", "none", "--json", store=path,
+                          check=True).stdout)
     assert sub["status"] == "queued"
     assert json.loads(cmrt("jobs", "--json", store=path, check=True).stdout)[0]["status"] == "queued"
     w = cmrt("worker", "--until-idle", "--backend", "serial", "--json", store=path, check=True)

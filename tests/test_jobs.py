@@ -17,7 +17,7 @@ TASK = load_task("bend").with_speed(0.4)
 
 def finished_run(path, **kw):
     with open_store(path) as store:
-        rid = submit(store, TASK, **kw)
+        rid = submit(store, TASK, init="none", **kw)
         c = claim(store, "test", run_id=rid)
         run_claimed(store, c, Evaluator("serial"))
         return store.run(rid), store.evaluations(rid)
@@ -38,7 +38,7 @@ def test_sigkill_mid_run_then_resume_is_bit_identical(tmp_path):
 
     path = tmp_path / "crash.sqlite"
     with open_store(path) as store:
-        rid = submit(store, TASK, **kw)
+        rid = submit(store, TASK, init="none", **kw)
     worker = spawn_worker(path, "--once", backend="serial")  # slow generations: a kill lands mid-run
     deadline = time.time() + 300
     while time.time() < deadline:
@@ -69,7 +69,7 @@ def test_sigkill_mid_run_then_resume_is_bit_identical(tmp_path):
 def test_four_workers_eight_jobs_each_done_exactly_once(tmp_path):
     path = tmp_path / "busy.sqlite"
     with open_store(path) as store:
-        ids = [submit(store, TASK, seed=s, max_evals=8, popsize=4) for s in range(8)]
+        ids = [submit(store, TASK, seed=s, max_evals=8, popsize=4, init="none") for s in range(8)]
     workers = [spawn_worker(path, "--until-idle", "--json") for _ in range(4)]
     outputs = [w.communicate(timeout=900) for w in workers]
     for w, (_out, err) in zip(workers, outputs, strict=True):
@@ -90,7 +90,7 @@ def test_lost_claim_stops_the_old_worker(tmp_path):
     from cmrt.jobs import LostClaim
 
     with open_store(tmp_path / "s.sqlite") as store:
-        rid = submit(store, TASK, seed=1, max_evals=10, popsize=5)
+        rid = submit(store, TASK, seed=1, max_evals=10, popsize=5, init="none")
         first = claim(store, "a", run_id=rid)
         second = claim(store, "b", stale_after_s=0.0, run_id=rid)  # a looked dead
         assert second.attempt == first.attempt + 1

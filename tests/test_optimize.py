@@ -1,6 +1,15 @@
 import numpy as np
 
-from cmrt.optimize import CmaState, EvalRecord, OptimizeSettings, new_state, step, stop_reason
+from cmrt.optimize import (
+    CmaState,
+    EvalRecord,
+    OptimizeSettings,
+    new_state,
+    popsize_of,
+    restart_if_stalled,
+    step,
+    stop_reason,
+)
 
 
 def sphere(xs):
@@ -46,12 +55,69 @@ def test_stop_rules():
     while stop_reason(state, budget) is None:
         step(state, sphere)
     assert stop_reason(state, budget) == "budget" and state.evaluations == 30
-    # a flat objective: no slow-convergence stop before min_evals, then one
-    flat = OptimizeSettings(seed=1, min_evals=200, max_evals=10_000, stall_generations=5)
+    # a flat objective that never succeeds: stalls restart with a growing population until restarts run out
+    flat = OptimizeSettings(seed=1, min_evals=200, max_evals=10_000, stall_generations=5, max_restarts=3)
     state = new_state(flat)
     while stop_reason(state, flat) is None:
         step(state, lambda xs: [EvalRecord(1.0, True, 0.0) for _ in xs])
-    assert state.evaluations >= 200 and stop_reason(state, flat).startswith("converged")
+        restart_if_stalled(state, flat)
+    assert state.restarts == 3 and popsize_of(state) == 80
+    assert stop_reason(state, flat).startswith("converged")
+    # a success past min_evals: a stall stops the run instead of restarting it
+    done = OptimizeSettings(seed=1, min_evals=50, max_evals=10_000, stall_generations=5)
+    state = new_state(done)
+    while stop_reason(state, done) is None:
+        step(state, lambda xs: [EvalRecord(1.0, False, 0.0, success=True) for _ in xs])
+        assert not restart_if_stalled(state, done) or state.evaluations < 50
+    assert stop_reason(state, done).startswith("converged") and state.evaluations >= 50
+
+
+def test_budget_is_never_exceeded_by_a_grown_population():
+    s = OptimizeSettings(seed=3, max_evals=200, stall_generations=2, min_evals=0)
+    state = new_state(s)
+    while stop_reason(state, s) is None:
+        step(state, lambda xs: [EvalRecord(1.0, True, 0.0) for _ in xs])
+        restart_if_stalled(state, s)
+    assert state.restarts >= 1 and state.evaluations <= 200
+
+
+def _rugged(xs):
+    """A stall-prone objective: succeeds only in a narrow well far from the start."""
+    out = []
+    for x in xs:
+        d = float(np.sum((x - 1.5) ** 2))
+        out.append(EvalRecord(1.0 + 0.001 * np.floor(d), d > 0.05, 0.0, success=d < 0.05))
+    return out
+
+
+def test_resume_across_restarts_is_bit_identical():
+    s = OptimizeSettings(seed=4, max_evals=2000, stall_generations=3, min_evals=0, stop_threshold=10.0)
+
+    def drive(state, n_gen, snapshot_at=None):
+        snap = None
+        for g in range(n_gen):
+            if stop_reason(state, s) is not None:
+                break
+            step(state, _rugged)
+            restart_if_stalled(state, s)
+            if g == snapshot_at:
+                snap = state.dumps()
+        return state, snap
+
+    straight, snap = drive(new_state(s), 60, snapshot_at=20)
+    assert straight.restarts >= 2  # the snapshot and the end straddle restarts
+    resumed = CmaState.loads(snap)
+    assert resumed.restarts < straight.restarts
+    resumed, _ = drive(resumed, 60 - 21)
+    assert resumed.restarts == straight.restarts and resumed.evaluations == straight.evaluations
+    assert resumed.best_history == straight.best_history and np.array_equal(resumed.es.mean, straight.es.mean)
+
+
+def test_warm_start_is_the_first_candidate():
+    x0 = tuple(np.linspace(-0.3, 0.4, 8))
+    state = new_state(OptimizeSettings(seed=1, x0=x0))
+    xs, _ = step(state, sphere)
+    assert np.array_equal(xs[0], np.array(x0)) and not np.array_equal(xs[1], np.array(x0))
 
 
 def test_threshold_stop_needs_a_success():
@@ -74,4 +140,4 @@ def test_threshold_stop_needs_a_success():
     state = new_state(never)
     while (reason := stop_reason(state, never)) is None:
         step(state, lambda xs: [EvalRecord(1.0, False, 0.0, success=False) for _ in xs])
-    assert reason == "budget"
+    assert reason != "threshold"  # budget, or a flat stall with no budget left to restart

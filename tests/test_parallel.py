@@ -12,7 +12,7 @@ from cmrt.task import load_task
 def optimize_with(tmp_path, backend):
     task = load_task("bend").with_speed(0.4)
     with open_store(tmp_path / f"{backend}.sqlite") as store:
-        rid = submit(store, task, seed=11, max_evals=16, popsize=8, backend=backend)
+        rid = submit(store, task, seed=11, max_evals=16, popsize=8, backend=backend, init="none")
         with Evaluator(backend, workers=2) as ev:  # dask: a real LocalCluster of 2 worker processes
             run_claimed(store, claim(store, "t", run_id=rid), ev)
         return store.run(rid), store.evaluations(rid)

@@ -5,6 +5,10 @@ the best CMRT with its provenance to ``cmrt/assets/library.json``, where
 ``--curve library`` finds it.
 
     python tools/find_library_curve.py bend --speed 0.4 --seed 1 --max-evals 1500 --stop-threshold 0
+
+``--robust`` scores candidates on the task's ensemble (``cmrt.ensemble``); ``--init auto``
+starts from the nearest library CMRT (how the shipped robust CMRTs were made: each from
+the plain CMRT of its own task, with ``--sigma0 0.15``).
 """
 
 from __future__ import annotations
@@ -32,12 +36,17 @@ def main() -> None:
     ap.add_argument("--family-sigma0", type=float, default=0.15,
                     help="CMA-ES step size for warm-started family members: stay near the neighbour's solution "
                          "so the family keeps one shape and interpolates (ABC 4.2)")
+    ap.add_argument("--robust", action="store_true", help="score candidates on the task's robust ensemble")
+    ap.add_argument("--init", default="none", choices=("none", "auto"), help="start of the first (or only) run")
+    ap.add_argument("--sigma0", type=float, default=0.5, help="step size of the first (or only) run")
     ap.add_argument("--no-save", action="store_true")
     args = ap.parse_args()
 
     base = load_task(args.task).with_params(**dict(kv.split("=", 1) for kv in args.set))
     if args.stop_threshold is not None:
         base = base.with_params(stop_threshold=args.stop_threshold)
+    if args.robust:
+        base = base.with_robust()
     speeds = [float(s) for s in args.speeds.split(",")] if args.speeds else [args.speed]
     with tempfile.TemporaryDirectory() as tmp, open_store(Path(tmp) / "lib.sqlite") as store:
         previous = None
@@ -45,9 +54,9 @@ def main() -> None:
             task = base.with_speed(speed)
             t0 = time.perf_counter()
             with Evaluator(args.backend) as ev:
-                sigma0 = 0.5 if previous is None else args.family_sigma0
-                run = optimize_now(store, task, ev, seed=args.seed, max_evals=args.max_evals, init_run=previous,
-                                   sigma0=sigma0)
+                sigma0 = args.sigma0 if previous is None else args.family_sigma0
+                run = optimize_now(store, task, ev, seed=args.seed, max_evals=args.max_evals,
+                                   init=previous or args.init, sigma0=sigma0)
             previous = run["id"]
             record(task, run, run_curve(store, run["id"]), args, time.perf_counter() - t0)
 
@@ -63,7 +72,8 @@ def record(task, run, curve, args, wall_s: float) -> None:
         "zero_cmrt_fell": run["baseline_fell"],
         "evaluations": run["evaluations"], "stop_reason": run["stop_reason"], "seed": args.seed,
         "stop_threshold": task.stop_threshold, "wall_s": round(wall_s, 1), "init_run": run["init_run"] is not None,
-        "params": task.params,
+        "params": task.params, "robust": task.robust.enabled, "init": run["init_source"],
+        "restarts": run["restarts"], "robustness": run["robustness"],
     }
     print(json.dumps(entry, indent=2))
     if not args.no_save:

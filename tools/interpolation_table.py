@@ -38,7 +38,7 @@ def main() -> None:
                        "from": [v for v, _ in r.sources], "weight": r.weight}
                 if kind == "interpolated":
                     with Evaluator("batch") as ev:
-                        run = optimize_now(store, task, ev, seed=1, max_evals=args.max_evals)
+                        run = optimize_now(store, task, ev, seed=1, max_evals=args.max_evals, init="none")
                     row.update(direct_objective=run["best_objective"], direct_success=run["best_success"],
                                ratio=interp.objective / run["best_objective"])
                 rows.append(row)

@@ -45,7 +45,7 @@ def row(name: str, store_dir: Path) -> dict:
     lib = evaluate(task, simulate(task, library_curve(task), record=False))
     t0 = time.perf_counter()
     with open_store(store_dir / f"{name}.sqlite") as store, Evaluator("batch") as ev:
-        run = optimize_now(store, task, ev, seed=1)
+        run = optimize_now(store, task, ev, seed=1, init="none")
     wall = time.perf_counter() - t0
     out = {
         "row": name, "task": task.name, "L": task.clip_s, "P": task.preparation_s, "T": task.duration_s,

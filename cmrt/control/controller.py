@@ -141,9 +141,9 @@ class MomentumBalanceController:
                 in_contact: np.ndarray, mass_kg: np.ndarray | None = None) -> ControlOutput:
         """Torques for n simulations. ``f`` holds (n, ...) arrays of the MuJoCo fields at the current state:
         qpos, qvel, cdof, cdof_dot, cvel, cinert, M, qfrc_bias, qfrc_passive, subtree_com, geom_xpos.
-        References (nv,) are shared; CoM/CoP targets are (n,); ``in_contact`` (n, 4) says which heel/toe
-        points touch the ground; ``mass_kg`` (n,) the character's mass with what it carries (default:
-        its own)."""
+        References are (nv,) (shared) or (n, nv) (one per simulation); CoM/CoP targets are (n,);
+        ``in_contact`` (n, 4) says which heel/toe points touch the ground; ``mass_kg`` (n,) the character's
+        mass with what it carries (default: its own)."""
         n = f["qvel"].shape[0]
         tau = np.empty((n, self.actuated.size))
         info = np.empty((n, kernel.N_INFO))
@@ -161,7 +161,8 @@ class MomentumBalanceController:
                                    "qfrc_passive", "subtree_com", "geom_xpos")),
             self.chain, self.m_rows, self.m_cols, self.points, self.point_bodies, self.leg_dofs, self.actuated,
             self.limits, self.w2, self.params,
-            as_f(q_ref), as_f(qd_ref), as_f(qdd_ref), as_f(com_ref_x), as_f(com_ref_vel_x), as_f(cop_des_x),
+            *(as_f(np.broadcast_to(r, (n, r.shape[-1]))) for r in (q_ref, qd_ref, qdd_ref)),
+            as_f(com_ref_x), as_f(com_ref_vel_x), as_f(cop_des_x),
             as_f(in_contact, bool), as_f(np.full(n, self.mass) if mass_kg is None else mass_kg), tau, info,
         )
         return ControlOutput(torque_nm=tau, ground_force_n=info[:, :2], cop_x_m=info[:, 2],

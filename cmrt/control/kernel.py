@@ -156,7 +156,8 @@ def control_step(cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, 
     """Torques (tau_out, (n, nu)) for n simulations; info_out (n, N_INFO) gets the plan's summary.
 
     Arrays are the batch's bound MuJoCo fields (n, ...) - only the humanoid's leading slices are
-    read - and per-simulation targets; ``mass_all`` (n,) is each character's mass with what it
+    read - and per-simulation targets (references (n, nv): an ensemble's members may play the motion at
+    different speeds); ``mass_all`` (n,) is each character's mass with what it
     carries (a caught ball's mass moves into the forearms); see controller.py for the formulation."""
     n = qvel.shape[0]
     nb, nv = chain.shape
@@ -192,8 +193,8 @@ def control_step(cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, 
         g = params[P_BL] * (ldot_x - a[0]) * A[0] + params[P_BH] * (hdot - a[2]) * A[2]
         for j in range(nv):
             Q[j, j] += params[P_BT] * w2[j] + params[P_EPS]
-            g[j] += params[P_BT] * w2[j] * (params[P_KT] * (q_ref[j] - q[j]) + params[P_DT] * (qd_ref[j] - qd[j])
-                                            + qdd_ref[j])
+            g[j] += params[P_BT] * w2[j] * (params[P_KT] * (q_ref[i, j] - q[j])
+                                            + params[P_DT] * (qd_ref[i, j] - qd[j]) + qdd_ref[i, j])
 
         # support rows; a foot that is not flat gets a soft return-to-flat pitch target
         E = np.empty((9, nv))
