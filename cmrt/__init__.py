@@ -27,6 +27,7 @@ from cmrt.balance import BalanceLimits, FallReason  # noqa: E402
 from cmrt.character import character, load_model  # noqa: E402
 from cmrt.control import ControllerConfig, MomentumBalanceController  # noqa: E402
 from cmrt.curve import Cmrt  # noqa: E402
+from cmrt.ensemble import Perturbation, RobustSpec  # noqa: E402
 from cmrt.errors import CmrtError  # noqa: E402
 from cmrt.interpolate import interpolate  # noqa: E402
 from cmrt.jobs import claim, optimize_now, submit, work  # noqa: E402
@@ -39,6 +40,8 @@ from cmrt.sequence import load_sequence  # noqa: E402
 from cmrt.simulate import Trajectory, simulate  # noqa: E402
 from cmrt.store import Store, open_store  # noqa: E402
 from cmrt.task import Task, available_tasks, load_task  # noqa: E402
+from cmrt.validate import robustness  # noqa: E402
+from cmrt.warmstart import nearest_start  # noqa: E402
 
 __all__ = [
     "BalanceLimits",
@@ -50,6 +53,8 @@ __all__ = [
     "FallReason",
     "MomentumBalanceController",
     "OptimizeSettings",
+    "Perturbation",
+    "RobustSpec",
     "Store",
     "Task",
     "Trajectory",
@@ -64,8 +69,10 @@ __all__ = [
     "load_model",
     "load_sequence",
     "load_task",
+    "nearest_start",
     "open_store",
     "optimize_now",
+    "robustness",
     "run_curve",
     "run_details",
     "simulate",

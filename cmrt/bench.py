@@ -5,9 +5,11 @@
     control, from the settled state);
 (b) the batched evaluator: N candidates in lockstep with the compiled controller;
 (c) per-candidate serial evaluation (one clip after another, one thread);
-(d) one full generation of N candidates with each optimizer backend.
+(d) one full generation of N candidates with each optimizer backend;
+(e) the same N candidates scored robustly: each on the task's ensemble (``cmrt.ensemble``),
+    all N x members clips in one lockstep batch - the cost per member against a plain clip's.
 
-(a)-(c) run in ``repeat`` alternating rounds and each round's batched/floor ratio is
+(a)-(c) and (e) run in ``repeat`` alternating rounds and each round's batched/floor ratio is
 taken within the round: these machines are noisy, so the figures are the median (and
 min, max) over rounds, and ratios from one run are what to compare, not seconds across
 runs.
@@ -26,9 +28,11 @@ import numpy as np
 from cmrt.character import character
 from cmrt.control import ControllerConfig
 from cmrt.curve import Cmrt
+from cmrt.ensemble import training_members
 from cmrt.errors import CmrtError
 from cmrt.library import library_curve
 from cmrt.parallel import BACKENDS, Evaluator, evaluate_candidate
+from cmrt.props import PROP_MASS_PARAM
 from cmrt.simulate import settled_state, simulate_batch
 from cmrt.task import Task
 
@@ -59,7 +63,10 @@ def run_bench(task: Task, population: int = 16, repeat: int = 3, backends=BACKEN
         for _ in range(n_steps):
             batch.step()
 
-    rounds: dict[str, list[float]] = {"physics": [], "batched": [], "serial": []}
+    robust = task.with_robust()
+    members = training_members(robust, robust.robust, task.prop in PROP_MASS_PARAM)
+    ensemble_curves = [c for c in curves for _ in members]
+    rounds: dict[str, list[float]] = {"physics": [], "batched": [], "serial": [], "robust": []}
     generations: dict[str, list[float]] = {}
 
     def timed(fn) -> float:
@@ -73,6 +80,8 @@ def run_bench(task: Task, population: int = 16, repeat: int = 3, backends=BACKEN
         rounds["physics"].append(timed(physics))
         rounds["batched"].append(timed(lambda: simulate_batch(task, curves)))
         rounds["serial"].append(timed(lambda: [evaluate_candidate(task, x) for x in xs]))
+        rounds["robust"].append(timed(lambda: simulate_batch(robust, ensemble_curves,
+                                                             perturbations=members * population)))
     for b in backends:  # one backend alive at a time: idle workers/clusters would steal CPU
         with Evaluator(b, workers=workers) as ev:
             ev(task, xs[:2])  # warm-up: worker processes, clusters, per-process caches
@@ -91,6 +100,11 @@ def run_bench(task: Task, population: int = 16, repeat: int = 3, backends=BACKEN
         "ratio_batched_to_physics_min": float(ratios.min()),
         "ratio_batched_to_physics_max": float(ratios.max()),
         "ratio_serial_to_physics": float(np.median(np.array(rounds["serial"]) / np.array(rounds["physics"]))),
+        "robust_members": len(members),
+        "robust_s_per_member": per["robust"] / len(members),
+        # per clip, within each round: an ensemble member against a plain candidate's clip
+        "ratio_robust_member_to_plain": float(np.median(np.array(rounds["robust"]) / len(members)
+                                                        / np.array(rounds["batched"]))),
         "generation_s_per_clip": {b: float(np.median(v)) / population for b, v in generations.items()},
         "machine": f"{platform.machine()}, {threads} cores, mujoco {mujoco.__version__}",
         "repeat": repeat,

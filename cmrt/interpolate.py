@@ -67,8 +67,8 @@ def candidates(task: Task, param: str, source: str, store: Store | None = None) 
     out: dict[float, tuple[float, Cmrt, str]] = {}
     if source == "library":
         for e in load_entries():
-            if e["task"] != task.name:
-                continue
+            if e["task"] != task.name or e.get("robust", False) != task.robust.enabled:
+                continue  # one family: plain CMRTs for a plain task, robust ones for a robust task
             params = e.get("params") or load_task(task.name).with_speed(e["speed"]).params
             if _physics(params, param) == want:
                 out[params[param]] = (
@@ -83,6 +83,8 @@ def candidates(task: Task, param: str, source: str, store: Store | None = None) 
         for run in store.runs(task=task.name, status="done"):
             if run.get("best_cmrt") is None or not run.get("best_success"):
                 continue  # only CMRTs that made the motion a success
+            if (run.get("robust") is not None) != task.robust.enabled:
+                continue  # and of the task's own kind (plain or robust)
             params = run["params"]
             if _physics(params, param) != want:
                 continue

@@ -12,10 +12,11 @@ Stopping rules (ABC section 4.1), checked between generations:
 
 A search that stalls *without* a success (or before ``min_evals``) is not stopped but
 restarted (IPOP-CMA-ES, Auger & Hansen 2005): a fresh CMA-ES from the same start point
-and step size with the population multiplied by ``popsize_factor``. A larger population
-smooths the falls' rugged landscape and is what turns the failing seeds into successes
-(README: reliability). A run whose start came from another CMRT (a warm start) has
-that CMRT injected as its first candidate, so a start that already succeeds is seen.
+and step size with the population multiplied by ``popsize_factor``: a seed whose first
+search stalls among falls gets further searches inside the same budget, each with a
+larger population (which averages over the rugged landscape that falls make). A run
+whose start came from another CMRT (a warm start) has that CMRT injected as its first
+candidate, so a start that already succeeds is seen.
 
 Determinism: pycma seeds numpy's *global* RNG unless told otherwise; we pass
 ``seed=nan`` and our own ``randn`` drawing from a private ``numpy.random.Generator``

@@ -48,14 +48,17 @@ def task_distance(task: Task, other_params: dict[str, float]) -> float:
     return total
 
 
-def _candidates(store: Store | None, task: Task) -> list[tuple[float, int, float, Start]]:
+def _candidates(store: Store | None, task: Task) -> list[tuple[float, int, bool, float, Start]]:
+    """(distance, 0 store / 1 library, other kind (robust vs plain) than the run, objective, start)."""
     found = []
     if store is not None:
         for run in store.successful_runs(task.name):
             if abs(run["params"].get("clip_s", math.nan) - task.clip_s) > CLIP_TOLERANCE_S:
                 continue
             d = task_distance(task, run["params"])
-            found.append((d, 0, run["best_objective"], Start(tuple(run["best_params"]), f"run {run['id']}", d)))
+            other = (run.get("robust") is not None) != task.robust.enabled
+            found.append((d, 0, other, run["best_objective"],
+                          Start(tuple(run["best_params"]), f"run {run['id']}", d)))
     for entry in load_entries():
         if entry["task"] != task.name or not entry.get("success") or "params" not in entry:
             continue
@@ -63,18 +66,21 @@ def _candidates(store: Store | None, task: Task) -> list[tuple[float, int, float
         if abs(curve.clip_s - task.clip_s) > CLIP_TOLERANCE_S:
             continue
         d = task_distance(task, entry["params"])
-        label = f"library ({task.speed_param} {entry['speed']:g})" if task.speed_param else "library"
-        found.append((d, 1, entry["objective"], Start(tuple(map(float, curve.to_params())), label, d)))
+        robust = entry.get("robust", False)
+        label = f"library{' robust' if robust else ''}"
+        label += f" ({task.speed_param} {entry['speed']:g})" if task.speed_param else ""
+        found.append((d, 1, robust != task.robust.enabled, entry["objective"],
+                      Start(tuple(map(float, curve.to_params())), label, d)))
     return found
 
 
 def nearest_start(store: Store | None, task: Task) -> Start | None:
-    """The nearest known successful CMRT of this task (store before library at equal distance, then the
-    lower objective), or None."""
+    """The nearest known successful CMRT of this task; at equal distance the store before the library,
+    then one of the run's own kind (robust or plain), then the lower objective. None if there is none."""
     found = _candidates(store, task)
     if not found:
         return None
-    return min(found, key=lambda c: c[:3])[3]
+    return min(found, key=lambda c: c[:4])[4]
 
 
 def resolve_init(store: Store | None, task: Task, init: str | int | None) -> Start:

@@ -11,6 +11,7 @@ def test_bench_json_reports_every_figure():
     assert set(out["generation_s_per_clip"]) == {"batch", "serial"}
     assert out["ratio_batched_to_physics_min"] <= out["ratio_batched_to_physics"] <= out["ratio_batched_to_physics_max"]
     assert out["steps_per_clip"] == round((2.6 + 0.5) / 0.002)  # the clip and its standing tail
+    assert out["robust_members"] == 7 and out["robust_s_per_member"] > 0 and out["ratio_robust_member_to_plain"] > 0
 
 
 def test_bench_bad_options():

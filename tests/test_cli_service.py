@@ -86,12 +86,18 @@ def digest(path):
     (("best", "bend", "--speed", "1.0"), "no finished run"),
     (("simulate", "bend", "--curve", "999"), "no run 999"),
     (("export", "1", "--format", "xml"), "invalid choice"),
+    (("submit", "bend", "--init", "sometimes"), "must be auto, none or a run id"),
+    (("submit", "bend", "--init", "999"), "no run 999"),
+    (("submit", "bend", "--stall-generations", "0"), "stall_generations >= 1"),
+    (("submit", "BADROBUST"), "robust: worst_weight"),
 ])
 def test_bad_input_leaves_store_byte_identical(store_with_run, tmp_path, args, words):
     path, _ = store_with_run
     bad_task = tmp_path / "bad.toml"
     bad_task.write_text("name = [unclosed\n")
-    args = tuple(str(bad_task) if a == "TASKFILE" else a for a in args)
+    bad_robust = tmp_path / "robust.toml"
+    bad_robust.write_text('name = "b"\n[params]\nclip_s = 2.6\n[robust]\nworst_weight = 3.0\n')
+    args = tuple({"TASKFILE": str(bad_task), "BADROBUST": str(bad_robust)}.get(a, a) for a in args)
     cmrt("runs", store=path, check=True)  # checkpoint the WAL so the main file is complete
     before = digest(path)
     r = cmrt(*args, store=path)

@@ -88,3 +88,20 @@ def test_robust_score_is_the_combined_ensemble():
     assert rec[0].objective == combine([s.objective for s in scores], robust.robust)
     assert rec[0].success == all(s.success for s in scores)
     assert rec[1].success is False  # the zero CMRT does not perform the fast bend
+
+
+def test_library_ships_plain_and_robust_cmrts_and_keeps_them_apart():
+    from cmrt.interpolate import candidates
+    from cmrt.library import load_entries
+
+    entries = load_entries()
+    plain = {(e["task"], e["speed"], e["params"].get("ball_mass_kg")) for e in entries if not e.get("robust")}
+    robust = {(e["task"], e["speed"], e["params"].get("ball_mass_kg")) for e in entries if e.get("robust")}
+    assert plain == robust  # every shipped CMRT has a robust twin
+    assert all(e["success"] and e["robustness"]["validation_total"] == 20 for e in entries if e.get("robust"))
+    assert library_curve(BEND) != library_curve(BEND, robust=True)
+    family = candidates(BEND, "duration_s", "library")  # the speed family: one kind only
+    assert sorted(v for v, _, _ in family) == [0.4, 0.6, 0.8, 1.0, 1.2]
+    assert {c for v, c, _ in family if v == 0.4} == {library_curve(BEND)}
+    robust_family = candidates(BEND.with_robust(), "duration_s", "library")
+    assert {c for v, c, _ in robust_family if v == 0.4} == {library_curve(BEND, robust=True)}

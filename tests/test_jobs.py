@@ -23,6 +23,20 @@ def finished_run(path, **kw):
         return store.run(rid), store.evaluations(rid)
 
 
+def kill_worker_after(path, rid: int, generations: int, backend: str) -> None:
+    """Start a worker on the store and SIGKILL it once the run has committed ``generations``."""
+    worker = spawn_worker(path, "--once", backend=backend)
+    deadline = time.time() + 300
+    while time.time() < deadline:
+        with sqlite3.connect(path) as con:
+            gens = con.execute("SELECT COUNT(*) FROM generations WHERE run_id = ?", (rid,)).fetchone()[0]
+        if gens >= generations:
+            break
+        time.sleep(0.02)
+    os.kill(worker.pid, signal.SIGKILL)
+    worker.wait()
+
+
 def test_run_stores_every_evaluation_and_generation(tmp_path):
     run, evals = finished_run(tmp_path / "s.sqlite", seed=3, max_evals=15, popsize=5)
     assert run["status"] == "done" and run["stop_reason"] == "budget"
@@ -39,16 +53,7 @@ def test_sigkill_mid_run_then_resume_is_bit_identical(tmp_path):
     path = tmp_path / "crash.sqlite"
     with open_store(path) as store:
         rid = submit(store, TASK, init="none", **kw)
-    worker = spawn_worker(path, "--once", backend="serial")  # slow generations: a kill lands mid-run
-    deadline = time.time() + 300
-    while time.time() < deadline:
-        with sqlite3.connect(path) as con:
-            gens = con.execute("SELECT COUNT(*) FROM generations WHERE run_id = ?", (rid,)).fetchone()[0]
-        if gens >= 3:
-            break
-        time.sleep(0.05)
-    os.kill(worker.pid, signal.SIGKILL)
-    worker.wait()
+    kill_worker_after(path, rid, 3, backend="serial")  # slow generations: a kill lands mid-run
     with open_store(path) as store:
         killed = store.run(rid)
     assert killed["status"] == "running" and 3 <= killed["generations"] < 8  # really killed mid-run
@@ -100,3 +105,31 @@ def test_lost_claim_stops_the_old_worker(tmp_path):
         except LostClaim:
             pass
         assert store.evaluations(rid) == []
+
+
+def test_sigkilled_robust_run_resumes_bit_identically_across_a_restart(tmp_path):
+    """A robust run (7 ensemble members per candidate) whose search restarts (IPOP) after the kill."""
+    task = TASK.with_robust()
+    kw = dict(seed=7, max_evals=40, popsize=4, init="none", stall_generations=2)
+    with open_store(tmp_path / "ref.sqlite") as store:
+        rid = submit(store, task, **kw)
+        reference = run_claimed(store, claim(store, "ref", run_id=rid), Evaluator("batch"))
+        ref_evals = store.evaluations(rid)
+    assert reference["restarts"] >= 1 and reference["robust"]["enabled"] is True
+
+    path = tmp_path / "crash.sqlite"
+    with open_store(path) as store:
+        rid = submit(store, task, **kw)
+    kill_worker_after(path, rid, 2, backend="batch")
+    with open_store(path) as store:
+        killed = store.run(rid)
+    assert killed["status"] == "running" and killed["restarts"] < reference["restarts"]
+
+    resumer = spawn_worker(path, "--until-idle", "--stale-after", "0")
+    _, err = resumer.communicate(timeout=600)
+    assert resumer.returncode == 0, err
+    with open_store(path) as store:
+        run, evals = store.run(rid), store.evaluations(rid)
+    assert run["attempt"] == 2 and run["restarts"] == reference["restarts"]
+    assert run["best_params"] == reference["best_params"] and run["robustness"] == reference["robustness"]
+    assert [(e["params"], e["objective"]) for e in evals] == [(e["params"], e["objective"]) for e in ref_evals]
