@@ -49,7 +49,7 @@ def task_distance(task: Task, other_params: dict[str, float]) -> float:
 
 
 def _candidates(store: Store | None, task: Task) -> list[tuple[float, int, bool, float, Start]]:
-    """(distance, 0 store / 1 library, other kind (robust vs plain) than the run, objective, start)."""
+    """(distance, other kind (robust vs plain) than the run, 0 store / 1 library, objective, start)."""
     found = []
     if store is not None:
         for run in store.successful_runs(task.name):
@@ -57,7 +57,7 @@ def _candidates(store: Store | None, task: Task) -> list[tuple[float, int, bool,
                 continue
             d = task_distance(task, run["params"])
             other = (run.get("robust") is not None) != task.robust.enabled
-            found.append((d, 0, other, run["best_objective"],
+            found.append((d, other, 0, run["best_objective"],
                           Start(tuple(run["best_params"]), f"run {run['id']}", d)))
     for entry in load_entries():
         if entry["task"] != task.name or not entry.get("success") or "params" not in entry:
@@ -69,14 +69,14 @@ def _candidates(store: Store | None, task: Task) -> list[tuple[float, int, bool,
         robust = entry.get("robust", False)
         label = f"library{' robust' if robust else ''}"
         label += f" ({task.speed_param} {entry['speed']:g})" if task.speed_param else ""
-        found.append((d, 1, robust != task.robust.enabled, entry["objective"],
+        found.append((d, robust != task.robust.enabled, 1, entry["objective"],
                       Start(tuple(map(float, curve.to_params())), label, d)))
     return found
 
 
 def nearest_start(store: Store | None, task: Task) -> Start | None:
-    """The nearest known successful CMRT of this task; at equal distance the store before the library,
-    then one of the run's own kind (robust or plain), then the lower objective. None if there is none."""
+    """The nearest known successful CMRT of this task; at equal distance one of the run's own kind (robust
+    or plain) first, then the store before the library, then the lower objective. None if there is none."""
     found = _candidates(store, task)
     if not found:
         return None

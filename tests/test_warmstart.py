@@ -83,3 +83,12 @@ def test_warm_started_run_evaluates_its_start_first(tmp_path):
         assert first["success"] is True  # the library CMRT succeeds at its own speed
         assert store.run(rid)["stop_reason"] == "threshold" and store.run(rid)["evaluations"] == 5
     assert Cmrt.from_params(np.array(first["params"]), task.clip_s).clip_s == task.clip_s
+
+
+def test_a_robust_run_starts_from_a_robust_cmrt_and_a_plain_one_from_a_plain(tmp_path):
+    task = BEND.with_speed(0.4)
+    with open_store(tmp_path / "s.sqlite") as store:
+        rid = _done_run(store, task.with_robust(), np.full(8, 0.3), 0.7)
+        assert nearest_start(store, task.with_robust()).source == f"run {rid}"
+        assert nearest_start(store, task).source == "library (duration_s 0.4)"
+        assert nearest_start(None, task.with_robust()).source == "library robust (duration_s 0.4)"

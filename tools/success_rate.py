@@ -3,7 +3,7 @@
     python tools/success_rate.py bend --speed 0.4 --seeds 1-10 [--init none|auto] [--json]
 
 Each seed is a full optimization (batched evaluator, the default budget and stopping rules)
-into a scratch store; a seed succeeds when its best CMRT is a success (balance held, motion
+into a scratch store of its own; a seed succeeds when its best CMRT is a success (balance held, motion
 performed, settled, goal reached). Reports the success rate, the evaluations until the first
 successful candidate (median and worst over the seeds that found one), restarts and wall time.
 """
@@ -44,13 +44,15 @@ def first_success(store, run_id: int) -> int | None:
 
 def measure(task, seeds: list[int], init: str, max_evals: int, progress: bool) -> dict:
     rows = []
-    with tempfile.TemporaryDirectory() as tmp, open_store(Path(tmp) / "rate.sqlite") as store, Evaluator("batch") as ev:
-        for seed in seeds:
+    with tempfile.TemporaryDirectory() as tmp, Evaluator("batch") as ev:
+        for seed in seeds:  # a fresh store per seed: seeds are independent (auto starts from the library)
             t0 = time.perf_counter()
-            run = optimize_now(store, task, ev, seed=seed, init=init, max_evals=max_evals)
+            with open_store(Path(tmp) / f"seed{seed}.sqlite") as store:
+                run = optimize_now(store, task, ev, seed=seed, init=init, max_evals=max_evals)
+                first = first_success(store, run["id"])
             rows.append({
                 "seed": seed, "success": bool(run["best_success"]), "best_objective": run["best_objective"],
-                "evaluations": run["evaluations"], "first_success_evals": first_success(store, run["id"]),
+                "evaluations": run["evaluations"], "first_success_evals": first,
                 "restarts": run["restarts"], "stop_reason": run["stop_reason"], "init": run["init_source"],
                 "wall_s": round(time.perf_counter() - t0, 1),
             })
