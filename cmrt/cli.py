@@ -642,7 +642,7 @@ def build_parser() -> argparse.ArgumentParser:
         return sp
 
     def task_args(sp):
-        sp.add_argument("task", help="task name (tasks/NAME.toml) or path to a .toml file")
+        sp.add_argument("task", help="a shipped task's name (cmrt tasks) or the path of a .toml task file")
         sp.add_argument("--speed", type=float, help="the task's speed parameter (bend: duration T in s)")
         sp.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a task parameter")
 
@@ -724,7 +724,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", metavar="FILE.json", help="write the CMRT (usable as --curve FILE.json)")
 
     s = add("sequence", "simulate a sequence of pose changes with superposed (or zero) CMRTs", cmd_sequence)
-    s.add_argument("file", help="tasks/sequences/NAME.toml, or a name there")
+    s.add_argument("file", help="a shipped sequence's name (four-poses) or the path of a .toml sequence file")
     s.add_argument("--curve", choices=("superposed", "zero"), default="superposed")
     s.add_argument("--trace", metavar="FILE.npz")
 

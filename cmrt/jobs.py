@@ -1,7 +1,7 @@
 """The job queue on the store: submit, claim, run with checkpoints, resume orphans.
 
-A run is a job. ``submit`` queues it with the full task definition (so later edits to
-``tasks/*.toml`` do not change a queued run). A worker ``claim``s the oldest queued run
+A run is a job. ``submit`` queues it with the full task definition (so later edits to a
+task file do not change a queued run). A worker ``claim``s the oldest queued run
 - or a ``running`` one whose heartbeat is older than ``stale_after_s`` (its worker
 died) - in one ``BEGIN IMMEDIATE`` transaction, bumping the run's ``attempt``. Every
 write the worker makes afterwards is fenced on (worker, attempt): if its claim was

@@ -1,6 +1,6 @@
 """Sequences of pose changes with superposed CMRTs (ABC 4.2, Fig. 6).
 
-A sequence file (``tasks/sequences/*.toml``) lists motions - pose-change tasks with a
+A sequence file (shipped: ``cmrt/tasks/sequences/*.toml``; a user's: any path) lists motions - pose-change tasks with a
 speed and a start time - that chain (each ends in the pose the next starts from). The
 sequence is simulated as one clip: the reference follows each motion in turn, and the
 CMRT is the sum of the motions' CMRTs, each shifted so that its own task starts at the
@@ -111,7 +111,8 @@ def load_sequence(name_or_path: str) -> SequenceTask:
     try:
         raw = tomllib.loads(path.read_text())
     except OSError as exc:
-        known = ", ".join(sorted(p.stem for p in SEQUENCES_DIR.glob("*.toml")))
+        known = ", ".join(sorted(f.name.removesuffix(".toml") for f in SEQUENCES_DIR.iterdir()
+                                 if f.name.endswith(".toml")))
         raise CmrtError(f"cannot read sequence {name_or_path} ({exc.strerror}; known: {known})") from None
     except tomllib.TOMLDecodeError as exc:
         raise CmrtError(f"malformed sequence file {path}: {exc}") from None

@@ -1,7 +1,8 @@
 """Task files (TOML) -> reference motion, push, clip timing, objective settings.
 
-A task is data, not code: a user writes a new pose-change task as a TOML file in
-``tasks/`` (format in the README). Every number lives in ``[params]`` so that
+A task is data, not code. The shipped tasks are package data (``cmrt/tasks/*.toml``,
+read through ``importlib.resources`` so an installed cmrt has them too); a user's own
+task is a TOML file given by path (format in the README). Every number lives in ``[params]`` so that
 ``--set KEY=VALUE`` can override any of them; poses are tables of joint angles in
 degrees.
 """
@@ -9,6 +10,7 @@ degrees.
 from __future__ import annotations
 
 import hashlib
+import importlib.resources
 import json
 import math
 import tomllib
@@ -22,7 +24,8 @@ from cmrt.ensemble import RobustSpec
 from cmrt.errors import CmrtError
 
 MIN_TAIL_S = 0.5
-TASKS_DIR = Path(__file__).resolve().parent.parent / "tasks"
+#: The shipped task files (package data: present in an installed cmrt, not only in a checkout).
+TASKS_DIR = importlib.resources.files("cmrt") / "tasks"
 
 #: Parameters every task has, with defaults (seconds, newtons, metres).
 DEFAULT_PARAMS: dict[str, float] = {
@@ -284,16 +287,17 @@ def _pose_qpos(pose_items: tuple, balance_joint: str | None) -> np.ndarray:
 
 # --- loading --------------------------------------------------------------------
 def available_tasks() -> list[str]:
-    return sorted(p.stem for p in TASKS_DIR.glob("*.toml"))
+    """Names of the tasks shipped with cmrt (``load_task(name)`` loads each)."""
+    return sorted(f.name.removesuffix(".toml") for f in TASKS_DIR.iterdir() if f.name.endswith(".toml"))
 
 
 def load_task(name_or_path: str) -> Task:
-    """Load a task by name (``tasks/NAME.toml``) or from a path to a TOML file."""
+    """Load a shipped task by name (``bend``) or a user's task file by path (anything ending in ``.toml``)."""
     path = Path(name_or_path)
     if path.suffix != ".toml":
-        path = TASKS_DIR / f"{name_or_path}.toml"
-        if not path.exists():
+        if name_or_path not in available_tasks():
             raise CmrtError(f"unknown task '{name_or_path}' (known: {', '.join(available_tasks())})")
+        path = TASKS_DIR / f"{name_or_path}.toml"
     try:
         raw = tomllib.loads(path.read_text())
     except OSError as exc:
