@@ -29,16 +29,16 @@ from cmrt.control import ControllerConfig, MomentumBalanceController  # noqa: E4
 from cmrt.curve import Cmrt  # noqa: E402
 from cmrt.ensemble import Perturbation, RobustSpec  # noqa: E402
 from cmrt.errors import CmrtError  # noqa: E402
-from cmrt.interpolate import interpolate  # noqa: E402
-from cmrt.jobs import claim, optimize_now, submit, work  # noqa: E402
+from cmrt.interpolate import interpolate, superpose  # noqa: E402
+from cmrt.jobs import claim, optimize_family, optimize_now, submit, work  # noqa: E402
 from cmrt.library import library_curve  # noqa: E402
 from cmrt.objective import Evaluation, evaluate  # noqa: E402
 from cmrt.optimize import OptimizeSettings  # noqa: E402
 from cmrt.parallel import Evaluator  # noqa: E402
-from cmrt.query import best_run, export_run, run_curve, run_details  # noqa: E402
+from cmrt.query import best_run, export_run, run_curve, run_details, task_of  # noqa: E402
 from cmrt.sequence import load_sequence  # noqa: E402
 from cmrt.simulate import Trajectory, simulate  # noqa: E402
-from cmrt.store import Store, open_store  # noqa: E402
+from cmrt.store import Generation, Run, Store, StoredEvaluation, open_store  # noqa: E402
 from cmrt.task import Task, available_tasks, load_task  # noqa: E402
 from cmrt.validate import robustness  # noqa: E402
 from cmrt.warmstart import nearest_start  # noqa: E402
@@ -51,11 +51,14 @@ __all__ = [
     "Evaluation",
     "Evaluator",
     "FallReason",
+    "Generation",
     "MomentumBalanceController",
     "OptimizeSettings",
     "Perturbation",
     "RobustSpec",
+    "Run",
     "Store",
+    "StoredEvaluation",
     "Task",
     "Trajectory",
     "available_tasks",
@@ -71,11 +74,14 @@ __all__ = [
     "load_task",
     "nearest_start",
     "open_store",
+    "optimize_family",
     "optimize_now",
     "robustness",
     "run_curve",
     "run_details",
     "simulate",
     "submit",
+    "superpose",
+    "task_of",
     "work",
 ]

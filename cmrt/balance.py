@@ -55,6 +55,8 @@ REASONS: tuple[FallReason, ...] = tuple(FallReason)
 
 @dataclass(frozen=True)
 class BalanceLimits:
+    """Thresholds of the balance monitor: beyond any of them the character has lost its balance."""
+
     com_height_m: float = 0.55
     airborne_s: float = 0.03
     roll_rad: float = math.radians(10.0)

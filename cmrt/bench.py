@@ -48,6 +48,8 @@ def _candidates(task: Task, n: int) -> list[np.ndarray]:
 
 
 def run_bench(task: Task, population: int = 16, repeat: int = 3, backends=BACKENDS, workers: int = 2) -> dict:
+    """Time the physics floor, the batched and serial evaluators and a generation on each backend, in
+    alternating rounds (ratios within a round: this VM's speed drifts); what ``cmrt bench`` prints."""
     m = character().model
     n_steps = int(round((task.clip_s + task.tail_s) / m.opt.timestep))  # what an evaluation simulates
     threads = os.cpu_count() or 1

@@ -47,6 +47,7 @@ class Character:
 
     @property
     def nv(self) -> int:
+        """Degrees of freedom of the humanoid (root x, z, pitch and the joints)."""
         return self.model.nv
 
     @property
@@ -59,6 +60,7 @@ class Character:
 
 @functools.cache
 def character() -> Character:
+    """The humanoid's names and indices, built once per process from ``humanoid.xml``."""
     m = load_model()
     name = lambda obj, i: mujoco.mj_id2name(m, obj, i)  # noqa: E731
     dof_names = tuple(name(mujoco.mjtObj.mjOBJ_JOINT, int(m.dof_jntid[i])) for i in range(m.nv))

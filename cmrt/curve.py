@@ -55,6 +55,7 @@ class Cmrt:
 
     @classmethod
     def from_params(cls, u: np.ndarray, clip_s: float) -> Cmrt:
+        """The CMRT of CMA-ES's 8-vector ``u``: 4 knot values in units of VALUE_SCALE_M, then 4 knot-gap logits."""
         u = np.asarray(u, dtype=float)
         if u.shape != (2 * N_KNOTS,):
             raise CmrtError(f"expected {2 * N_KNOTS} CMRT parameters, got shape {u.shape}")
@@ -92,6 +93,7 @@ class Cmrt:
         return np.where(inside, self._spline(np.clip(t, 0.0, self.clip_s), 1), 0.0)
 
     def to_dict(self) -> dict:
+        """JSON-ready form (``from_dict`` round-trips it)."""
         return {"clip_s": self.clip_s, "knot_times_s": list(self.knot_times_s), "values_m": list(self.values_m)}
 
     @classmethod
@@ -120,6 +122,7 @@ class Cmrt:
 
     @classmethod
     def load(cls, path: str | Path) -> Cmrt:
+        """A CMRT from a JSON file (as ``cmrt interpolate --out`` writes)."""
         try:
             text = Path(path).read_text()
         except OSError as exc:

@@ -18,8 +18,9 @@ import numpy as np
 
 from cmrt.curve import MIN_GAP_S, N_KNOTS, Cmrt
 from cmrt.errors import CmrtError
-from cmrt.library import load_entries
-from cmrt.store import Store
+from cmrt.library import library_curve, load_entries
+from cmrt.sequence import SequenceTask, SuperposedCmrt
+from cmrt.store import Run, Store
 from cmrt.task import Task, load_task
 
 IGNORED_PARAMS = ("stop_threshold",)  # do not change the physics of a clip
@@ -27,6 +28,8 @@ IGNORED_PARAMS = ("stop_threshold",)  # do not change the physics of a clip
 
 @dataclass(frozen=True)
 class Interpolated:
+    """An interpolated (or extrapolated) CMRT and where it came from."""
+
     curve: Cmrt
     param: str
     value: float
@@ -79,20 +82,20 @@ def candidates(task: Task, param: str, source: str, store: Store | None = None) 
     elif source == "store":
         if store is None:
             raise CmrtError("interpolating from the store needs a store")
-        best: dict[float, tuple[float, dict]] = {}
+        best: dict[float, tuple[float, Run]] = {}
         for run in store.runs(task=task.name, status="done"):
-            if run.get("best_cmrt") is None or not run.get("best_success"):
+            if run.best_cmrt is None or not run.best_success:
                 continue  # only CMRTs that made the motion a success
-            if (run.get("robust") is not None) != task.robust.enabled:
+            if (run.robust is not None) != task.robust.enabled:
                 continue  # and of the task's own kind (plain or robust)
-            params = run["params"]
+            params = run.params
             if _physics(params, param) != want:
                 continue
             v = params[param]
-            if v not in best or run["best_objective"] < best[v][0]:
-                best[v] = (run["best_objective"], run)
+            if v not in best or run.best_objective < best[v][0]:
+                best[v] = (run.best_objective, run)
         for v, (_, run) in best.items():
-            out[v] = (v, Cmrt.from_dict(run["best_cmrt"]), f"run {run['id']} {param}={v:g}")
+            out[v] = (v, Cmrt.from_dict(run.best_cmrt), f"run {run.id} {param}={v:g}")
     else:
         raise CmrtError(f"--from must be store or library, got '{source}'")
     return [out[v] for v in sorted(out)]
@@ -123,6 +126,7 @@ def interpolate(
 
 
 def to_json(r: Interpolated) -> str:
+    """The result as JSON; its ``cmrt`` is a CMRT file usable as ``--curve FILE.json``."""
     return json.dumps(
         {
             "param": r.param,
@@ -133,3 +137,18 @@ def to_json(r: Interpolated) -> str:
             "cmrt": r.curve.to_dict(),
         }
     )
+
+
+def superpose(seq: SequenceTask, curves: list[Cmrt | None] | None = None) -> SuperposedCmrt:
+    """A sequence's CMRT (ABC 4.2): each motion's CMRT - given, else the library's, else interpolated from
+    the library - shifted to the motion's start, summed."""
+    parts = []
+    for i, m in enumerate(seq.motions):
+        curve = curves[i] if curves else None
+        if curve is None:
+            try:
+                curve = library_curve(m.task)
+            except CmrtError:
+                curve = interpolate(m.task).curve
+        parts.append((m.offset_s, curve))
+    return SuperposedCmrt(seq.clip_s, parts)

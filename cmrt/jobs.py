@@ -14,12 +14,11 @@ where the uninterrupted run would be.
 
 from __future__ import annotations
 
-import json
+import contextlib
 import os
 import socket
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator, Sequence
 
 from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
@@ -27,23 +26,15 @@ from cmrt.objective import evaluate
 from cmrt.optimize import CmaState, OptimizeSettings, best_cmrt, new_state, restart_if_stalled, step, stop_reason
 from cmrt.parallel import Evaluator
 from cmrt.simulate import simulate
-from cmrt.store import Store
+from cmrt.store import Claim, Generation, LostClaim, Run, RunProgress, RunSpec, Store, StoredEvaluation
 from cmrt.task import Task, task_from_dict
 from cmrt.validate import robustness
 from cmrt.warmstart import resolve_init
 
 DEFAULT_STALE_AFTER_S = 120.0
+_DEFAULTS = OptimizeSettings()
 
-
-class LostClaim(RuntimeError):
-    """Another worker took this run over (ours was considered dead)."""
-
-
-@dataclass(frozen=True)
-class Claim:
-    run_id: int
-    worker: str
-    attempt: int
+__all__ = ["Claim", "LostClaim", "claim", "optimize_family", "optimize_now", "run_claimed", "submit", "work"]
 
 
 def worker_id() -> str:
@@ -54,16 +45,17 @@ def submit(
     store: Store,
     task: Task,
     *,
-    seed: int = 1,
-    max_evals: int = 3000,
-    popsize: int = 10,
-    sigma0: float = 0.5,
-    min_evals: int = 700,
+    seed: int = _DEFAULTS.seed,
+    max_evals: int = _DEFAULTS.max_evals,
+    popsize: int = _DEFAULTS.popsize,
+    sigma0: float = _DEFAULTS.sigma0,
+    min_evals: int = _DEFAULTS.min_evals,
     init: str | int | None = "auto",
     backend: str = "batch",
-    stall_generations: int = OptimizeSettings.stall_generations,
+    stall_generations: int = _DEFAULTS.stall_generations,
 ) -> int:
-    """Queue an optimization of ``task``; returns the run id.
+    """Queue an optimization of ``task``; returns the run id. The optimizer's defaults are
+    :class:`OptimizeSettings`'.
 
     ``init``: "auto" starts from the nearest known successful CMRT of the task (store, then
     library; cold if none), "none" from the zero CMRT, a run id from that run's best."""
@@ -72,71 +64,29 @@ def submit(
     if max_evals < 1 or popsize < 2 or sigma0 <= 0 or min_evals < 0 or stall_generations < 1:
         raise CmrtError("need max_evals >= 1, popsize >= 2, sigma0 > 0, min_evals >= 0, stall_generations >= 1")
     start = resolve_init(store, task, init)
-    row = {
-        "task": task.name, "speed": task.speed, "params": json.dumps(task.params, sort_keys=True),
-        "task_hash": task.content_hash(), "task_source": json.dumps(task.to_dict(), sort_keys=True),
-        "seed": seed, "max_evals": max_evals, "popsize": popsize, "sigma0": sigma0, "min_evals": min_evals,
-        "stop_threshold": task.stop_threshold, "backend": backend,
-        "init_run": init if isinstance(init, int) and not isinstance(init, bool) else None,
-        "robust": json.dumps(task.robust.to_table()) if task.robust.enabled else None,
-        "init_source": start.source, "init_params": None if start.params is None else json.dumps(list(start.params)),
-        "restarts": 0, "stall_generations": stall_generations,
-        "status": "queued", "created_at": time.time(),
-    }
-    with store.transaction() as conn:
-        cur = conn.execute(
-            f"INSERT INTO runs ({', '.join(row)}) VALUES ({', '.join('?' * len(row))})", tuple(row.values())
-        )
-        return int(cur.lastrowid)
+    return store.add_run(RunSpec(
+        task=task.name, speed=task.speed, params=task.params, task_hash=task.content_hash(),
+        task_definition=task.to_dict(), seed=seed, max_evals=max_evals, popsize=popsize, sigma0=sigma0,
+        min_evals=min_evals, stop_threshold=task.stop_threshold, stall_generations=stall_generations,
+        backend=backend, init_source=start.source, init_params=start.params,
+        init_run=init if isinstance(init, int) and not isinstance(init, bool) else None,
+        robust=task.robust.to_table() if task.robust.enabled else None,
+    ))
 
 
-def claim(store: Store, worker: str, stale_after_s: float = DEFAULT_STALE_AFTER_S, run_id: int | None = None):
+def claim(store: Store, worker: str, stale_after_s: float = DEFAULT_STALE_AFTER_S,
+          run_id: int | None = None) -> Claim | None:
     """Take the oldest queued run, else an orphaned running one; None if there is none."""
-    now = time.time()
-    with store.transaction() as conn:
-        if run_id is not None:
-            row = conn.execute(
-                "SELECT id FROM runs WHERE id = ? AND (status = 'queued' OR (status = 'running' AND heartbeat_at < ?))",
-                (run_id, now - stale_after_s),
-            ).fetchone()
-        else:
-            row = conn.execute("SELECT id FROM runs WHERE status = 'queued' ORDER BY id LIMIT 1").fetchone()
-            if row is None:
-                row = conn.execute(
-                    "SELECT id FROM runs WHERE status = 'running' AND heartbeat_at < ? ORDER BY id LIMIT 1",
-                    (now - stale_after_s,),
-                ).fetchone()
-        if row is None:
-            return None
-        rid = int(row[0])
-        conn.execute(
-            "UPDATE runs SET status = 'running', worker = ?, attempt = attempt + 1, heartbeat_at = ?, "
-            "started_at = COALESCE(started_at, ?) WHERE id = ?",
-            (worker, now, now, rid),
-        )
-        attempt = conn.execute("SELECT attempt FROM runs WHERE id = ?", (rid,)).fetchone()[0]
-    return Claim(rid, worker, int(attempt))
+    return store.claim(worker, stale_after_s, run_id)
 
 
-def _fenced_update(conn, claim: Claim, sets: str, args: tuple) -> None:
-    cur = conn.execute(
-        f"UPDATE runs SET {sets} WHERE id = ? AND worker = ? AND attempt = ? AND status = 'running'",
-        (*args, claim.run_id, claim.worker, claim.attempt),
-    )
-    if cur.rowcount != 1:
-        raise LostClaim(f"run {claim.run_id} was taken over by another worker")
-
-
-def settings_for(run: dict, x0: tuple[float, ...] | None = None) -> OptimizeSettings:
+def settings_for(run: Run, x0: tuple[float, ...] | None = None) -> OptimizeSettings:
+    """The optimizer settings a stored run was queued with."""
     return OptimizeSettings(
-        seed=run["seed"], max_evals=run["max_evals"], min_evals=run["min_evals"], popsize=run["popsize"],
-        sigma0=run["sigma0"], stop_threshold=run["stop_threshold"] or 0.0, x0=x0,
-        stall_generations=run.get("stall_generations") or OptimizeSettings.stall_generations,
+        seed=run.seed, max_evals=run.max_evals, min_evals=run.min_evals, popsize=run.popsize,
+        sigma0=run.sigma0, stop_threshold=run.stop_threshold or 0.0, x0=x0,
+        stall_generations=run.stall_generations or _DEFAULTS.stall_generations,
     )
-
-
-def task_of(run: dict) -> Task:
-    return task_from_dict(json.loads(run["task_source"]), source=f"run {run['id']}")
 
 
 ProgressFn = Callable[[CmaState, list, float], None]
@@ -147,60 +97,47 @@ def run_claimed(
     claim: Claim,
     evaluator: Evaluator,
     on_generation: ProgressFn | None = None,
-) -> dict:
-    """Optimize a claimed run to its end (or until the claim is lost). Returns the run row."""
+) -> Run:
+    """Optimize a claimed run to its end (or until the claim is lost: LostClaim). Returns the finished run."""
     run = store.run(claim.run_id)
-    task = task_of(run)
-    x0 = tuple(run["init_params"]) if run.get("init_params") else None
-    if x0 is None and run["init_run"] is not None:  # queued by a cmrt before schema 3
-        x0 = tuple(store.run(run["init_run"])["best_params"])
+    task = task_from_dict(run.task_definition, source=f"run {run.id}")
+    x0 = run.init_params
+    if x0 is None and run.init_run is not None:  # queued by a cmrt before schema 3
+        x0 = store.run(run.init_run).best_params
     settings = settings_for(run, x0)
     checkpoint = store.last_checkpoint(claim.run_id)
     state = CmaState.loads(checkpoint[1]) if checkpoint else new_state(settings)
 
-    if run["baseline_objective"] is None:
+    if run.baseline_objective is None:
         base = evaluate(task, simulate(task, Cmrt.zero(task.clip_s)))
-        with store.transaction() as conn:
-            _fenced_update(conn, claim, "baseline_objective = ?, baseline_fell = ?, baseline_success = ?, "
-                           "heartbeat_at = ?", (base.objective, int(base.fell), int(base.success), time.time()))
+        store.record_baseline(claim, base.objective, base.fell, base.success)
 
-    wall_before = run["wall_s"] or 0.0
+    wall_before = run.wall_s or 0.0
     t_start = time.perf_counter()
     while (reason := stop_reason(state, settings)) is None:
         xs, records = step(state, lambda xs: evaluator(task, xs))
         restart_if_stalled(state, settings)
-        now = time.time()
         wall = wall_before + time.perf_counter() - t_start
         gen = state.generation - 1
-        with store.transaction() as conn:
-            _fenced_update(
-                conn, claim,
-                "heartbeat_at = ?, evaluations = ?, generations = ?, best_objective = ?, best_params = ?, "
-                "best_fell = ?, best_success = ?, best_cmrt = ?, wall_s = ?, eval_s = COALESCE(eval_s, 0) + ?, "
-                "restarts = ?",
-                (now, state.evaluations, state.generation, state.best_objective,
-                 json.dumps(state.best_x.tolist()), int(state.best_fell), int(state.best_success),
-                 best_cmrt(state, task.clip_s).to_json(), wall, sum(r.seconds for r in records), state.restarts),
-            )
-            conn.executemany(
-                "INSERT INTO evaluations (run_id, gen, idx, params, objective, fell, success, seconds) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-                [(claim.run_id, gen, i, json.dumps(x.tolist()), r.objective, int(r.fell), int(r.success), r.seconds)
-                 for i, (x, r) in enumerate(zip(xs, records, strict=True))],
-            )
-            conn.execute(
-                "INSERT INTO generations (run_id, gen, sigma, best_objective, gen_best_objective, mean, "
-                "evaluations, checkpoint, created_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                (claim.run_id, gen, float(state.es.sigma), state.best_objective,
-                 min(r.objective for r in records), json.dumps(list(map(float, state.es.mean))),
-                 state.evaluations, state.dumps(), now),
-            )
+        progress = RunProgress(
+            evaluations=state.evaluations, generations=state.generation, restarts=state.restarts,
+            best_objective=state.best_objective, best_params=tuple(state.best_x.tolist()),
+            best_fell=state.best_fell, best_success=state.best_success,
+            best_cmrt=best_cmrt(state, task.clip_s).to_dict(), wall_s=wall,
+            eval_s_added=sum(r.seconds for r in records),
+        )
+        generation = Generation(
+            gen=gen, sigma=float(state.es.sigma), best_objective=state.best_objective,
+            gen_best_objective=min(r.objective for r in records), mean=tuple(map(float, state.es.mean)),
+            evaluations=state.evaluations, created_at=time.time(),
+        )
+        evaluations = [StoredEvaluation(gen=gen, idx=i, params=tuple(x.tolist()), objective=r.objective,
+                                        fell=r.fell, success=r.success, seconds=r.seconds)
+                       for i, (x, r) in enumerate(zip(xs, records, strict=True))]
+        store.commit_generation(claim, progress, generation, evaluations, state.dumps())
         if on_generation:
             on_generation(state, records, wall)
-    figures = robustness(task, best_cmrt(state, task.clip_s))  # the validation ensemble (cmrt.validate)
-    with store.transaction() as conn:
-        _fenced_update(conn, claim, "status = 'done', stop_reason = ?, finished_at = ?, heartbeat_at = ?, "
-                       "robustness = ?", (reason, time.time(), time.time(), json.dumps(figures)))
+    store.finish(claim, reason, robustness(task, best_cmrt(state, task.clip_s)))  # the validation ensemble
     return store.run(claim.run_id)
 
 
@@ -210,43 +147,71 @@ def optimize_now(
     evaluator: Evaluator | None = None,
     on_generation: ProgressFn | None = None,
     **submit_kwargs,
-) -> dict:
-    """Submit a run and optimize it in this process (``cmrt optimize``); returns the finished run."""
-    own = evaluator is None
-    evaluator = evaluator or Evaluator("batch")
-    try:
-        run_id = submit(store, task, backend=evaluator.backend, **submit_kwargs)
+) -> Run:
+    """Submit a run and optimize it in this process (``cmrt optimize``); returns the finished run.
+
+    Args:
+        evaluator: how candidates are simulated (default: the batched evaluator, closed afterwards).
+        on_generation: called after every committed generation with (state, records, wall_s).
+        submit_kwargs: as :func:`submit` (seed, max_evals, popsize, sigma0, min_evals, init, ...).
+    """
+    with _evaluator(evaluator) as ev:
+        run_id = submit(store, task, backend=ev.backend, **submit_kwargs)
         c = claim(store, worker_id(), run_id=run_id)
         try:
-            return run_claimed(store, c, evaluator, on_generation)
+            return run_claimed(store, c, ev, on_generation)
         except KeyboardInterrupt:
-            release(store, c)
+            store.release(c)
             raise
+
+
+def optimize_family(
+    store: Store,
+    tasks: Sequence[Task],
+    evaluator: Evaluator | None = None,
+    *,
+    family_sigma0: float = 0.15,
+    on_generation: ProgressFn | None = None,
+    on_run: Callable[[Run], None] | None = None,
+    **submit_kwargs,
+) -> list[Run]:
+    """Optimize a family of tasks (e.g. one task at several speeds) in order, each member after the first
+    warm-started from the previous member's best with step size ``family_sigma0``: the members stay near
+    their neighbour, one family shape that interpolates well (ABC section 5).
+
+    ``submit_kwargs`` apply to every member (its ``init`` and ``sigma0`` to the first only)."""
+    if family_sigma0 <= 0:
+        raise CmrtError("family_sigma0 must be > 0")
+    if isinstance(submit_kwargs.get("init"), int) and not isinstance(submit_kwargs.get("init"), bool):
+        raise CmrtError("a family's members start from each other: give no run id as init")
+    runs: list[Run] = []
+    with _evaluator(evaluator) as ev:
+        for task in tasks:
+            kwargs = dict(submit_kwargs)
+            if runs:
+                kwargs.update(init=runs[-1].id, sigma0=family_sigma0)
+            runs.append(optimize_now(store, task, ev, on_generation, **kwargs))
+            if on_run:
+                on_run(runs[-1])
+    return runs
+
+
+@contextlib.contextmanager
+def _evaluator(evaluator: Evaluator | None) -> Iterator[Evaluator]:
+    """The caller's evaluator, or a batched one of our own that we close."""
+    if evaluator is not None:
+        yield evaluator
+        return
+    own = Evaluator("batch")
+    try:
+        yield own
     finally:
-        if own:
-            evaluator.close()
-
-
-def release(store: Store, claim: Claim) -> None:
-    """Give a run back to the queue (worker stopped by the user); it resumes from its checkpoint."""
-    try:
-        with store.transaction() as conn:
-            _fenced_update(conn, claim, "status = 'queued', worker = NULL", ())
-    except LostClaim:
-        pass
-
-
-def mark_failed(store: Store, claim: Claim, message: str) -> None:
-    try:
-        with store.transaction() as conn:
-            _fenced_update(conn, claim, "status = 'failed', error = ?, finished_at = ?", (message, time.time()))
-    except LostClaim:
-        pass
+        own.close()
 
 
 def work(
     store: Store,
-    evaluator: Evaluator,
+    evaluator: Evaluator | None = None,
     *,
     until_idle: bool = False,
     once: bool = False,
@@ -255,29 +220,34 @@ def work(
     on_claim: Callable[[Claim], None] | None = None,
     on_generation: ProgressFn | None = None,
 ) -> list[int]:
-    """The worker loop; returns the ids of the runs it finished."""
+    """The worker loop: claim, optimize, repeat. Returns the ids of the runs it finished.
+
+    A run whose optimization raises is marked failed with the message (the worker goes on); Ctrl-C gives
+    the current run back to the queue. ``evaluator`` defaults to the batched one, as in :func:`optimize_now`.
+    """
     me = worker_id()
     finished = []
-    while True:
-        c = claim(store, me, stale_after_s)
-        if c is None:
-            if until_idle or once:
+    with _evaluator(evaluator) as ev:
+        while True:
+            c = claim(store, me, stale_after_s)
+            if c is None:
+                if until_idle or once:
+                    return finished
+                time.sleep(poll_s)
+                continue
+            if on_claim:
+                on_claim(c)
+            try:
+                run_claimed(store, c, ev, on_generation)
+                finished.append(c.run_id)
+            except LostClaim:
+                pass
+            except KeyboardInterrupt:
+                store.release(c)
+                raise
+            except CmrtError as exc:
+                store.mark_failed(c, str(exc))
+            except Exception as exc:  # a bug must not take the worker (and the queue) down
+                store.mark_failed(c, f"{type(exc).__name__}: {exc}")
+            if once:
                 return finished
-            time.sleep(poll_s)
-            continue
-        if on_claim:
-            on_claim(c)
-        try:
-            run_claimed(store, c, evaluator, on_generation)
-            finished.append(c.run_id)
-        except LostClaim:
-            pass
-        except KeyboardInterrupt:
-            release(store, c)
-            raise
-        except CmrtError as exc:
-            mark_failed(store, c, str(exc))
-        except Exception as exc:  # a bug must not take the worker (and the queue) down
-            mark_failed(store, c, f"{type(exc).__name__}: {exc}")
-        if once:
-            return finished

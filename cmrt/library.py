@@ -11,13 +11,14 @@ from pathlib import Path
 
 from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
-from cmrt.task import Task
+from cmrt.task import Task, load_task
 
 LIBRARY_PATH = Path(__file__).parent / "assets" / "library.json"
 SPEED_TOLERANCE = 1e-9
 
 
 def load_entries(path: Path = LIBRARY_PATH) -> list[dict]:
+    """The shipped library's entries (task, speed, params, cmrt, objective, success, robust, ...)."""
     if not path.exists():
         return []
     return json.loads(path.read_text())["entries"]
@@ -51,8 +52,6 @@ def _lookup(entries: list[dict], task: Task) -> Cmrt:
         if "params" in entry and _physics(entry["params"]) == _physics(task.params):
             return Cmrt.from_dict(entry["cmrt"])
     if same_speed:  # parameters differ: the entry for the task file's own defaults at this speed
-        from cmrt.task import load_task
-
         defaults = _physics(load_task(task.name).with_speed(task.speed).params) if task.speed is not None else None
         for entry in same_speed:
             if "params" not in entry or _physics(entry["params"]) == defaults:
@@ -67,8 +66,6 @@ def save_entry(entry: dict, path: Path = LIBRARY_PATH) -> None:
     """Insert or replace the entry for (task, parameters), keeping the file sorted."""
 
     def key(e: dict):
-        from cmrt.task import load_task
-
         params = e.get("params") or load_task(e["task"]).with_speed(e["speed"]).params  # older entries: defaults
         return (e["task"], e["speed"], json.dumps(_physics(params), sort_keys=True), e.get("robust", False))
 

@@ -54,6 +54,17 @@ NOT_SETTLED_PENALTY = 5.0
 
 
 @dataclass(frozen=True)
+class EvalRecord:
+    """One candidate's score as the optimizer sees it (an ensemble's combined score for a robust run) and the
+    simulation seconds it took."""
+
+    objective: float
+    fell: bool
+    seconds: float
+    success: bool = False
+
+
+@dataclass(frozen=True)
 class Evaluation:
     """What one clip scored; the fields of ``cmrt simulate --json``."""
 
@@ -137,6 +148,8 @@ def _before_fall(traj: Trajectory) -> np.ndarray:
 
 
 def evaluate(task: Task, traj: Trajectory) -> Evaluation:
+    """Score a simulated clip: the CoP-error 2-norm (the paper's objective) plus penalties for a fall, a
+    missed goal, a motion not performed and not settling; never raises on a failed clip."""
     weight = character().mass_kg * GRAVITY_M_S2
     idx = _sample_index(task, traj)
     idx = idx[_loaded(task, traj, idx)]

@@ -40,12 +40,15 @@ with warnings.catch_warnings():
     import cma
 
 from cmrt.curve import N_KNOTS, Cmrt
+from cmrt.objective import EvalRecord
 
 N_PARAMS = 2 * N_KNOTS
 
 
 @dataclass(frozen=True)
 class OptimizeSettings:
+    """The optimizer's settings; the defaults here are the only place they are written (CLI, jobs read them)."""
+
     seed: int = 1
     max_evals: int = 3000
     min_evals: int = 700  # slow-convergence tests only after this many evaluations (ABC 4.1)
@@ -57,16 +60,6 @@ class OptimizeSettings:
     x0: tuple[float, ...] | None = None  # warm start (parameters of a stored result)
     max_restarts: int = 9  # IPOP restarts when the search stalls without a success
     popsize_factor: float = 2.0  # each restart multiplies the population by this
-
-
-@dataclass(frozen=True)
-class EvalRecord:
-    """One candidate's score, as stored."""
-
-    objective: float
-    fell: bool
-    seconds: float
-    success: bool = False
 
 
 class _Randn:
@@ -130,6 +123,7 @@ def _new_es(settings: OptimizeSettings, randn: _Randn, popsize: int) -> cma.CMAE
 
 
 def new_state(settings: OptimizeSettings) -> CmaState:
+    """A fresh search (first generation not yet asked)."""
     randn = _Randn(settings.seed)
     return CmaState(es=_new_es(settings, randn, settings.popsize), randn=randn)
 

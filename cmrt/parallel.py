@@ -26,8 +26,7 @@ import numpy as np
 from cmrt.curve import Cmrt
 from cmrt.ensemble import combine, training_members
 from cmrt.errors import CmrtError
-from cmrt.objective import evaluate
-from cmrt.optimize import EvalRecord
+from cmrt.objective import EvalRecord, evaluate
 from cmrt.props import PROP_MASS_PARAM
 from cmrt.simulate import simulate_batch
 from cmrt.task import Task
@@ -103,6 +102,7 @@ class Evaluator:
         return [r for part in out for r in part] if self.backend.endswith("+batch") else out
 
     def close(self) -> None:
+        """Shut down the backend's processes or cluster (if this evaluator started them)."""
         if self._client is not None:
             self._client.close()
         if self._cluster is not None:

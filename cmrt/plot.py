@@ -20,11 +20,13 @@ import numpy as np  # noqa: E402
 
 from cmrt.curve import Cmrt  # noqa: E402
 from cmrt.errors import CmrtError  # noqa: E402
-from cmrt.jobs import task_of  # noqa: E402
+from cmrt.interpolate import candidates, interpolate, superpose  # noqa: E402
 from cmrt.objective import evaluate  # noqa: E402
+from cmrt.query import task_of  # noqa: E402
+from cmrt.sequence import load_sequence  # noqa: E402
 from cmrt.simulate import simulate  # noqa: E402
-from cmrt.store import Store  # noqa: E402
-from cmrt.task import Task  # noqa: E402
+from cmrt.store import Store, StoredEvaluation  # noqa: E402
+from cmrt.task import Task, load_task  # noqa: E402
 
 
 def _phases(ax, task: Task) -> None:
@@ -35,6 +37,7 @@ def _phases(ax, task: Task) -> None:
 
 
 def plot_cop_error(task: Task, curves: list[tuple[str, Cmrt]], out: Path) -> Path:
+    """ABC Fig. 2: CoP and support centre over the clip, one panel per CMRT."""
     fig, axes = plt.subplots(len(curves), 1, figsize=(7, 2.4 * len(curves)), sharex=True, squeeze=False)
     for ax, (label, curve) in zip(axes[:, 0], curves, strict=True):
         traj = simulate(task, curve)
@@ -60,6 +63,7 @@ def plot_cop_error(task: Task, curves: list[tuple[str, Cmrt]], out: Path) -> Pat
 
 
 def plot_cmrt(task: Task, curve: Cmrt, out: Path, label: str = "best CMRT") -> Path:
+    """ABC Fig. 3: the CMRT with its knots and the task's phases."""
     fig, ax = plt.subplots(figsize=(7, 2.8))
     t = np.linspace(0, task.clip_s, 400)
     ax.plot(t, 100 * curve.displacement_m(t), lw=1.5, label=label)
@@ -80,10 +84,11 @@ def plot_cmrt(task: Task, curve: Cmrt, out: Path, label: str = "best CMRT") -> P
     return out
 
 
-def plot_convergence(evaluations: list[dict], threshold: float, out: Path, title: str) -> Path:
-    obj = np.array([e["objective"] for e in evaluations])
-    fell = np.array([e["fell"] for e in evaluations])
-    success = np.array([bool(e.get("success")) for e in evaluations])
+def plot_convergence(evaluations: list[StoredEvaluation], threshold: float, out: Path, title: str) -> Path:
+    """Objective of every evaluation in order (successes, falls, the rest) against the stop threshold."""
+    obj = np.array([e.objective for e in evaluations])
+    fell = np.array([e.fell for e in evaluations])
+    success = np.array([bool(e.success) for e in evaluations])
     other = ~fell & ~success
     idx = np.arange(1, obj.size + 1)
     fig, ax = plt.subplots(figsize=(7, 3))
@@ -106,15 +111,15 @@ def plot_convergence(evaluations: list[dict], threshold: float, out: Path, title
 def plot_run(store: Store, run_id: int, out_dir: str | Path) -> list[Path]:
     """Write the run's figures to ``out_dir``; returns their paths."""
     run = store.run(run_id)
-    if not run.get("best_cmrt"):
-        raise CmrtError(f"run {run_id} has no result to plot yet (status {run['status']})")
+    if not run.best_cmrt:
+        raise CmrtError(f"run {run_id} has no result to plot yet (status {run.status})")
     out = Path(out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise CmrtError(f"cannot create {out}: {exc.strerror}") from None
     task = task_of(run)
-    best = Cmrt.from_dict(run["best_cmrt"])
+    best = Cmrt.from_dict(run.best_cmrt)
     speed = f" T = {task.speed:g} s" if task.speed is not None else ""
     prefix = f"run{run_id}_"
     return [
@@ -126,9 +131,9 @@ def plot_run(store: Store, run_id: int, out_dir: str | Path) -> list[Path]:
         plot_cmrt(task, best, out / f"{prefix}cmrt.png", f"run {run_id}: {task.name}{speed}"),
         plot_convergence(
             store.evaluations(run_id),
-            run["stop_threshold"] or 0.0,
+            run.stop_threshold or 0.0,
             out / f"{prefix}convergence.png",
-            f"run {run_id}: {task.name}{speed}, {run['evaluations']} evaluations ({run['stop_reason']})",
+            f"run {run_id}: {task.name}{speed}, {run.evaluations} evaluations ({run.stop_reason})",
         ),
     ]
 
@@ -137,9 +142,6 @@ def plot_family(
     task_name: str, out: Path, between: tuple[float, ...] = (), source: str = "library", store: Store | None = None
 ) -> Path:
     """ABC Fig. 5: CMRTs optimized at several speeds (solid) and interpolated between them (dashed)."""
-    from cmrt.interpolate import candidates, interpolate
-    from cmrt.task import load_task
-
     base = load_task(task_name)
     if base.speed_param is None:
         raise CmrtError(f"task '{task_name}' has no speed parameter for a family figure")
@@ -180,10 +182,8 @@ def plot_family(
 
 def plot_sequence(seq_file: str, out: Path) -> Path:
     """ABC Fig. 6: the motions' shifted CMRTs and their sum, and the CoP error with zero vs superposed."""
-    from cmrt.sequence import load_sequence
-
     seq = load_sequence(seq_file)
-    sup = seq.superposed()
+    sup = superpose(seq)
     t = np.linspace(0, seq.clip_s, 800)
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7.5, 5), sharex=True)
     for (off, c), m in zip(sup.parts, seq.motions, strict=True):

@@ -1,55 +1,58 @@
-"""Read-side of the store: runs, the best run for a task, curves, exports."""
+"""Read-side of the store: runs, the best run for a task, curves, exports (all through ``Store``)."""
 
 from __future__ import annotations
 
 import csv
 import io
 import json
+from dataclasses import asdict
 
 from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
-from cmrt.store import Store
-from cmrt.task import Task
+from cmrt.store import Run, Store
+from cmrt.task import Task, task_from_dict
 
 SUMMARY_KEYS = ("id", "task", "speed", "status", "seed", "best_objective", "best_success", "best_fell",
                 "baseline_objective", "baseline_success", "baseline_fell", "evaluations", "generations", "stop_reason",
                 "wall_s")
 
 
-def run_summary(run: dict) -> dict:
-    return {k: run.get(k) for k in SUMMARY_KEYS}
+def run_summary(run: Run) -> dict:
+    """The columns ``cmrt runs`` lists."""
+    return {k: getattr(run, k) for k in SUMMARY_KEYS}
 
 
 def run_details(store: Store, run_id: int) -> dict:
-    """Everything ``cmrt show`` prints: the run row without internal blobs, decoded."""
+    """Everything ``cmrt show`` prints: the run decoded, with its throughput."""
     run = store.run(run_id)
-    out = {k: v for k, v in run.items() if k != "task_source"}
-    out["task_definition"] = json.loads(run["task_source"])
-    eval_s = run.get("eval_s") or 0.0
-    out["evaluations_per_s"] = run["evaluations"] / run["wall_s"] if run.get("wall_s") else None
-    out["mean_eval_s"] = eval_s / run["evaluations"] if run["evaluations"] else None
+    out = run.to_dict()
+    eval_s = run.eval_s or 0.0
+    out["evaluations_per_s"] = run.evaluations / run.wall_s if run.wall_s else None
+    out["mean_eval_s"] = eval_s / run.evaluations if run.evaluations else None
     return out
 
 
-def best_run(store: Store, task: Task) -> dict:
+def best_run(store: Store, task: Task) -> Run:
     """The best finished run for exactly this task (same physics hash): successes first, then the
     lowest objective."""
-    row = store.conn.execute(
-        "SELECT id FROM runs WHERE status = 'done' AND task_hash = ? AND best_objective IS NOT NULL "
-        "ORDER BY COALESCE(best_success, 0) DESC, best_fell ASC, best_objective ASC, id ASC LIMIT 1",
-        (task.content_hash(),),
-    ).fetchone()
-    if row is None:
+    run = store.best_run(task.content_hash())
+    if run is None:
         speed = f" at speed {task.speed:g}" if task.speed is not None else ""
         raise CmrtError(f"no finished run for task '{task.name}'{speed} with these parameters in {store.path}")
-    return store.run(int(row[0]))
+    return run
+
+
+def task_of(run: Run) -> Task:
+    """The task exactly as the run was queued with (not the task file as it is now)."""
+    return task_from_dict(run.task_definition, source=f"run {run.id}")
 
 
 def run_curve(store: Store, run_id: int) -> Cmrt:
+    """The best CMRT a stored run found so far."""
     run = store.run(run_id)
-    if not run.get("best_cmrt"):
-        raise CmrtError(f"run {run_id} has no result yet (status {run['status']})")
-    return Cmrt.from_dict(run["best_cmrt"])
+    if not run.best_cmrt:
+        raise CmrtError(f"run {run_id} has no result yet (status {run.status})")
+    return Cmrt.from_dict(run.best_cmrt)
 
 
 def export_run(store: Store, run_id: int, fmt: str) -> str:
@@ -59,14 +62,15 @@ def export_run(store: Store, run_id: int, fmt: str) -> str:
     evaluations = store.evaluations(run_id)
     if fmt == "json":
         return json.dumps(
-            {"run": run_details(store, run_id), "generations": store.generations(run_id), "evaluations": evaluations},
+            {"run": run_details(store, run_id), "generations": [asdict(g) for g in store.generations(run_id)],
+             "evaluations": [asdict(e) for e in evaluations]},
             indent=2,
         )
     buf = io.StringIO()
     w = csv.writer(buf)
     w.writerow(["run_id", "gen", "idx", "objective", "fell", "success", "seconds"] + [f"p{i}" for i in range(8)])
     for e in evaluations:
-        success = "" if e["success"] is None else int(e["success"])
-        row = [run_id, e["gen"], e["idx"], repr(e["objective"]), int(e["fell"]), success, e["seconds"]]
-        w.writerow(row + [repr(p) for p in e["params"]])
+        success = "" if e.success is None else int(e.success)
+        row = [run_id, e.gen, e.idx, repr(e.objective), int(e.fell), success, e.seconds]
+        w.writerow(row + [repr(p) for p in e.params])
     return buf.getvalue()

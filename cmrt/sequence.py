@@ -29,7 +29,6 @@ import numpy as np
 
 from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
-from cmrt.library import library_curve
 from cmrt.task import DEFAULT_PARAMS, TASKS_DIR, Task, load_task
 
 SEQUENCES_DIR = TASKS_DIR / "sequences"
@@ -56,6 +55,8 @@ class SuperposedCmrt:
 
 @dataclass(frozen=True)
 class Motion:
+    """One pose change of a sequence, starting its motion at ``start_s``."""
+
     task: Task  # with its speed set
     start_s: float
 
@@ -88,23 +89,10 @@ class SequenceTask(Task):
                 q[mask], qd[mask], qdd[mask] = m.task.reference(t[mask] - m.offset_s)
         return q, qd, qdd
 
-    def superposed(self, curves: list[Cmrt | None] | None = None) -> SuperposedCmrt:
-        """Each motion's CMRT (given, else library, else interpolated) shifted to its start, summed."""
-        from cmrt.interpolate import interpolate
-
-        parts = []
-        for i, m in enumerate(self.motions):
-            curve = curves[i] if curves else None
-            if curve is None:
-                try:
-                    curve = library_curve(m.task)
-                except CmrtError:
-                    curve = interpolate(m.task).curve
-            parts.append((m.offset_s, curve))
-        return SuperposedCmrt(self.clip_s, parts)
-
 
 def load_sequence(name_or_path: str) -> SequenceTask:
+    """A shipped sequence by name (``four-poses``) or a sequence file by path: checked to chain (each motion
+    starts where the previous ended, after it ended)."""
     path = Path(name_or_path)
     if path.suffix != ".toml":
         path = SEQUENCES_DIR / f"{name_or_path}.toml"

@@ -26,7 +26,8 @@ import os
 import random
 import sqlite3
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import sqlite_utils
@@ -99,6 +100,7 @@ SCHEMA_VERSION = len(MIGRATIONS)
 
 
 def resolve_path(path: str | os.PathLike | None) -> Path:
+    """The store path: as given, else ``$CMRT_STORE``, else ``store/cmrt.sqlite``."""
     return Path(path or os.environ.get("CMRT_STORE") or DEFAULT_STORE)
 
 
@@ -121,6 +123,148 @@ def _check_is_cmrt_store(path: Path) -> None:
         raise CmrtError(f"{path} is not a CMRT store (no cmrt metadata)")
     if version > SCHEMA_VERSION:
         raise CmrtError(f"{path} has schema version {version}, newer than this cmrt ({SCHEMA_VERSION})")
+
+
+class LostClaim(RuntimeError):
+    """Another worker took this run over (ours was considered dead)."""
+
+
+@dataclass(frozen=True)
+class Claim:
+    """A worker's hold on a run: every write it makes is fenced on (worker, attempt)."""
+
+    run_id: int
+    worker: str
+    attempt: int
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """Everything that defines a run, written in one INSERT when it is queued."""
+
+    task: str
+    speed: float | None
+    params: dict[str, float]
+    task_hash: str  # Task.content_hash(): the physics and the score, not the name
+    task_definition: dict  # Task.to_dict(): later edits of the task file do not change a queued run
+    seed: int
+    max_evals: int
+    popsize: int
+    sigma0: float
+    min_evals: int
+    stop_threshold: float
+    stall_generations: int
+    backend: str
+    init_source: str  # where the start point came from: "none", "run 12", "library (speed 0.4)"
+    init_params: tuple[float, ...] | None  # the start point itself (a resume never re-resolves it)
+    init_run: int | None = None  # the run id given as --init, if one was
+    robust: dict | None = None  # the training ensemble's [robust] table (None: a plain run)
+
+
+@dataclass(frozen=True)
+class Run:
+    """One row of ``runs``, decoded (JSON columns as Python values, flags as bools)."""
+
+    id: int
+    task: str
+    speed: float | None
+    params: dict[str, float]
+    task_hash: str
+    task_definition: dict
+    seed: int
+    max_evals: int
+    popsize: int
+    sigma0: float
+    min_evals: int
+    stop_threshold: float | None
+    init_run: int | None
+    backend: str | None
+    status: str  # one of RUN_STATUSES
+    worker: str | None
+    attempt: int
+    heartbeat_at: float | None  # unix time of the last write of the worker holding it
+    created_at: float
+    started_at: float | None
+    finished_at: float | None
+    best_objective: float | None
+    best_params: tuple[float, ...] | None
+    best_fell: bool | None
+    best_success: bool | None
+    best_cmrt: dict | None  # Cmrt.to_dict() of the best candidate
+    baseline_objective: float | None  # the zero CMRT's score
+    baseline_fell: bool | None
+    baseline_success: bool | None
+    evaluations: int
+    generations: int
+    stop_reason: str | None
+    wall_s: float | None
+    eval_s: float | None  # summed simulation time of the evaluations
+    error: str | None
+    init_source: str | None
+    init_params: tuple[float, ...] | None
+    restarts: int | None
+    stall_generations: int | None  # None: the default (OptimizeSettings)
+    robust: dict | None
+    robustness: dict | None  # cmrt.validate.robustness of the best CMRT
+
+    @classmethod
+    def from_row(cls, row: sqlite3.Row) -> Run:
+        """Decode a ``runs`` row (JSON columns, 0/1 flags)."""
+        d = dict(row)
+        d["task_definition"] = json.loads(d.pop("task_source"))
+        for key in ("params", "best_cmrt", "robust", "robustness"):
+            d[key] = json.loads(d[key]) if d[key] else None
+        for key in ("best_params", "init_params"):
+            d[key] = tuple(json.loads(d[key])) if d[key] else None
+        for key in ("best_fell", "baseline_fell", "best_success", "baseline_success"):
+            d[key] = None if d[key] is None else bool(d[key])
+        return cls(**d)
+
+    def to_dict(self) -> dict:
+        """The run as JSON-ready values (what ``cmrt show --json`` prints, with derived figures)."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Generation:
+    """One CMA-ES generation of a run (its checkpoint blob stays in the store)."""
+
+    gen: int
+    sigma: float
+    best_objective: float  # best so far in the run
+    gen_best_objective: float  # best of this generation
+    mean: tuple[float, ...]
+    evaluations: int  # so far in the run
+    created_at: float
+
+
+@dataclass(frozen=True)
+class StoredEvaluation:
+    """One candidate's score as stored (``idx``: its place in the generation)."""
+
+    gen: int
+    idx: int
+    params: tuple[float, ...]
+    objective: float
+    fell: bool
+    success: bool | None  # None: stored by a cmrt before schema 2
+    seconds: float
+
+
+@dataclass(frozen=True)
+class RunProgress:
+    """What a run's row says after a generation."""
+
+    evaluations: int
+    generations: int
+    restarts: int
+    best_objective: float
+    best_params: tuple[float, ...]
+    best_fell: bool
+    best_success: bool
+    best_cmrt: dict
+    wall_s: float
+    eval_s_added: float  # simulation seconds of this generation's evaluations
 
 
 class Store:
@@ -175,6 +319,7 @@ class Store:
         return int(self.conn.execute("PRAGMA user_version").fetchone()[0])
 
     def migrate(self) -> None:
+        """Bring the store to SCHEMA_VERSION under the write lock (a new store gets every step)."""
         with self.transaction():
             version = self.schema_version  # re-read under the write lock
             for step in MIGRATIONS[version:]:
@@ -185,14 +330,117 @@ class Store:
                 )
             self.conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
 
-    # --- reads -----------------------------------------------------------------
-    def run(self, run_id: int) -> dict:
+    # --- writes (the job queue: cmrt.jobs drives them) --------------------------------
+    def add_run(self, spec: RunSpec) -> int:
+        """Queue a run whose whole definition is ``spec``; returns its id."""
+        row = {
+            "task": spec.task, "speed": spec.speed, "params": json.dumps(spec.params, sort_keys=True),
+            "task_hash": spec.task_hash, "task_source": json.dumps(spec.task_definition, sort_keys=True),
+            "seed": spec.seed, "max_evals": spec.max_evals, "popsize": spec.popsize, "sigma0": spec.sigma0,
+            "min_evals": spec.min_evals, "stop_threshold": spec.stop_threshold, "backend": spec.backend,
+            "init_run": spec.init_run, "robust": None if spec.robust is None else json.dumps(spec.robust),
+            "init_source": spec.init_source,
+            "init_params": None if spec.init_params is None else json.dumps(list(spec.init_params)),
+            "restarts": 0, "stall_generations": spec.stall_generations,
+            "status": "queued", "created_at": time.time(),
+        }
+        with self.transaction() as conn:
+            cur = conn.execute(
+                f"INSERT INTO runs ({', '.join(row)}) VALUES ({', '.join('?' * len(row))})", tuple(row.values())
+            )
+            return int(cur.lastrowid)
+
+    def claim(self, worker: str, stale_after_s: float, run_id: int | None = None) -> Claim | None:
+        """Take run ``run_id`` (if claimable), else the oldest queued run, else an orphaned running one
+        (heartbeat older than ``stale_after_s``); None if there is none. The claim bumps the run's attempt:
+        the (worker, attempt) pair fences every later write."""
+        now = time.time()
+        with self.transaction() as conn:
+            if run_id is not None:
+                row = conn.execute(
+                    "SELECT id FROM runs WHERE id = ? AND (status = 'queued' OR (status = 'running' "
+                    "AND heartbeat_at < ?))", (run_id, now - stale_after_s),
+                ).fetchone()
+            else:
+                row = conn.execute("SELECT id FROM runs WHERE status = 'queued' ORDER BY id LIMIT 1").fetchone()
+                if row is None:
+                    row = conn.execute(
+                        "SELECT id FROM runs WHERE status = 'running' AND heartbeat_at < ? ORDER BY id LIMIT 1",
+                        (now - stale_after_s,),
+                    ).fetchone()
+            if row is None:
+                return None
+            rid = int(row[0])
+            conn.execute(
+                "UPDATE runs SET status = 'running', worker = ?, attempt = attempt + 1, heartbeat_at = ?, "
+                "started_at = COALESCE(started_at, ?) WHERE id = ?",
+                (worker, now, now, rid),
+            )
+            attempt = conn.execute("SELECT attempt FROM runs WHERE id = ?", (rid,)).fetchone()[0]
+        return Claim(rid, worker, int(attempt))
+
+    def record_baseline(self, claim: Claim, objective: float, fell: bool, success: bool) -> None:
+        """The zero CMRT's score (what the reactive controller alone does), once per run."""
+        with self.transaction() as conn:
+            _fenced_update(conn, claim, "baseline_objective = ?, baseline_fell = ?, baseline_success = ?, "
+                           "heartbeat_at = ?", (objective, int(fell), int(success), time.time()))
+
+    def commit_generation(self, claim: Claim, progress: RunProgress, generation: Generation,
+                          evaluations: Sequence[StoredEvaluation], checkpoint: bytes) -> None:
+        """One generation in one transaction: its evaluations, the optimizer checkpoint and the run's
+        progress - a killed worker leaves the run at a generation boundary."""
+        with self.transaction() as conn:
+            _fenced_update(
+                conn, claim,
+                "heartbeat_at = ?, evaluations = ?, generations = ?, best_objective = ?, best_params = ?, "
+                "best_fell = ?, best_success = ?, best_cmrt = ?, wall_s = ?, eval_s = COALESCE(eval_s, 0) + ?, "
+                "restarts = ?",
+                (generation.created_at, progress.evaluations, progress.generations, progress.best_objective,
+                 json.dumps(list(progress.best_params)), int(progress.best_fell), int(progress.best_success),
+                 json.dumps(progress.best_cmrt), progress.wall_s, progress.eval_s_added, progress.restarts),
+            )
+            conn.executemany(
+                "INSERT INTO evaluations (run_id, gen, idx, params, objective, fell, success, seconds) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                [(claim.run_id, e.gen, e.idx, json.dumps(list(e.params)), e.objective, int(e.fell),
+                  None if e.success is None else int(e.success), e.seconds) for e in evaluations],
+            )
+            conn.execute(
+                "INSERT INTO generations (run_id, gen, sigma, best_objective, gen_best_objective, mean, "
+                "evaluations, checkpoint, created_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                (claim.run_id, generation.gen, generation.sigma, generation.best_objective,
+                 generation.gen_best_objective, json.dumps(list(generation.mean)), generation.evaluations,
+                 checkpoint, generation.created_at),
+            )
+
+    def finish(self, claim: Claim, stop_reason: str, robustness: dict) -> None:
+        """Mark a claimed run done, with why it stopped and its best CMRT's validation figures."""
+        now = time.time()
+        with self.transaction() as conn:
+            _fenced_update(conn, claim, "status = 'done', stop_reason = ?, finished_at = ?, heartbeat_at = ?, "
+                           "robustness = ?", (stop_reason, now, now, json.dumps(robustness)))
+
+    def release(self, claim: Claim) -> None:
+        """Give a claimed run back to the queue (it resumes from its last checkpoint); a no-op if the claim
+        was already lost."""
+        with contextlib.suppress(LostClaim), self.transaction() as conn:
+            _fenced_update(conn, claim, "status = 'queued', worker = NULL", ())
+
+    def mark_failed(self, claim: Claim, message: str) -> None:
+        """Mark a claimed run failed with ``message`` (a no-op if the claim was already lost)."""
+        with contextlib.suppress(LostClaim), self.transaction() as conn:
+            _fenced_update(conn, claim, "status = 'failed', error = ?, finished_at = ?", (message, time.time()))
+
+    # --- reads -----------------------------------------------------------------------
+    def run(self, run_id: int) -> Run:
+        """The run ``run_id``; CmrtError if there is none."""
         row = self.conn.execute("SELECT * FROM runs WHERE id = ?", (run_id,)).fetchone()
         if row is None:
             raise CmrtError(f"no run {run_id} in {self.path}")
-        return _decode_run(dict(row))
+        return Run.from_row(row)
 
-    def runs(self, task: str | None = None, status: str | None = None) -> list[dict]:
+    def runs(self, task: str | None = None, status: str | None = None) -> list[Run]:
+        """Runs, oldest first, optionally of one task name and/or in one status."""
         sql, args = "SELECT * FROM runs WHERE 1=1", []
         if task:
             sql += " AND task = ?"
@@ -200,47 +448,64 @@ class Store:
         if status:
             sql += " AND status = ?"
             args.append(status)
-        return [_decode_run(dict(r)) for r in self.conn.execute(sql + " ORDER BY id", args)]
+        return [Run.from_row(r) for r in self.conn.execute(sql + " ORDER BY id", args)]
 
-    def evaluations(self, run_id: int) -> list[dict]:
+    def evaluations(self, run_id: int) -> list[StoredEvaluation]:
+        """Every evaluation of a run, in the order it was made."""
         rows = self.conn.execute(
             "SELECT gen, idx, params, objective, fell, success, seconds FROM evaluations WHERE run_id = ? "
             "ORDER BY gen, idx",
             (run_id,),
         )
-        return [{**dict(r), "params": json.loads(r["params"]), "fell": bool(r["fell"]),
-                 "success": None if r["success"] is None else bool(r["success"])} for r in rows]
+        return [StoredEvaluation(gen=r["gen"], idx=r["idx"], params=tuple(json.loads(r["params"])),
+                                 objective=r["objective"], fell=bool(r["fell"]),
+                                 success=None if r["success"] is None else bool(r["success"]), seconds=r["seconds"])
+                for r in rows]
 
-    def generations(self, run_id: int) -> list[dict]:
+    def generations(self, run_id: int) -> list[Generation]:
+        """A run's generations (CMA-ES step size, mean, best so far), in order."""
         rows = self.conn.execute(
             "SELECT gen, sigma, best_objective, gen_best_objective, mean, evaluations, created_at "
             "FROM generations WHERE run_id = ? ORDER BY gen",
             (run_id,),
         )
-        return [{**dict(r), "mean": json.loads(r["mean"])} for r in rows]
+        return [Generation(gen=r["gen"], sigma=r["sigma"], best_objective=r["best_objective"],
+                           gen_best_objective=r["gen_best_objective"], mean=tuple(json.loads(r["mean"])),
+                           evaluations=r["evaluations"], created_at=r["created_at"]) for r in rows]
 
-    def successful_runs(self, task_name: str) -> list[dict]:
+    def successful_runs(self, task_name: str) -> list[Run]:
         """Finished runs of a task whose best CMRT is a success (warm-start candidates), oldest first."""
         rows = self.conn.execute(
             "SELECT * FROM runs WHERE task = ? AND status = 'done' AND best_success = 1 AND best_params IS NOT NULL "
             "ORDER BY id", (task_name,))
-        return [_decode_run(dict(r)) for r in rows]
+        return [Run.from_row(r) for r in rows]
+
+    def best_run(self, task_hash: str) -> Run | None:
+        """The best finished run of the task with this physics hash: successes first, then the lowest
+        objective (the oldest on ties); None if there is none."""
+        row = self.conn.execute(
+            "SELECT * FROM runs WHERE status = 'done' AND task_hash = ? AND best_objective IS NOT NULL "
+            "ORDER BY COALESCE(best_success, 0) DESC, best_fell ASC, best_objective ASC, id ASC LIMIT 1",
+            (task_hash,),
+        ).fetchone()
+        return None if row is None else Run.from_row(row)
 
     def last_checkpoint(self, run_id: int) -> tuple[int, bytes] | None:
+        """(generation, optimizer checkpoint) of the last committed generation, or None."""
         row = self.conn.execute(
             "SELECT gen, checkpoint FROM generations WHERE run_id = ? ORDER BY gen DESC LIMIT 1", (run_id,)
         ).fetchone()
         return (int(row["gen"]), bytes(row["checkpoint"])) if row else None
 
 
-def _decode_run(row: dict) -> dict:
-    for key in ("params", "best_params", "best_cmrt", "init_params", "robust", "robustness"):
-        if row.get(key):
-            row[key] = json.loads(row[key])
-    for key in ("best_fell", "baseline_fell", "best_success", "baseline_success"):
-        if row.get(key) is not None:
-            row[key] = bool(row[key])
-    return row
+def _fenced_update(conn: sqlite3.Connection, claim: Claim, sets: str, args: tuple) -> None:
+    """UPDATE the claimed run only while (worker, attempt) still hold it; LostClaim otherwise."""
+    cur = conn.execute(
+        f"UPDATE runs SET {sets} WHERE id = ? AND worker = ? AND attempt = ? AND status = 'running'",
+        (*args, claim.run_id, claim.worker, claim.attempt),
+    )
+    if cur.rowcount != 1:
+        raise LostClaim(f"run {claim.run_id} was taken over by another worker")
 
 
 def open_store(path: str | os.PathLike | None = None, *, create: bool = True, readonly: bool = False) -> Store:

@@ -53,12 +53,11 @@ def _candidates(store: Store | None, task: Task) -> list[tuple[float, int, bool,
     found = []
     if store is not None:
         for run in store.successful_runs(task.name):
-            if abs(run["params"].get("clip_s", math.nan) - task.clip_s) > CLIP_TOLERANCE_S:
+            if abs(run.params.get("clip_s", math.nan) - task.clip_s) > CLIP_TOLERANCE_S:
                 continue
-            d = task_distance(task, run["params"])
-            other = (run.get("robust") is not None) != task.robust.enabled
-            found.append((d, other, 0, run["best_objective"],
-                          Start(tuple(run["best_params"]), f"run {run['id']}", d)))
+            d = task_distance(task, run.params)
+            other = (run.robust is not None) != task.robust.enabled
+            found.append((d, other, 0, run.best_objective, Start(run.best_params, f"run {run.id}", d)))
     for entry in load_entries():
         if entry["task"] != task.name or not entry.get("success") or "params" not in entry:
             continue
@@ -94,8 +93,8 @@ def resolve_init(store: Store | None, task: Task, init: str | int | None) -> Sta
     if store is None:
         raise CmrtError("a run id as start needs a store")
     src = store.run(init)
-    if src["best_params"] is None:
+    if src.best_params is None:
         raise CmrtError(f"run {init} has no result to start from")
-    if abs(src["params"]["clip_s"] - task.clip_s) > CLIP_TOLERANCE_S:
-        raise CmrtError(f"run {init} is for a {src['params']['clip_s']:g} s clip, not {task.clip_s:g} s")
-    return Start(tuple(src["best_params"]), f"run {init}", task_distance(task, src["params"]))
+    if abs(src.params["clip_s"] - task.clip_s) > CLIP_TOLERANCE_S:
+        raise CmrtError(f"run {init} is for a {src.params['clip_s']:g} s clip, not {task.clip_s:g} s")
+    return Start(src.best_params, f"run {init}", task_distance(task, src.params))

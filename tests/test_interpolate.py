@@ -6,7 +6,7 @@ import pytest
 from cmrt import Cmrt, evaluate, load_task, simulate
 from cmrt.curve import MIN_GAP_S
 from cmrt.errors import CmrtError
-from cmrt.interpolate import blend, interpolate
+from cmrt.interpolate import blend, interpolate, superpose
 from cmrt.library import load_entries
 from cmrt.sequence import Motion, SequenceTask, load_sequence
 
@@ -63,7 +63,7 @@ def test_superposing_a_single_cmrt_is_that_cmrt():
     task = load_task("bend").with_speed(0.5)
     seq = SequenceTask(name="one", summary="", params=dict(task.params), end_pose_deg=task.end_pose_deg,
                        motions=(Motion(task, task.preparation_s),))
-    sup = seq.superposed([A])
+    sup = superpose(seq, [A])
     t = np.linspace(-0.5, 3.0, 500)
     np.testing.assert_array_equal(sup.displacement_m(t), A.displacement_m(t))
     np.testing.assert_array_equal(sup.velocity_m_s(t), A.velocity_m_s(t))
@@ -75,7 +75,7 @@ def test_superposing_a_single_cmrt_is_that_cmrt():
 def test_four_poses_superposed_succeed_zero_falls():
     seq = load_sequence("four-poses")
     zero = evaluate(seq, simulate(seq, record=False))
-    sup = evaluate(seq, simulate(seq, seq.superposed(), record=False))
+    sup = evaluate(seq, simulate(seq, superpose(seq), record=False))
     assert zero.fell and not zero.success
     assert sup.success
 

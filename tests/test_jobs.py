@@ -5,7 +5,10 @@ import signal
 import sqlite3
 import time
 
-from cmrt.jobs import claim, run_claimed, submit
+import pytest
+
+from cmrt.errors import CmrtError
+from cmrt.jobs import claim, optimize_family, run_claimed, submit
 from cmrt.parallel import Evaluator
 from cmrt.store import open_store
 from cmrt.task import load_task
@@ -39,11 +42,11 @@ def kill_worker_after(path, rid: int, generations: int, backend: str) -> None:
 
 def test_run_stores_every_evaluation_and_generation(tmp_path):
     run, evals = finished_run(tmp_path / "s.sqlite", seed=3, max_evals=15, popsize=5)
-    assert run["status"] == "done" and run["stop_reason"] == "budget"
-    assert run["evaluations"] == len(evals) == 15 and run["generations"] == 3
-    assert run["best_objective"] == min(e["objective"] for e in evals)
-    assert run["baseline_success"] is False and run["baseline_objective"] > 5
-    assert all(e["success"] in (True, False) for e in evals)
+    assert run.status == "done" and run.stop_reason == "budget"
+    assert run.evaluations == len(evals) == 15 and run.generations == 3
+    assert run.best_objective == min(e.objective for e in evals)
+    assert run.baseline_success is False and run.baseline_objective > 5
+    assert all(e.success in (True, False) for e in evals)
 
 
 def test_sigkill_mid_run_then_resume_is_bit_identical(tmp_path):
@@ -56,19 +59,19 @@ def test_sigkill_mid_run_then_resume_is_bit_identical(tmp_path):
     kill_worker_after(path, rid, 3, backend="serial")  # slow generations: a kill lands mid-run
     with open_store(path) as store:
         killed = store.run(rid)
-    assert killed["status"] == "running" and 3 <= killed["generations"] < 8  # really killed mid-run
+    assert killed.status == "running" and 3 <= killed.generations < 8  # really killed mid-run
 
     resumer = spawn_worker(path, "--until-idle", "--stale-after", "0")
     out, err = resumer.communicate(timeout=600)
     assert resumer.returncode == 0, err
     with open_store(path) as store:
         run, evals = store.run(rid), store.evaluations(rid)
-    assert run["status"] == "done" and run["attempt"] == 2
-    assert run["best_params"] == reference["best_params"]
-    assert run["best_objective"] == reference["best_objective"]
-    assert run["evaluations"] == 48 and len(evals) == 48
-    assert len({(e["gen"], e["idx"]) for e in evals}) == 48
-    assert [(e["params"], e["objective"]) for e in evals] == [(e["params"], e["objective"]) for e in ref_evals]
+    assert run.status == "done" and run.attempt == 2
+    assert run.best_params == reference.best_params
+    assert run.best_objective == reference.best_objective
+    assert run.evaluations == 48 and len(evals) == 48
+    assert len({(e.gen, e.idx) for e in evals}) == 48
+    assert [(e.params, e.objective) for e in evals] == [(e.params, e.objective) for e in ref_evals]
 
 
 def test_four_workers_eight_jobs_each_done_exactly_once(tmp_path):
@@ -85,7 +88,7 @@ def test_four_workers_eight_jobs_each_done_exactly_once(tmp_path):
     finished = [rid for out, _ in outputs for rid in json.loads(out.strip().splitlines()[-1])["finished"]]
     assert sorted(finished) == ids  # every job exactly once across the workers
     with open_store(path) as store:
-        assert all(r["status"] == "done" and r["attempt"] == 1 for r in store.runs())
+        assert all(r.status == "done" and r.attempt == 1 for r in store.runs())
         assert store.conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
         n = store.conn.execute("SELECT COUNT(*), COUNT(DISTINCT run_id || '-' || gen || '-' || idx) FROM evaluations")
         assert tuple(n.fetchone()) == (64, 64)
@@ -115,7 +118,7 @@ def test_sigkilled_robust_run_resumes_bit_identically_across_a_restart(tmp_path)
         rid = submit(store, task, **kw)
         reference = run_claimed(store, claim(store, "ref", run_id=rid), Evaluator("batch"))
         ref_evals = store.evaluations(rid)
-    assert reference["restarts"] >= 1 and reference["robust"]["enabled"] is True
+    assert reference.restarts >= 1 and reference.robust["enabled"] is True
 
     path = tmp_path / "crash.sqlite"
     with open_store(path) as store:
@@ -123,13 +126,28 @@ def test_sigkilled_robust_run_resumes_bit_identically_across_a_restart(tmp_path)
     kill_worker_after(path, rid, 2, backend="batch")
     with open_store(path) as store:
         killed = store.run(rid)
-    assert killed["status"] == "running" and killed["restarts"] < reference["restarts"]
+    assert killed.status == "running" and killed.restarts < reference.restarts
 
     resumer = spawn_worker(path, "--until-idle", "--stale-after", "0")
     _, err = resumer.communicate(timeout=600)
     assert resumer.returncode == 0, err
     with open_store(path) as store:
         run, evals = store.run(rid), store.evaluations(rid)
-    assert run["attempt"] == 2 and run["restarts"] == reference["restarts"]
-    assert run["best_params"] == reference["best_params"] and run["robustness"] == reference["robustness"]
-    assert [(e["params"], e["objective"]) for e in evals] == [(e["params"], e["objective"]) for e in ref_evals]
+    assert run.attempt == 2 and run.restarts == reference.restarts
+    assert run.best_params == reference.best_params and run.robustness == reference.robustness
+    assert [(e.params, e.objective) for e in evals] == [(e.params, e.objective) for e in ref_evals]
+
+
+def test_a_speed_family_warm_starts_each_member_from_the_previous(tmp_path):
+    """``optimize_family`` (``cmrt optimize --speeds``): the first member starts as asked, each later one from
+    its neighbour's best with the family step size; a bad step size is refused before anything is queued."""
+    tasks = [TASK, TASK.with_speed(0.45)]
+    with open_store(tmp_path / "s.sqlite") as store:
+        with pytest.raises(CmrtError, match="family_sigma0"):
+            optimize_family(store, tasks, family_sigma0=-1.0, init="none")
+        assert store.runs() == []
+        first, second = optimize_family(store, tasks, Evaluator("batch"), family_sigma0=0.2, init="none",
+                                        max_evals=10, popsize=5)
+        assert first.init_source == "none" and first.sigma0 == 0.5 and first.speed == 0.4
+        assert second.init_source == f"run {first.id}" and second.init_params == first.best_params
+        assert second.sigma0 == 0.2 and second.speed == 0.45 and second.status == "done"

@@ -22,9 +22,9 @@ def test_every_backend_gives_identical_results(tmp_path):
     serial = optimize_with(tmp_path, "serial")
     for backend in ("batch", "loky", "loky+batch", "dask", "dask+batch"):
         run, evals = optimize_with(tmp_path, backend)
-        assert run["best_params"] == serial[0]["best_params"], backend
-        assert run["best_objective"] == serial[0]["best_objective"], backend
-        assert [e["objective"] for e in evals] == [e["objective"] for e in serial[1]], backend
+        assert run.best_params == serial[0].best_params, backend
+        assert run.best_objective == serial[0].best_objective, backend
+        assert [e.objective for e in evals] == [e.objective for e in serial[1]], backend
 
 
 def test_unreachable_scheduler_is_bad_input():

@@ -48,8 +48,8 @@ def test_a_successful_stored_run_wins_at_equal_distance(tmp_path):
         assert nearest_start(store, task.with_speed(0.44)).source == f"run {nearer}"
         # the start is stored with the run: later store changes do not move it
         queued = submit(store, task)
-        assert store.run(queued)["init_source"] == f"run {rid}"
-        assert store.run(queued)["init_params"] == [0.1] * 8
+        assert store.run(queued).init_source == f"run {rid}"
+        assert store.run(queued).init_params == (0.1,) * 8
 
 
 def test_distance_uses_the_declared_ranges():
@@ -79,10 +79,10 @@ def test_warm_started_run_evaluates_its_start_first(tmp_path):
         rid = submit(store, task, seed=1, max_evals=10, popsize=5)
         run_claimed(store, claim(store, "t", run_id=rid), ev)
         first = store.evaluations(rid)[0]
-        assert np.allclose(first["params"], nearest_start(None, task).params)
-        assert first["success"] is True  # the library CMRT succeeds at its own speed
-        assert store.run(rid)["stop_reason"] == "threshold" and store.run(rid)["evaluations"] == 5
-    assert Cmrt.from_params(np.array(first["params"]), task.clip_s).clip_s == task.clip_s
+        assert np.allclose(first.params, nearest_start(None, task).params)
+        assert first.success is True  # the library CMRT succeeds at its own speed
+        assert store.run(rid).stop_reason == "threshold" and store.run(rid).evaluations == 5
+    assert Cmrt.from_params(np.array(first.params), task.clip_s).clip_s == task.clip_s
 
 
 def test_a_robust_run_starts_from_a_robust_cmrt_and_a_plain_one_from_a_plain(tmp_path):

@@ -57,8 +57,8 @@ def main() -> None:
                 sigma0 = args.sigma0 if previous is None else args.family_sigma0
                 run = optimize_now(store, task, ev, seed=args.seed, max_evals=args.max_evals,
                                    init=previous or args.init, sigma0=sigma0)
-            previous = run["id"]
-            record(task, run, run_curve(store, run["id"]), args, time.perf_counter() - t0)
+            previous = run.id
+            record(task, run, run_curve(store, run.id), args, time.perf_counter() - t0)
 
 
 def record(task, run, curve, args, wall_s: float) -> None:
@@ -68,12 +68,12 @@ def record(task, run, curve, args, wall_s: float) -> None:
         "success": check.success, "fell": check.fell, "task_success": check.task_success,
         "tracking_error_rad": check.tracking_error_rad, "min_cop_margin_m": check.min_cop_margin_m,
         "final_pose_error_rad": check.final_pose_error_rad,
-        "zero_cmrt_objective": run["baseline_objective"], "zero_cmrt_success": run["baseline_success"],
-        "zero_cmrt_fell": run["baseline_fell"],
-        "evaluations": run["evaluations"], "stop_reason": run["stop_reason"], "seed": args.seed,
-        "stop_threshold": task.stop_threshold, "wall_s": round(wall_s, 1), "init_run": run["init_run"] is not None,
-        "params": task.params, "robust": task.robust.enabled, "init": run["init_source"],
-        "restarts": run["restarts"], "robustness": run["robustness"],
+        "zero_cmrt_objective": run.baseline_objective, "zero_cmrt_success": run.baseline_success,
+        "zero_cmrt_fell": run.baseline_fell,
+        "evaluations": run.evaluations, "stop_reason": run.stop_reason, "seed": args.seed,
+        "stop_threshold": task.stop_threshold, "wall_s": round(wall_s, 1), "init_run": run.init_run is not None,
+        "params": task.params, "robust": task.robust.enabled, "init": run.init_source,
+        "restarts": run.restarts, "robustness": run.robustness,
     }
     print(json.dumps(entry, indent=2))
     if not args.no_save:

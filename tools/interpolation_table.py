@@ -39,8 +39,8 @@ def main() -> None:
                 if kind == "interpolated":
                     with Evaluator("batch") as ev:
                         run = optimize_now(store, task, ev, seed=1, max_evals=args.max_evals, init="none")
-                    row.update(direct_objective=run["best_objective"], direct_success=run["best_success"],
-                               ratio=interp.objective / run["best_objective"])
+                    row.update(direct_objective=run.best_objective, direct_success=run.best_success,
+                               ratio=interp.objective / run.best_objective)
                 rows.append(row)
     if args.json:
         print(json.dumps(rows, indent=2))

@@ -51,8 +51,8 @@ def row(name: str, store_dir: Path) -> dict:
         "row": name, "task": task.name, "L": task.clip_s, "P": task.preparation_s, "T": task.duration_s,
         "D": round(task.decay_s, 6), "threshold": task.stop_threshold,
         "zero_objective": zero.objective, "zero_outcome": outcome(zero), "zero_success": zero.success,
-        "optimized_objective": run["best_objective"], "optimized_success": run["best_success"],
-        "evaluations": run["evaluations"], "stop_reason": run["stop_reason"], "wall_s": round(wall, 1),
+        "optimized_objective": run.best_objective, "optimized_success": run.best_success,
+        "evaluations": run.evaluations, "stop_reason": run.stop_reason, "wall_s": round(wall, 1),
         "library_objective": lib.objective, "library_outcome": outcome(lib), "library_success": lib.success,
         "library_final_pose_error_rad": lib.final_pose_error_rad,
     }

@@ -37,7 +37,7 @@ def parse_seeds(text: str) -> list[int]:
 def first_success(store, run_id: int) -> int | None:
     """Evaluations done up to and including the first successful candidate."""
     for n, e in enumerate(store.evaluations(run_id), start=1):
-        if e["success"]:
+        if e.success:
             return n
     return None
 
@@ -49,22 +49,22 @@ def measure(task, seeds: list[int], init: str, max_evals: int, progress: bool) -
             t0 = time.perf_counter()
             with open_store(Path(tmp) / f"seed{seed}.sqlite") as store:
                 run = optimize_now(store, task, ev, seed=seed, init=init, max_evals=max_evals)
-                first = first_success(store, run["id"])
+                first = first_success(store, run.id)
             rows.append({
-                "seed": seed, "success": bool(run["best_success"]), "best_objective": run["best_objective"],
-                "evaluations": run["evaluations"], "first_success_evals": first,
-                "restarts": run["restarts"], "stop_reason": run["stop_reason"], "init": run["init_source"],
+                "seed": seed, "success": bool(run.best_success), "best_objective": run.best_objective,
+                "evaluations": run.evaluations, "first_success_evals": first,
+                "restarts": run.restarts, "stop_reason": run.stop_reason, "init": run.init_source,
                 "wall_s": round(time.perf_counter() - t0, 1),
             })
             if progress:
                 print(json.dumps(rows[-1]), file=sys.stderr)
-    found = [r["first_success_evals"] for r in rows if r["success"]]
+    found = [r.first_success_evals for r in rows if r.success]
     return {
         "task": task.name, "speed": task.speed, "init": init, "seeds": seeds, "max_evals": max_evals,
-        "success_rate": sum(r["success"] for r in rows) / len(rows),
+        "success_rate": sum(r.success for r in rows) / len(rows),
         "median_evals_to_success": statistics.median(found) if found else None,
         "worst_evals_to_success": max(found) if found else None,
-        "wall_s": round(sum(r["wall_s"] for r in rows), 1),
+        "wall_s": round(sum(r.wall_s for r in rows), 1),
         "machine": f"{platform.machine()}, {__import__('os').cpu_count()} cores, Python {platform.python_version()}",
         "runs": rows,
     }

@@ -80,6 +80,7 @@ class ControllerConfig:
     roll_d: float = 20.0  # 1/s, its damping
 
     def tracking_weights(self, ch: Character) -> np.ndarray:
+        """Per-dof weight of joint tracking in the QP (root translation untracked: momentum sets it)."""
         w = np.full(ch.nv, self.weight_upper)
         w[ch.root_dofs[0]] = w[ch.root_dofs[1]] = 0.0  # root translation is not tracked
         w[ch.root_dofs[2]] = self.weight_root_pitch
