@@ -24,12 +24,15 @@ from pathlib import Path
 import numpy as np
 
 from cmrt import jobs, query
+from cmrt.bench import run_bench
 from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
+from cmrt.interpolate import interpolate, superpose, to_json
 from cmrt.library import library_curve
 from cmrt.objective import Evaluation, evaluate
 from cmrt.optimize import OptimizeSettings
 from cmrt.parallel import BACKENDS, Evaluator
+from cmrt.sequence import load_sequence
 from cmrt.simulate import simulate
 from cmrt.store import DEFAULT_STORE, RUN_STATUSES, Run, Store, open_store, resolve_path
 from cmrt.task import Task, available_tasks, load_task
@@ -554,8 +557,6 @@ class Interpolate(Command):
         p.add_argument("--out", metavar="FILE.json", help="write the CMRT (usable as --curve FILE.json)")
 
     def run(self, args):
-        from cmrt.interpolate import interpolate, to_json
-
         task = resolve_task(args.task, args.speed, args.set)
         store = _store(args.store, create=False) if args.source == "store" else None
         try:
@@ -589,9 +590,6 @@ class Sequence(Command):
         p.add_argument("--trace", metavar="FILE.npz")
 
     def run(self, args):
-        from cmrt.interpolate import superpose
-        from cmrt.sequence import load_sequence
-
         seq = load_sequence(args.file)
         curve = superpose(seq) if args.curve == "superposed" else Cmrt.zero(seq.clip_s)
         t0 = time.perf_counter()
@@ -684,8 +682,6 @@ class Bench(Command):
         p.add_argument("--workers", type=int, default=os.cpu_count() or 1)
 
     def run(self, args):
-        from cmrt.bench import run_bench
-
         task = resolve_task(args.task, args.speed, args.set)
         backends = tuple(args.backends.split(",")) if args.backends else BACKENDS
         unknown = [b for b in backends if b not in BACKENDS]
