@@ -255,6 +255,113 @@ class _Recorder:
         return {k: v[i, :last] for k, v in self.buf.items()}
 
 
+@dataclass(frozen=True)
+class _Drive:
+    """What drives each simulation of a batch: its CMRT, its reference motion (computed once per distinct
+    timing; rows index their variant), its thorax push, its prop mass and its task window."""
+
+    disp_m: np.ndarray  # (n, steps): CMRT displacement d(t)
+    disp_vel_m_s: np.ndarray  # (n, steps)
+    q_ref: np.ndarray  # (steps, nv), or (variants, steps, nv) when the rows differ in timing
+    qd_ref: np.ndarray
+    qdd_ref: np.ndarray
+    variant_of: np.ndarray | None  # (n,): each row's timing variant; None: one timing for all rows
+    push_n: np.ndarray  # (n, steps): horizontal force on the thorax
+    push_changes: np.ndarray  # (steps,): the push changes at this step (written to the batch only then)
+    mass_scale: np.ndarray  # (n,): the prop's mass as a multiple of the task's
+    windows_s: np.ndarray  # (n, 2): [P, P + T] of each row's timing
+
+    def refs_at(self, k: int, rows) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Reference q, qd, qdd at step ``k`` for simulations ``rows``."""
+        if self.variant_of is None:
+            return self.q_ref[k], self.qd_ref[k], self.qdd_ref[k]
+        v = self.variant_of[rows]
+        return self.q_ref[v, k], self.qd_ref[v, k], self.qdd_ref[v, k]
+
+
+def _drive(task: Task, curves: list[Cmrt], members: list[Perturbation], times: np.ndarray) -> _Drive:
+    scales = sorted({p.time_scale for p in members})
+    variant_tasks = [Perturbation(time_scale=s).task_variant(task) for s in scales]
+    variant_of = np.array([scales.index(p.time_scale) for p in members])
+    variant_refs = [vt.reference(times) for vt in variant_tasks]
+    if len(scales) == 1:
+        q_ref, qd_ref, qdd_ref = variant_refs[0]
+    else:
+        q_ref, qd_ref, qdd_ref = (np.stack([r[i] for r in variant_refs]) for i in range(3))
+    push = np.array([task.push_at(t) for t in times])[None, :] + np.stack([p.push_at(times) for p in members])
+    return _Drive(
+        disp_m=np.stack([c.displacement_m(times) for c in curves]),  # zero after L
+        disp_vel_m_s=np.stack([c.velocity_m_s(times) for c in curves]),
+        q_ref=q_ref, qd_ref=qd_ref, qdd_ref=qdd_ref, variant_of=None if len(scales) == 1 else variant_of,
+        push_n=push, push_changes=np.concatenate([[True], np.any(np.diff(push, axis=1) != 0, axis=0)]),
+        mass_scale=np.array([p.prop_mass_scale for p in members]),
+        windows_s=np.array([vt.task_window_s() for vt in variant_tasks])[variant_of],
+    )
+
+
+class _Falls:
+    """The balance monitor's verdicts per simulation: whether and when it fell (and why), the state it is
+    judged by, the pose protective mode holds, and the step it stops at (moved on a fall)."""
+
+    def __init__(self, n: int, n_act: int, nq: int, run_steps: int):
+        self.code = np.zeros(n, int)  # 0: standing; else 1 + index into REASONS
+        self.step = np.full(n, -1)
+        self.hold = np.zeros((n, n_act))  # protective mode: the pose at the fall
+        self.qpos = np.zeros((n, nq))  # the state a fallen clip is judged by
+        self.speed_m_s = np.zeros(n)
+        self.airborne_for_s = np.zeros(n)
+        self.end = np.full(n, run_steps)
+
+    def check(self, limits: BalanceLimits, ids: np.ndarray, k: int, dt: float, control_dt: float, *, ok: np.ndarray,
+              grounded: np.ndarray, support_lo_x: np.ndarray, support_hi_x: np.ndarray, lowest_body_z: np.ndarray,
+              qpos: np.ndarray, com: np.ndarray, com_vel_x: np.ndarray, roll: np.ndarray,
+              time_s: np.ndarray) -> np.ndarray:
+        """Run the monitor on simulations ``ids`` at step ``k``; returns the mask of those that fell now."""
+        self.airborne_for_s[ids] = np.where(grounded, 0.0, self.airborne_for_s[ids] + control_dt)
+        finite = ok & np.all(np.isfinite(qpos), axis=1) & (np.abs(time_s - k * dt) < 1e-9)
+        code = check_balance(
+            limits, finite=finite, lowest_body_z=lowest_body_z, com_x=com[:, 0], com_z=com[:, 2],
+            com_vel_x=com_vel_x, airborne_for_s=self.airborne_for_s[ids], foot_roll_rad=roll,
+            support_lo_x=support_lo_x, support_hi_x=support_hi_x,
+        )
+        new = (code > 0) & (self.code[ids] == 0)
+        self.code[ids[new]] = code[new]
+        return new
+
+    def fell(self, sims: np.ndarray, k: int, qpos: np.ndarray, act: np.ndarray, speed_m_s: np.ndarray,
+             end: np.ndarray) -> None:
+        """Simulations ``sims`` fell at step ``k`` in state ``qpos`` (their rows): keep what they are judged by
+        and the pose protective mode holds; they stop stepping at ``end``."""
+        self.step[sims] = k
+        self.hold[sims] = qpos[:, act]
+        self.qpos[sims] = qpos[:, : self.qpos.shape[1]]
+        self.speed_m_s[sims] = speed_m_s
+        self.end[sims] = end
+
+
+def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarray, fallen: np.ndarray,
+             drive: _Drive, k: int, center: np.ndarray, contact: np.ndarray, mass: np.ndarray,
+             hold: np.ndarray, act: np.ndarray, nu: int) -> tuple[np.ndarray, np.ndarray]:
+    """Torques of simulations ``ids`` (batch rows ``sel``): the controller for those standing, protective
+    mode for those that fell. ``bad``: the controller's plan was singular or non-finite."""
+    if not fallen.any():  # everyone under control: the bound arrays themselves, no copies
+        f = {name: b[name][sel] for name in CONTROL_FIELDS}
+        return _control(controller, f, drive.refs_at(k, ids), center + drive.disp_m[sel, k],
+                        drive.disp_vel_m_s[sel, k], center, contact, mass[sel])
+    ctrl = np.zeros((ids.size, nu))
+    bad = np.zeros(ids.size, bool)
+    if not fallen.all():
+        up = np.flatnonzero(~fallen)
+        rows = ids[up]
+        f = {name: b[name][rows] for name in CONTROL_FIELDS}
+        ctrl[up], bad[up] = _control(controller, f, drive.refs_at(k, rows), center[up] + drive.disp_m[rows, k],
+                                     drive.disp_vel_m_s[rows, k], center[up], contact[up], mass[rows])
+    rows = ids[fallen]
+    ctrl[fallen] = _protective_torques(b["qpos"][rows][:, act], b["qvel"][rows][:, act], hold[rows],
+                                       controller.limits)
+    return ctrl, bad
+
+
 def simulate_batch(
     task: Task,
     curves: list[Cmrt | None],
@@ -269,7 +376,10 @@ def simulate_batch(
     ``record`` fills every array at every step and plays falls out in protective mode;
     scores do not depend on it. ``threads``: MuJoCo batch threads (default: all cores,
     or $CMRT_THREADS). ``perturbations``: one per CMRT (an ensemble member: an extra push,
-    the prop's mass scaled, the motion's timing scaled; default: the nominal clip)."""
+    the prop's mass scaled, the motion's timing scaled; default: the nominal clip).
+
+    The loop below only steps and records; what drives each row is :class:`_Drive`, the torques
+    :func:`_torques`, the balance monitor :class:`_Falls`, the results :func:`_trajectories`."""
     ch = character()
     m = task.model()
     n = len(curves)
@@ -279,31 +389,11 @@ def simulate_batch(
     post_fall = int(round(POST_FALL_S / dt))
     n_steps = run_steps + (post_fall if record else 0)
     times = np.arange(n_steps) * dt
-    curves = [c or Cmrt.zero(task.clip_s) for c in curves]
-    disp = np.stack([c.displacement_m(times) for c in curves])  # (n, T): zero after L
-    disp_vel = np.stack([c.velocity_m_s(times) for c in curves])
     members = list(perturbations) if perturbations is not None else [NOMINAL] * n
     if len(members) != n:
         raise ValueError("one perturbation per CMRT")
-    # the motion's reference, once per distinct timing; rows index their variant
-    scales = sorted({p.time_scale for p in members})
-    variant_tasks = [Perturbation(time_scale=s).task_variant(task) for s in scales]
-    variant_of = np.array([scales.index(p.time_scale) for p in members])
-    variant_refs = [vt.reference(times) for vt in variant_tasks]
-    if len(scales) == 1:
-        q_ref, qd_ref, qdd_ref = variant_refs[0]
-    else:
-        q_ref, qd_ref, qdd_ref = (np.stack([r[i] for r in variant_refs]) for i in range(3))
-
-    def refs_at(k: int, rows) -> tuple:
-        if len(scales) == 1:
-            return q_ref[k], qd_ref[k], qdd_ref[k]
-        v = variant_of[rows]
-        return q_ref[v, k], qd_ref[v, k], qdd_ref[v, k]
-
-    push = np.array([task.push_at(t) for t in times])[None, :] + np.stack([p.push_at(times) for p in members])
-    push_changes = np.concatenate([[True], np.any(np.diff(push, axis=1) != 0, axis=0)])
-    mass_scale = np.array([p.prop_mass_scale for p in members])
+    drive = _drive(task, [c or Cmrt.zero(task.clip_s) for c in curves], members, times)
+    disp = drive.disp_m
     geo = _Geometry()
     controller = MomentumBalanceController(ch, config)
     kin = PlanarKinematics(ch.model)
@@ -318,22 +408,16 @@ def simulate_batch(
     for k, v in settled_state(task, config).items():
         b[k][:] = v
     b["time"][:] = 0.0
-    prop.start(batch, b, n, task.end_qpos(), mass_scale)
+    prop.start(batch, b, n, task.end_qpos(), drive.mass_scale)
     batch.forward(stage=vel_stage)
     settled_z = b["geom_xpos"][0, geo.points, 2].copy()
 
-    windows = np.array([vt.task_window_s() for vt in variant_tasks])[variant_of]  # (n, 2): [P, P + T] per row
     rec = _Recorder(n, n_steps, m.nq, m.nv, m.nu)
-    end = np.full(n, run_steps)  # where each simulation stops (moved on a fall)
+    falls = _Falls(n, act.size, nq, run_steps)
     next_end = run_steps
     last = np.full(n, n_steps)
-    fall_code = np.zeros(n, int)
-    fall_step = np.full(n, -1)
-    hold = np.zeros((n, act.size))  # protective mode: the pose at the fall
-    fall_qpos, fall_speed = np.zeros((n, nq)), np.zeros(n)  # the state a fallen clip is judged by
     goal = np.full(n, np.nan)  # the prop's goal: 1/0 (NaN: a pose change), judged at the end or at the fall
     extras: dict[str, np.ndarray] = {}
-    airborne_for = np.zeros(n)
     active = np.arange(n)
     ctrl_all = np.zeros((n, m.nu))
     control_dt = config.control_every * dt
@@ -345,13 +429,13 @@ def simulate_batch(
     has_contact_force = prop.contact_force(b, slice(None)) is not None
     for k in range(n_steps):
         if k >= next_end:  # the end of the tail, a fall (scoring: after its step), or the topple played out
-            done = end[ids] <= k
+            done = falls.end[ids] <= k
             last[ids[done]] = k
             active = ids[~done]
             if active.size == 0:
                 break
             sel = ids = step_ids = active
-            next_end = end[ids].min()
+            next_end = falls.end[ids].min()
         # Work happens on control steps (balance checks too), CoP sample steps, or every step when
         # recording a trace; in between, the batch just steps and the ground force is read (the cost floor).
         control = k % config.control_every == 0
@@ -382,25 +466,9 @@ def simulate_batch(
                 rec["cref"][sel, k] = center + disp[sel, k]
         if control:
             rec["jspeed"][sel, k] = np.abs(b["qvel"][sel][:, act]).max(axis=1)
-            fallen = fall_code[ids] > 0
             mass = ch.mass_kg + prop.carried_kg  # what the controller knows it carries
-            if not fallen.any():  # everyone under control: the bound arrays themselves, no copies
-                f = {name: b[name][sel] for name in CONTROL_FIELDS}
-                ctrl, bad = _control(controller, f, refs_at(k, ids), center + disp[sel, k], disp_vel[sel, k], center,
-                                     contact, mass[sel])
-            else:
-                ctrl = np.zeros((ids.size, m.nu))
-                bad = np.zeros(ids.size, bool)
-            if fallen.any() and not fallen.all():
-                up = np.flatnonzero(~fallen)
-                rows = ids[up]
-                f = {name: b[name][rows] for name in CONTROL_FIELDS}
-                ctrl[up], bad[up] = _control(controller, f, refs_at(k, rows), center[up] + disp[rows, k],
-                                             disp_vel[rows, k], center[up], contact[up], mass[rows])
-            if fallen.any():
-                rows = ids[fallen]
-                ctrl[fallen] = _protective_torques(b["qpos"][rows][:, act], b["qvel"][rows][:, act], hold[rows],
-                                                   controller.limits)
+            ctrl, bad = _torques(controller, b, sel, ids, falls.code[ids] > 0, drive, k, center, contact, mass,
+                                 falls.hold, act, m.nu)
             ctrl_all[ids] = ctrl
             b["ctrl"][sel] = ctrl
 
@@ -409,29 +477,23 @@ def simulate_batch(
             if has_contact_force and k > 0:  # leaning on a prop: the pendulum's capture point does not apply
                 leaning = rec["prop_force"][ids, k - 1] > CONTACT_FORCE_N
                 c_lo, c_hi = np.where(leaning, -np.inf, c_lo), np.where(leaning, np.inf, c_hi)
-            airborne_for[ids] = np.where(grounded, 0.0, airborne_for[ids] + control_dt)
-            finite = ~bad & np.all(np.isfinite(qpos), axis=1) & (np.abs(b["time"][sel] - k * dt) < 1e-9)
-            code = check_balance(
-                limits, finite=finite, lowest_body_z=geo.lowest_body_z(geom_xpos, b["geom_xmat"][sel]),
-                com_x=com[:, 0], com_z=com[:, 2], com_vel_x=vel_x, airborne_for_s=airborne_for[ids],
-                foot_roll_rad=roll, support_lo_x=c_lo, support_hi_x=c_hi,
-            )
-            new = (code > 0) & (fall_code[ids] == 0)
+            new = falls.check(limits, ids, k, dt, control_dt, ok=~bad, grounded=grounded, support_lo_x=c_lo,
+                              support_hi_x=c_hi, lowest_body_z=geo.lowest_body_z(geom_xpos, b["geom_xmat"][sel]),
+                              qpos=qpos, com=com, com_vel_x=vel_x, roll=roll, time_s=b["time"][sel])
             if new.any():
                 sims = ids[new]
-                fall_code[sims], fall_step[sims] = code[new], k
-                hold[sims] = qpos[new][:, act]
-                fall_qpos[sims] = qpos[new][:, :nq]
-                fall_speed[sims] = np.hypot(momentum[new, 0], momentum[new, 1]) / (ch.mass_kg + prop.carried_kg[sims])
-                _judge_prop(prop, b, sims, rec["prop_force"][sims, :k], times[:k], windows, goal, extras)
                 # scoring: stop after this step; recording: play the topple out (not a blow-up: nothing to show)
-                end[sims] = np.where(record & (code[new] != diverged_code), np.maximum(run_steps, k + post_fall), k + 1)
-                next_end = end[ids].min()
+                falls.fell(sims, k, qpos[new], act,
+                           np.hypot(momentum[new, 0], momentum[new, 1]) / (ch.mass_kg + prop.carried_kg[sims]),
+                           np.where(record & (falls.code[sims] != diverged_code),
+                                    np.maximum(run_steps, k + post_fall), k + 1))
+                _judge_prop(prop, b, sims, rec["prop_force"][sims, :k], times[:k], drive.windows_s, goal, extras)
+                next_end = falls.end[ids].min()
         if record:
             rec["ctrl"][sel, k] = ctrl_all[sel]
             rec["qvel"][sel, k] = b["qvel"][sel]
-        if push_changes[k]:
-            b["xfrc_applied"][sel, ch.thorax_body, 0] = push[sel, k]
+        if drive.push_changes[k]:
+            b["xfrc_applied"][sel, ch.thorax_body, 0] = drive.push_n[sel, k]
 
         batch.step(ids=step_ids, stage=vel_stage)
 
@@ -446,27 +508,34 @@ def simulate_batch(
             continue
         fz = touch.sum(axis=1)
         rec_fz[sel, k] = fz
-        if sample:
-            with np.errstate(all="ignore"):
-                rec["cop"][sel, k] = np.where(fz > 1e-9, (touch * point_x).sum(axis=1) / fz, np.nan)
-            rec["ffz"][sel, k, 0] = touch[:, :2].sum(axis=1)
-            rec["ffz"][sel, k, 1] = touch[:, 2:].sum(axis=1)
+        with np.errstate(all="ignore"):
+            rec["cop"][sel, k] = np.where(fz > 1e-9, (touch * point_x).sum(axis=1) / fz, np.nan)
+        rec["ffz"][sel, k, 0] = touch[:, :2].sum(axis=1)
+        rec["ffz"][sel, k, 1] = touch[:, 2:].sum(axis=1)
 
     momentum = kin.linear_momentum(b["cinert"][:, :nb], b["cvel"][:, :nb])
-    fallen = fall_code > 0  # judged at the fall, whatever a recorded topple did afterwards
-    final_qpos = np.where(fallen[:, None], fall_qpos, b["qpos"][:, :nq])
-    final_speed = np.where(fallen, fall_speed, np.hypot(momentum[:, 0], momentum[:, 1])
+    fallen = falls.code > 0  # judged at the fall, whatever a recorded topple did afterwards
+    final_qpos = np.where(fallen[:, None], falls.qpos, b["qpos"][:, :nq])
+    final_speed = np.where(fallen, falls.speed_m_s, np.hypot(momentum[:, 0], momentum[:, 1])
                            / (ch.mass_kg + prop.carried_kg))
-    standing = np.flatnonzero(fall_code == 0)  # the others were judged when they fell
-    _judge_prop(prop, b, standing, rec["prop_force"][standing, :run_steps], times[:run_steps], windows, goal, extras)
+    standing = np.flatnonzero(~fallen)  # the others were judged when they fell
+    _judge_prop(prop, b, standing, rec["prop_force"][standing, :run_steps], times[:run_steps], drive.windows_s, goal,
+                extras)
+    return _trajectories(task, rec, times, last, falls, disp, extras, goal, final_qpos, final_speed)
+
+
+def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarray, falls: _Falls, disp: np.ndarray,
+                  extras: dict[str, np.ndarray], goal: np.ndarray, final_qpos: np.ndarray,
+                  final_speed: np.ndarray) -> list[Trajectory]:
+    """One Trajectory per simulation, cut where it stopped."""
     out = []
-    for i in range(n):
+    for i in range(last.size):
         r = rec.cut(i, last[i])
-        code = fall_code[i]
+        code = falls.code[i]
         reason = REASONS[code - 1] if code else None
         protective = np.zeros(last[i], bool)
         if code:
-            protective[fall_step[i] + 1 :] = True
+            protective[falls.step[i] + 1 :] = True
         out.append(Trajectory(
             time_s=times[: last[i]], qpos=r["qpos"], qvel=r["qvel"], com_m=r["com"], com_vel_x_m_s=r["com_vel"],
             capture_point_x_m=r["xi"], cop_x_m=r["cop"], support_center_x_m=r["sc"], support_lo_x_m=r["lo"],
@@ -475,7 +544,7 @@ def simulate_batch(
             foot_roll_rad=r["roll"], prop_force_n=r["prop_force"], max_joint_speed_rad_s=r["jspeed"],
             cmrt_displacement_m=disp[i, : last[i]], prop_extras={k: float(v[i]) for k, v in extras.items()},
             com_ref_x_m=r["cref"], ctrl_nm=r["ctrl"], protective=protective, clip_s=task.clip_s,
-            fell=bool(code), fall_time_s=float(times[fall_step[i]]) if code else None, fall_reason=reason,
+            fell=bool(code), fall_time_s=float(times[falls.step[i]]) if code else None, fall_reason=reason,
             diverged=reason is FallReason.DIVERGED, final_qpos=final_qpos[i],
             final_com_speed_m_s=float(final_speed[i]),
             task_success=None if np.isnan(goal[i]) else bool(goal[i]),
