@@ -71,11 +71,57 @@ class Task:
     robust: RobustSpec = RobustSpec()  # the [robust] table: the ensemble a robust run is scored on
 
     # --- parameters -------------------------------------------------------------
-    def __getattr__(self, key: str) -> float:
-        params = self.__dict__.get("params", {})
-        if key in params:
-            return params[key]
-        raise AttributeError(key)
+    # Those every task has (DEFAULT_PARAMS) as typed properties; any other (a prop's, via_fraction) is read
+    # from the mapping: ``task.params["ball_mass_kg"]``.
+    @property
+    def clip_s(self) -> float:
+        """L: the whole clip (s)."""
+        return self.params["clip_s"]
+
+    @property
+    def preparation_s(self) -> float:
+        """P: standing before the motion starts (s)."""
+        return self.params["preparation_s"]
+
+    @property
+    def duration_s(self) -> float:
+        """T: duration of the pose change (s; 0: no pose change)."""
+        return self.params["duration_s"]
+
+    @property
+    def cop_sample_step_s(self) -> float:
+        """Step of the CoP-error samples in the objective (s)."""
+        return self.params["cop_sample_step_s"]
+
+    @property
+    def stop_threshold(self) -> float:
+        """CMA-ES early-stop threshold on the objective (objective units; ABC Table 1)."""
+        return self.params["stop_threshold"]
+
+    @property
+    def push_force_n(self) -> float:
+        """Horizontal push on the thorax (N, +x forward)."""
+        return self.params["push_force_n"]
+
+    @property
+    def push_start_s(self) -> float:
+        """When the push starts (s from the start of the clip)."""
+        return self.params["push_start_s"]
+
+    @property
+    def push_duration_s(self) -> float:
+        """How long the push lasts (s)."""
+        return self.params["push_duration_s"]
+
+    @property
+    def max_tracking_lag(self) -> float:
+        """Largest tracking lag that still counts as the motion performed (a fraction of T, dimensionless)."""
+        return self.params["max_tracking_lag"]
+
+    @property
+    def tail_s(self) -> float:
+        """Standing after the clip, end pose held without a CMRT (s; not in the CoP objective)."""
+        return self.params["tail_s"]
 
     @property
     def speed(self) -> float | None:
