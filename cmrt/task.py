@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from cmrt.character import SIDED_JOINTS, character, feet_flat_qpos, joint_angles_from_pose
+from cmrt import reference as ref
+from cmrt.character import character, feet_flat_qpos, joint_angles_from_pose
 from cmrt.ensemble import RobustSpec
 from cmrt.errors import CmrtError
 
@@ -42,16 +43,6 @@ DEFAULT_PARAMS: dict[str, float] = {
     "max_tracking_lag": 0.1,
     "tail_s": 0.5,  # standing after the clip (end pose held, no CMRT): must settle; not in the CoP objective
 }
-
-
-def smoothstep5(s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Quintic ease-in-ease-out on [0, 1]: value, d/ds, d2/ds2 (zero rate and acceleration at both ends)."""
-    s = np.clip(s, 0.0, 1.0)
-    return (
-        s**3 * (10 - 15 * s + 6 * s**2),
-        30 * s**2 * (1 - s) ** 2,
-        60 * s * (1 - s) * (1 - 2 * s),
-    )
 
 
 @dataclass(frozen=True)
@@ -209,58 +200,15 @@ class Task:
 
     def keyframes(self) -> list[tuple[float, np.ndarray]]:
         """(fraction of T, qpos) of the poses the motion passes: start, [via], end."""
-        keys = [(0.0, self.start_qpos())]
-        if self.via_pose_deg is not None:
-            keys.append((self.params["via_fraction"], self.via_qpos()))
-        return keys + [(1.0, self.end_qpos())]
+        return ref.keyframes(self)
 
     def reference(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Reference q, qd, qdd at times ``t_s`` (shape (n, nv)).
-
-        Each joint eases from the start to the end pose (through the via pose, if any, at
-        ``via_fraction`` of T) over its window of the task phase [P, P + T] (``[timing]``:
-        fractions of T, default [0, 1]). The root pitch that keeps the right foot flat,
-        -(hip + knee + ankle), follows the leg joints. The root's x and z are not tracked;
-        they ease with the hip for completeness.
-        """
-        t = np.atleast_1d(np.asarray(t_s, dtype=float))
-        q0, q1 = self.start_qpos(), self.end_qpos()
-        n, nv = len(t), q0.size
-        q, qd, qdd = np.tile(q0, (n, 1)), np.zeros((n, nv)), np.zeros((n, nv))
-        if self.end_pose_deg is None:
-            return q, qd, qdd
-        ch = character()
-        dq = q1 - q0
-        windows = self.joint_windows()
-        keys = self.keyframes()
-        for (fa, qa), (fb, qb) in zip(keys, keys[1:], strict=False):
-            for i, name in enumerate(ch.dof_names):
-                a, b = windows.get(name, (0.0, 1.0)) if len(keys) == 2 else (fa, fb)
-                span = (b - a) * self.duration_s
-                s, ds, dds = smoothstep5((t - self.preparation_s - a * self.duration_s) / span)
-                step = qb[i] - qa[i]
-                q[:, i] += s * step
-                qd[:, i] += ds / span * step
-                qdd[:, i] += dds / span**2 * step
-        legs = [ch.dof(j) for j in ("hip_r", "knee_r", "ankle_r")]
-        root_x, root_z, root_pitch = ch.root_dofs
-        for arr in (q, qd, qdd):
-            arr[:, root_pitch] = -arr[:, legs].sum(axis=1)
-        hip = ch.dof("hip_r")
-        frac = np.divide(q[:, hip] - q0[hip], dq[hip]) if dq[hip] else np.zeros(n)
-        for i in (root_x, root_z):
-            q[:, i] = q0[i] + frac * dq[i]
-            qd[:, i] = qdd[:, i] = 0.0
-        return q, qd, qdd
+        """Reference q, qd, qdd at times ``t_s`` (shape (n, nv)): see ``cmrt.reference.reference``."""
+        return ref.reference(self, t_s)
 
     def joint_windows(self) -> dict[str, tuple[float, float]]:
         """Per-dof easing window as fractions of T (bare names expand to both sides)."""
-        out = {}
-        for key, win in self.timing.items():
-            names = [f"{key}_r", f"{key}_l"] if key in SIDED_JOINTS else [key]
-            for n in names:
-                out[n] = win
-        return out
+        return ref.joint_windows(self)
 
     def push_at(self, t_s: float) -> float:
         """Horizontal push on the thorax at time t_s (N)."""
