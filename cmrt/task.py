@@ -23,6 +23,7 @@ from cmrt import reference as ref
 from cmrt.character import character, feet_flat_qpos, joint_angles_from_pose
 from cmrt.ensemble import RobustSpec
 from cmrt.errors import CmrtError
+from cmrt.props import PROPS, build_model, model_values
 
 MIN_TAIL_S = 0.5
 #: The shipped task files (package data: present in an installed cmrt, not only in a checkout).
@@ -178,8 +179,6 @@ class Task:
     # --- model -------------------------------------------------------------------
     def model(self):
         """The character plus this task's prop (compiled once per distinct prop parameters)."""
-        from cmrt.props import build_model, model_values
-
         return build_model(self.prop, model_values(self.prop, self.params))
 
     @property
@@ -326,11 +325,9 @@ def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task"
     params = dict(DEFAULT_PARAMS)
     prop = raw.get("prop", {}).get("kind") if isinstance(raw.get("prop"), dict) else None
     if "prop" in raw:
-        from cmrt.props import PROP_KINDS, PROP_PARAMS
-
-        if prop not in PROP_KINDS:
-            raise CmrtError(f"{source}: prop.kind must be one of {', '.join(PROP_KINDS)}")
-        params.update(PROP_PARAMS[prop])
+        if prop not in PROPS:
+            raise CmrtError(f"{source}: prop.kind must be one of {', '.join(PROPS)}")
+        params.update(PROPS[prop].PARAMS)
     for key, value in raw.get("params", {}).items():
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise CmrtError(f"{source}: parameter '{key}' must be a number")
