@@ -32,7 +32,7 @@ from cmrt.ensemble import training_members
 from cmrt.errors import CmrtError
 from cmrt.library import library_curve
 from cmrt.parallel import BACKENDS, Evaluator, evaluate_candidate
-from cmrt.props import PROP_MASS_PARAM
+from cmrt.props import prop_class
 from cmrt.simulate import settled_state, simulate_batch
 from cmrt.task import Task
 
@@ -66,7 +66,7 @@ def run_bench(task: Task, population: int = 16, repeat: int = 3, backends=BACKEN
             batch.step()
 
     robust = task.with_robust()
-    members = training_members(robust, robust.robust, task.prop in PROP_MASS_PARAM)
+    members = training_members(robust, robust.robust, prop_class(task.prop).mass_body is not None)
     ensemble_curves = [c for c in curves for _ in members]
     rounds: dict[str, list[float]] = {"physics": [], "batched": [], "serial": [], "robust": []}
     generations: dict[str, list[float]] = {}

@@ -27,7 +27,7 @@ from cmrt.curve import Cmrt
 from cmrt.ensemble import combine, training_members
 from cmrt.errors import CmrtError
 from cmrt.objective import EvalRecord, evaluate
-from cmrt.props import PROP_MASS_PARAM
+from cmrt.props import prop_class
 from cmrt.simulate import simulate_batch
 from cmrt.task import Task
 
@@ -51,7 +51,7 @@ def evaluate_batch(task: Task, xs: Sequence[np.ndarray], threads: int | None = N
         each = (time.perf_counter() - t0) / max(len(xs), 1)
         return [EvalRecord(objective=float(e.objective), fell=bool(e.fell), seconds=each, success=bool(e.success))
                 for e in scores]
-    members = training_members(task, task.robust, task.prop in PROP_MASS_PARAM)
+    members = training_members(task, task.robust, prop_class(task.prop).mass_body is not None)
     trajs = simulate_batch(task, [c for c in curves for _ in members], threads=threads,
                            perturbations=members * len(curves))
     scores = [evaluate(members[j % len(members)].task_variant(task), tr) for j, tr in enumerate(trajs)]

@@ -23,6 +23,12 @@ index and the controller works on the leading slices of the batch arrays.
   Toppled when it has rotated past its balance angle and is falling (``TOPPLED_DEG``).
 * ``wall``: a fixed pad (a punching target); its contact stiffness is ``wall_timeconst_s``.
 
+Each kind is one class (``Ball``, ``Slab``, ``Pad``) behind the interface of ``Prop`` (the
+base: no prop), registered in ``PROPS`` by its ``kind``: its parameter defaults
+(``PARAMS``), those that change the compiled model (``MODEL_PARAMS``), how it adds itself
+to the humanoid's ``MjSpec`` (``add_to_spec``) and its per-clip behaviour in the batched
+simulation loop (an instance per clip batch).
+
 Contact with a prop is measured every physics step: touch sensors around the forearms
 (hands included) for the slab and the pad, and for the ball the force the hands apply to
 it, m (a - g), from its acceleration.
@@ -32,13 +38,13 @@ from __future__ import annotations
 
 import functools
 import math
+from typing import ClassVar
 
 import mujoco
 import numpy as np
 
 from cmrt.character import MODEL_PATH
 
-PROP_KINDS = ("ball", "slab", "wall")
 BALL_RADIUS_M = 0.12
 FOREARM_RADIUS_M = 0.035
 HAND_OFFSET_M = np.array([0.0, 0.0, -0.40])  # forearm frame -> fingertip end of the capsule
@@ -47,22 +53,9 @@ GRIP_TIMECONST_S = 0.01  # the grip's constraint time constant (MuJoCo's default
 GRIP_SETTLE_S = 0.06  # at the latest this long after the grip the load is handed to the forearms
 GRIP_SETTLED_M_S = 0.05  # ... or as soon as the ball moves with the point it is held at to within this
 BALL_RESIDUAL_MASS_KG = 0.05  # what the ball body keeps once its mass is in the forearms
-#: the task parameter holding each massive prop's mass (ensembles scale it per simulation)
-PROP_MASS_PARAM = {"ball": "ball_mass_kg", "slab": "slab_mass_kg"}
 CONTACT_FORCE_N = 1.0  # a hand-prop force above this counts as contact
 TOPPLED_DEG = 30.0  # a slab rotated this far has passed its balance angle and is falling
 GRAVITY_M_S2 = 9.81
-
-#: Task parameters each prop reads when the model is built or the clip runs, with defaults.
-PROP_PARAMS: dict[str, dict[str, float]] = {
-    "ball": {"ball_mass_kg": 7.0, "ball_speed_m_s": 4.0, "ball_angle_deg": 10.0, "ball_flight_s": 0.4,
-             "ball_arrival_s": 1.35, "ball_height_m": 1.36, "ball_reach_m": 0.86, "max_ball_sag_m": 0.1},
-    "slab": {"slab_mass_kg": 140.0, "slab_x_m": 0.62, "slab_thickness_m": 0.25, "slab_height_m": 1.8},
-    "wall": {"wall_x_m": 0.58, "wall_timeconst_s": 0.01, "strike_impulse_n_s": 3.0, "max_contact_s": 0.3},
-}
-#: Parameters that change the compiled model (the others only change how a clip runs).
-MODEL_PARAMS = {"ball": ("ball_mass_kg",), "slab": ("slab_mass_kg", "slab_x_m", "slab_thickness_m",
-                                                    "slab_height_m"), "wall": ("wall_x_m", "wall_timeconst_s")}
 SLAB_WIDTH_M = 0.6
 
 
@@ -86,40 +79,6 @@ def ball_release(p: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
     return p0, v0
 
 
-@functools.lru_cache(maxsize=32)
-def build_model(kind: str | None, values: tuple[tuple[str, float], ...] = ()) -> mujoco.MjModel:
-    """The humanoid plus one prop (or none), compiled once per distinct parameter set."""
-    spec = mujoco.MjSpec.from_file(str(MODEL_PATH))
-    p = dict(values)
-    if kind == "ball":
-        body = spec.worldbody.add_body(name="ball", pos=[0, 0, 0])
-        _free_planar(body, "ball")
-        body.add_geom(name="ball", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[BALL_RADIUS_M, 0, 0],
-                      mass=p["ball_mass_kg"], contype=1, conaffinity=1, rgba=[0.8, 0.3, 0.1, 1])
-        for side in ("r", "l"):  # both hands grip: the load is shared by the two arms
-            eq = spec.add_equality(name=f"catch_{side}", type=mujoco.mjtEq.mjEQ_CONNECT, name1=f"forearm_{side}",
-                                   name2="ball", objtype=mujoco.mjtObj.mjOBJ_BODY, active=False)
-            eq.solref = [GRIP_TIMECONST_S, 1.0]
-    elif kind == "slab":
-        t, h = p["slab_thickness_m"], p["slab_height_m"]
-        body = spec.worldbody.add_body(name="slab", pos=[p["slab_x_m"] + t / 2, 0, h / 2 + 0.001])
-        _free_planar(body, "slab")
-        body.add_geom(name="slab", type=mujoco.mjtGeom.mjGEOM_BOX, size=[t / 2, SLAB_WIDTH_M / 2, h / 2],
-                      mass=p["slab_mass_kg"], contype=1, conaffinity=1, friction=[1.0, 0.005, 0.0001],
-                      rgba=[0.5, 0.5, 0.6, 1])
-        _hand_touch_sensors(spec)
-    elif kind == "wall":
-        # in a body of its own (fixed, no joints): geoms of the world body itself would be
-        # numbered before the humanoid's and shift their indices
-        body = spec.worldbody.add_body(name="wall", pos=[p["wall_x_m"] + 0.05, 0, 1.3])
-        body.add_geom(name="wall", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.05, 0.4, 0.4], contype=1,
-                      conaffinity=1, solref=[p["wall_timeconst_s"], 1.0], rgba=[0.3, 0.3, 0.8, 1])
-        _hand_touch_sensors(spec)
-    elif kind is not None:
-        raise ValueError(kind)
-    return spec.compile()
-
-
 def _hand_touch_sensors(spec: mujoco.MjSpec) -> None:
     """Touch sensors around each forearm (hand included): the normal force of what the arms touch. They
     come after the humanoid's four foot sensors; before any fall the arms touch only the prop."""
@@ -131,26 +90,43 @@ def _hand_touch_sensors(spec: mujoco.MjSpec) -> None:
                         objtype=mujoco.mjtObj.mjOBJ_SITE, objname=f"hand_touch_{side}")
 
 
-def model_values(kind: str | None, params: dict[str, float]) -> tuple[tuple[str, float], ...]:
-    if kind is None:
-        return ()
-    return tuple((k, float(params[k])) for k in sorted(MODEL_PARAMS[kind]))
-
-
-def prop_runtime(kind: str | None, model: mujoco.MjModel, params: dict[str, float]) -> Prop:
-    return {None: Prop, "ball": Ball, "slab": Slab, "wall": Pad}[kind](model, params)
+def fingertip_z(model: mujoco.MjModel, qpos: np.ndarray) -> float:
+    """Height of the right fingertip in pose ``qpos`` (the humanoid's coordinates)."""
+    d = mujoco.MjData(model)
+    d.qpos[: qpos.size] = qpos
+    mujoco.mj_kinematics(model, d)
+    hand = model.body("forearm_r").id
+    return float((d.xpos[hand] + d.xmat[hand].reshape(3, 3) @ HAND_OFFSET_M)[2])
 
 
 class Prop:
-    """Per-clip behaviour of a prop inside the batched simulation loop (this base: no prop)."""
+    """Per-clip behaviour of a prop inside the batched simulation loop (this base: no prop).
 
-    kind: str | None = None
+    A subclass declares its ``kind`` (the task file's ``[prop] kind``), its task parameters with
+    defaults (``PARAMS``), those of them that change the compiled model (``MODEL_PARAMS``), and adds
+    itself to the humanoid's ``MjSpec`` in ``add_to_spec``; an instance runs one batch of clips."""
+
+    kind: ClassVar[str | None] = None
+    #: task parameters the prop reads when the model is built or the clip runs, with defaults
+    PARAMS: ClassVar[dict[str, float]] = {}
+    #: the parameters that change the compiled model (the others only change how a clip runs)
+    MODEL_PARAMS: ClassVar[tuple[str, ...]] = ()
+    #: the body whose mass an ensemble member may scale (None: the prop has no mass that matters)
+    mass_body: ClassVar[str | None] = None
+    #: the prop acts every physics step (a ball released or caught at the right instant), not every control step
+    every_step: ClassVar[bool] = False
+
+    @classmethod
+    def add_to_spec(cls, spec: mujoco.MjSpec, p: dict[str, float]) -> None:
+        """Add the prop's bodies, geoms, joints, equalities and sensors to the humanoid's ``spec`` (after
+        the humanoid's own, so their indices stay), built from its model parameters ``p``."""
 
     def __init__(self, model: mujoco.MjModel, params: dict[str, float]):
         self.model, self.params = model, params
         self.sensors = None  # sensordata indices of the hands' touch sensors, if the prop has them
         if any(model.sensor(i).name == "hand_touch_r" for i in range(model.nsensor)):
             self.sensors = [model.sensor(f"hand_touch_{side}").adr[0] for side in ("r", "l")]
+        self.carried_kg = np.zeros(0)  # per simulation: prop mass the character carries (kg; sized by start())
 
     def fields(self) -> set[str]:
         """Batch fields the prop reads or writes besides the simulator's own."""
@@ -158,12 +134,6 @@ class Prop:
 
     def settle_hold(self, b: dict) -> None:
         """Keep the prop still while the character settles."""
-
-    #: the prop acts every physics step (a ball released or caught at the right instant), not every control step
-    every_step = False
-
-    #: the body whose mass an ensemble member may scale (None: the prop has no mass that matters)
-    mass_body: str | None = None
 
     def start(self, batch, b: dict, n: int, end_qpos: np.ndarray, mass_scale: np.ndarray | None = None) -> None:
         """Set up the clip's start (``end_qpos``: the task's target pose; ``mass_scale`` (n,): each
@@ -198,9 +168,25 @@ class Prop:
 
 
 class Ball(Prop):
+    """A ball tossed on a ballistic arc to the hands, gripped at contact, its mass then carried by the forearms."""
+
     kind = "ball"
-    every_step = True
+    PARAMS = {"ball_mass_kg": 7.0, "ball_speed_m_s": 4.0, "ball_angle_deg": 10.0, "ball_flight_s": 0.4,
+              "ball_arrival_s": 1.35, "ball_height_m": 1.36, "ball_reach_m": 0.86, "max_ball_sag_m": 0.1}
+    MODEL_PARAMS = ("ball_mass_kg",)
     mass_body = "ball"
+    every_step = True
+
+    @classmethod
+    def add_to_spec(cls, spec, p):
+        body = spec.worldbody.add_body(name="ball", pos=[0, 0, 0])
+        _free_planar(body, "ball")
+        body.add_geom(name="ball", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[BALL_RADIUS_M, 0, 0],
+                      mass=p["ball_mass_kg"], contype=1, conaffinity=1, rgba=[0.8, 0.3, 0.1, 1])
+        for side in ("r", "l"):  # both hands grip: the load is shared by the two arms
+            eq = spec.add_equality(name=f"catch_{side}", type=mujoco.mjtEq.mjEQ_CONNECT, name1=f"forearm_{side}",
+                                   name2="ball", objtype=mujoco.mjtObj.mjOBJ_BODY, active=False)
+            eq.solref = [GRIP_TIMECONST_S, 1.0]
 
     def __init__(self, model, params):
         super().__init__(model, params)
@@ -212,6 +198,22 @@ class Ball(Prop):
         self.forearms = (model.body("forearm_r").id, model.body("forearm_l").id)
         self.release_pos, self.release_vel = ball_release(params)
         self.release_s = params["ball_arrival_s"] - params["ball_flight_s"]
+        # per-clip state, set by start() for the clip's n simulations
+        self.reference_tip_z = math.nan  # height of the right fingertip in the task's end pose (m)
+        self.released = np.zeros(0, bool)  # the ball has left the thrower's hand
+        self.grip_s = np.zeros(0)  # when the hands gripped it (s; NaN: not yet)
+        self.handed_over = np.zeros(0, bool)  # its mass has moved into the forearms
+        self.handover_s = np.zeros(0)  # when (s; NaN: not yet)
+        self.drift = np.zeros((0, 2))  # the ball's (x, z) offset from its anchor on the right forearm, last step
+        # ... and the batch's per-simulation model fields the ball changes (views: batch.expand)
+        self.eq_data = np.zeros(0)
+        self.gravcomp = np.zeros(0)
+        self.mass = np.zeros(0)
+        self.inertia = np.zeros(0)
+        self.ipos = np.zeros(0)
+        self.iquat = np.zeros(0)
+        self.contype = np.zeros(0)
+        self.conaffinity = np.zeros(0)
 
     def fields(self):
         return {"xmat", "eq_active", "qacc"}
@@ -234,7 +236,6 @@ class Ball(Prop):
         self.iquat = batch.expand("body_iquat")
         self.contype = batch.expand("geom_contype")
         self.conaffinity = batch.expand("geom_conaffinity")
-        self.batch = batch
         self.gravcomp[:, self.body] = 1.0  # held in the thrower's hand until the release
         self._hold(b, slice(None))
         self.released = np.zeros(n, bool)
@@ -342,18 +343,23 @@ class Ball(Prop):
                 "ball_sag_m": np.where(np.isnan(grip), np.nan, self.reference_tip_z - tip_z)}
 
 
-def fingertip_z(model: mujoco.MjModel, qpos: np.ndarray) -> float:
-    """Height of the right fingertip in pose ``qpos`` (the humanoid's coordinates)."""
-    d = mujoco.MjData(model)
-    d.qpos[: qpos.size] = qpos
-    mujoco.mj_kinematics(model, d)
-    hand = model.body("forearm_r").id
-    return float((d.xpos[hand] + d.xmat[hand].reshape(3, 3) @ HAND_OFFSET_M)[2])
-
-
 class Slab(Prop):
+    """A free-standing slab on the floor in front of the character, to be pushed over."""
+
     kind = "slab"
+    PARAMS = {"slab_mass_kg": 140.0, "slab_x_m": 0.62, "slab_thickness_m": 0.25, "slab_height_m": 1.8}
+    MODEL_PARAMS = ("slab_mass_kg", "slab_x_m", "slab_thickness_m", "slab_height_m")
     mass_body = "slab"
+
+    @classmethod
+    def add_to_spec(cls, spec, p):
+        t, h = p["slab_thickness_m"], p["slab_height_m"]
+        body = spec.worldbody.add_body(name="slab", pos=[p["slab_x_m"] + t / 2, 0, h / 2 + 0.001])
+        _free_planar(body, "slab")
+        body.add_geom(name="slab", type=mujoco.mjtGeom.mjGEOM_BOX, size=[t / 2, SLAB_WIDTH_M / 2, h / 2],
+                      mass=p["slab_mass_kg"], contype=1, conaffinity=1, friction=[1.0, 0.005, 0.0001],
+                      rgba=[0.5, 0.5, 0.6, 1])
+        _hand_touch_sensors(spec)
 
     def __init__(self, model, params):
         super().__init__(model, params)
@@ -364,13 +370,51 @@ class Slab(Prop):
 
 
 class Pad(Prop):
+    """A fixed punching pad (kind ``wall``), to be struck and let go."""
+
     kind = "wall"
+    PARAMS = {"wall_x_m": 0.58, "wall_timeconst_s": 0.01, "strike_impulse_n_s": 3.0, "max_contact_s": 0.3}
+    MODEL_PARAMS = ("wall_x_m", "wall_timeconst_s")
+
+    @classmethod
+    def add_to_spec(cls, spec, p):
+        # in a body of its own (fixed, no joints): geoms of the world body itself would be
+        # numbered before the humanoid's and shift their indices
+        body = spec.worldbody.add_body(name="wall", pos=[p["wall_x_m"] + 0.05, 0, 1.3])
+        body.add_geom(name="wall", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.05, 0.4, 0.4], contype=1,
+                      conaffinity=1, solref=[p["wall_timeconst_s"], 1.0], rgba=[0.3, 0.3, 0.8, 1])
+        _hand_touch_sensors(spec)
 
     def success(self, b, rows, contact_force_n, times, window):
         """A strike: enough impulse delivered inside the task window, no contact before it, and no
         contact lasting longer than ``max_contact_s`` (no leaning on the pad)."""
         return strike_success(contact_force_n, times, window, self.params["strike_impulse_n_s"],
                               self.params["max_contact_s"])
+
+
+#: The prop kinds a task file may name, each its class.
+PROPS: dict[str, type[Prop]] = {cls.kind: cls for cls in (Ball, Slab, Pad)}
+
+
+def prop_class(kind: str | None) -> type[Prop]:
+    """The class of a task's prop (``Prop`` itself for a task without one)."""
+    return Prop if kind is None else PROPS[kind]
+
+
+def model_values(kind: str | None, params: dict[str, float]) -> tuple[tuple[str, float], ...]:
+    """The task parameters that change the compiled model, as a hashable key for ``build_model``."""
+    return tuple((k, float(params[k])) for k in sorted(prop_class(kind).MODEL_PARAMS))
+
+
+@functools.lru_cache(maxsize=32)
+def build_model(kind: str | None, values: tuple[tuple[str, float], ...] = ()) -> mujoco.MjModel:
+    """The humanoid plus one prop (or none), compiled once per distinct parameter set."""
+    spec = mujoco.MjSpec.from_file(str(MODEL_PATH))
+    if kind is not None:
+        if kind not in PROPS:
+            raise ValueError(kind)
+        PROPS[kind].add_to_spec(spec, dict(values))
+    return spec.compile()
 
 
 def strike_success(force_n: np.ndarray, times: np.ndarray, window: tuple[float, float], impulse_n_s: float,

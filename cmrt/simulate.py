@@ -41,7 +41,7 @@ from cmrt.control import ControllerConfig, MomentumBalanceController
 from cmrt.control.planar import PlanarKinematics
 from cmrt.curve import Cmrt
 from cmrt.ensemble import NOMINAL, Perturbation
-from cmrt.props import CONTACT_FORCE_N, model_values, prop_runtime
+from cmrt.props import CONTACT_FORCE_N, model_values, prop_class
 from cmrt.task import Task
 
 SETTLE_S = 1.5
@@ -157,7 +157,7 @@ def settled_state(task: Task, config: ControllerConfig) -> dict[str, np.ndarray]
     if key not in _SETTLED:
         ch = character()
         m = task.model()
-        prop = prop_runtime(task.prop, m, task.params)
+        prop = prop_class(task.prop)(m, task.params)
         batch = mujoco.batch.Batch(m, nsim=1, nthread=1, persistent=True)
         f = {k: batch.bind(k) for k in set(CONTROL_FIELDS) | set(STATE_FIELDS) | {"ctrl"}}
         f["qpos"][0, : q0.size] = q0
@@ -402,7 +402,7 @@ def simulate_batch(
     act = np.array(ch.actuated_dofs)
 
     batch = mujoco.batch.Batch(m, nsim=n, nthread=threads or _threads(n), persistent=True)
-    prop = prop_runtime(task.prop, m, task.params)
+    prop = prop_class(task.prop)(m, task.params)
     names = set(CONTROL_FIELDS) | set(STATE_FIELDS) | {"ctrl", "xfrc_applied", "sensordata", "geom_xmat", "time"}
     b = {k: batch.bind(k) for k in names | prop.fields()}
     for k, v in settled_state(task, config).items():

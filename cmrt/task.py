@@ -19,9 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from cmrt.character import SIDED_JOINTS, character, feet_flat_qpos, joint_angles_from_pose
+from cmrt import reference as ref
+from cmrt.character import character, feet_flat_qpos, joint_angles_from_pose
 from cmrt.ensemble import RobustSpec
 from cmrt.errors import CmrtError
+from cmrt.props import PROPS, build_model, model_values
 
 MIN_TAIL_S = 0.5
 #: The shipped task files (package data: present in an installed cmrt, not only in a checkout).
@@ -44,16 +46,6 @@ DEFAULT_PARAMS: dict[str, float] = {
 }
 
 
-def smoothstep5(s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Quintic ease-in-ease-out on [0, 1]: value, d/ds, d2/ds2 (zero rate and acceleration at both ends)."""
-    s = np.clip(s, 0.0, 1.0)
-    return (
-        s**3 * (10 - 15 * s + 6 * s**2),
-        30 * s**2 * (1 - s) ** 2,
-        60 * s * (1 - s) * (1 - 2 * s),
-    )
-
-
 @dataclass(frozen=True)
 class Task:
     name: str
@@ -71,11 +63,57 @@ class Task:
     robust: RobustSpec = RobustSpec()  # the [robust] table: the ensemble a robust run is scored on
 
     # --- parameters -------------------------------------------------------------
-    def __getattr__(self, key: str) -> float:
-        params = self.__dict__.get("params", {})
-        if key in params:
-            return params[key]
-        raise AttributeError(key)
+    # Those every task has (DEFAULT_PARAMS) as typed properties; any other (a prop's, via_fraction) is read
+    # from the mapping: ``task.params["ball_mass_kg"]``.
+    @property
+    def clip_s(self) -> float:
+        """L: the whole clip (s)."""
+        return self.params["clip_s"]
+
+    @property
+    def preparation_s(self) -> float:
+        """P: standing before the motion starts (s)."""
+        return self.params["preparation_s"]
+
+    @property
+    def duration_s(self) -> float:
+        """T: duration of the pose change (s; 0: no pose change)."""
+        return self.params["duration_s"]
+
+    @property
+    def cop_sample_step_s(self) -> float:
+        """Step of the CoP-error samples in the objective (s)."""
+        return self.params["cop_sample_step_s"]
+
+    @property
+    def stop_threshold(self) -> float:
+        """CMA-ES early-stop threshold on the objective (objective units; ABC Table 1)."""
+        return self.params["stop_threshold"]
+
+    @property
+    def push_force_n(self) -> float:
+        """Horizontal push on the thorax (N, +x forward)."""
+        return self.params["push_force_n"]
+
+    @property
+    def push_start_s(self) -> float:
+        """When the push starts (s from the start of the clip)."""
+        return self.params["push_start_s"]
+
+    @property
+    def push_duration_s(self) -> float:
+        """How long the push lasts (s)."""
+        return self.params["push_duration_s"]
+
+    @property
+    def max_tracking_lag(self) -> float:
+        """Largest tracking lag that still counts as the motion performed (a fraction of T, dimensionless)."""
+        return self.params["max_tracking_lag"]
+
+    @property
+    def tail_s(self) -> float:
+        """Standing after the clip, end pose held without a CMRT (s; not in the CoP objective)."""
+        return self.params["tail_s"]
 
     @property
     def speed(self) -> float | None:
@@ -141,8 +179,6 @@ class Task:
     # --- model -------------------------------------------------------------------
     def model(self):
         """The character plus this task's prop (compiled once per distinct prop parameters)."""
-        from cmrt.props import build_model, model_values
-
         return build_model(self.prop, model_values(self.prop, self.params))
 
     @property
@@ -163,58 +199,15 @@ class Task:
 
     def keyframes(self) -> list[tuple[float, np.ndarray]]:
         """(fraction of T, qpos) of the poses the motion passes: start, [via], end."""
-        keys = [(0.0, self.start_qpos())]
-        if self.via_pose_deg is not None:
-            keys.append((self.params["via_fraction"], self.via_qpos()))
-        return keys + [(1.0, self.end_qpos())]
+        return ref.keyframes(self)
 
     def reference(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Reference q, qd, qdd at times ``t_s`` (shape (n, nv)).
-
-        Each joint eases from the start to the end pose (through the via pose, if any, at
-        ``via_fraction`` of T) over its window of the task phase [P, P + T] (``[timing]``:
-        fractions of T, default [0, 1]). The root pitch that keeps the right foot flat,
-        -(hip + knee + ankle), follows the leg joints. The root's x and z are not tracked;
-        they ease with the hip for completeness.
-        """
-        t = np.atleast_1d(np.asarray(t_s, dtype=float))
-        q0, q1 = self.start_qpos(), self.end_qpos()
-        n, nv = len(t), q0.size
-        q, qd, qdd = np.tile(q0, (n, 1)), np.zeros((n, nv)), np.zeros((n, nv))
-        if self.end_pose_deg is None:
-            return q, qd, qdd
-        ch = character()
-        dq = q1 - q0
-        windows = self.joint_windows()
-        keys = self.keyframes()
-        for (fa, qa), (fb, qb) in zip(keys, keys[1:], strict=False):
-            for i, name in enumerate(ch.dof_names):
-                a, b = windows.get(name, (0.0, 1.0)) if len(keys) == 2 else (fa, fb)
-                span = (b - a) * self.duration_s
-                s, ds, dds = smoothstep5((t - self.preparation_s - a * self.duration_s) / span)
-                step = qb[i] - qa[i]
-                q[:, i] += s * step
-                qd[:, i] += ds / span * step
-                qdd[:, i] += dds / span**2 * step
-        legs = [ch.dof(j) for j in ("hip_r", "knee_r", "ankle_r")]
-        root_x, root_z, root_pitch = ch.root_dofs
-        for arr in (q, qd, qdd):
-            arr[:, root_pitch] = -arr[:, legs].sum(axis=1)
-        hip = ch.dof("hip_r")
-        frac = np.divide(q[:, hip] - q0[hip], dq[hip]) if dq[hip] else np.zeros(n)
-        for i in (root_x, root_z):
-            q[:, i] = q0[i] + frac * dq[i]
-            qd[:, i] = qdd[:, i] = 0.0
-        return q, qd, qdd
+        """Reference q, qd, qdd at times ``t_s`` (shape (n, nv)): see ``cmrt.reference.reference``."""
+        return ref.reference(self, t_s)
 
     def joint_windows(self) -> dict[str, tuple[float, float]]:
         """Per-dof easing window as fractions of T (bare names expand to both sides)."""
-        out = {}
-        for key, win in self.timing.items():
-            names = [f"{key}_r", f"{key}_l"] if key in SIDED_JOINTS else [key]
-            for n in names:
-                out[n] = win
-        return out
+        return ref.joint_windows(self)
 
     def push_at(self, t_s: float) -> float:
         """Horizontal push on the thorax at time t_s (N)."""
@@ -332,11 +325,9 @@ def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task"
     params = dict(DEFAULT_PARAMS)
     prop = raw.get("prop", {}).get("kind") if isinstance(raw.get("prop"), dict) else None
     if "prop" in raw:
-        from cmrt.props import PROP_KINDS, PROP_PARAMS
-
-        if prop not in PROP_KINDS:
-            raise CmrtError(f"{source}: prop.kind must be one of {', '.join(PROP_KINDS)}")
-        params.update(PROP_PARAMS[prop])
+        if prop not in PROPS:
+            raise CmrtError(f"{source}: prop.kind must be one of {', '.join(PROPS)}")
+        params.update(PROPS[prop].PARAMS)
     for key, value in raw.get("params", {}).items():
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise CmrtError(f"{source}: parameter '{key}' must be a number")

@@ -12,7 +12,7 @@ import math
 from cmrt.curve import Cmrt
 from cmrt.ensemble import validation_members
 from cmrt.objective import evaluate
-from cmrt.props import PROP_MASS_PARAM
+from cmrt.props import prop_class
 from cmrt.simulate import simulate_batch
 from cmrt.task import Task
 
@@ -21,7 +21,7 @@ def robustness(task: Task, curve: Cmrt, threads: int | None = None) -> dict:
     """``validation_total`` members, ``validation_survived`` of them a success (balance held, motion done,
     settled, goal reached), ``validation_fell``, and the smallest CoP margin inside the feet over all of
     them (``min_cop_margin_m``; negative: the CoP reached the edge and the foot rolled)."""
-    members = validation_members(task, task.robust, task.prop in PROP_MASS_PARAM)
+    members = validation_members(task, task.robust, prop_class(task.prop).mass_body is not None)
     trajs = simulate_batch(task, [curve] * len(members), threads=threads, perturbations=members)
     scores = [evaluate(m.task_variant(task), tr) for m, tr in zip(members, trajs, strict=True)]
     margins = [e.min_cop_margin_m for e in scores if e.min_cop_margin_m is not None

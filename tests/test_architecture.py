@@ -15,7 +15,8 @@ PACKAGE = Path(__file__).resolve().parent.parent / "cmrt"
 LAYERS: list[tuple[str, set[str]]] = [
     ("foundation", {"errors", "balance", "character", "curve", "ensemble", "control", "control.controller",
                     "control.kernel", "control.momentum", "control.planar"}),
-    ("physics", {"props", "task", "sequence", "library", "simulate", "objective", "validate", "render"}),
+    ("physics", {"props", "reference", "task", "sequence", "library", "simulate", "objective", "validate",
+                 "render"}),
     ("optimizer", {"optimize", "parallel", "bench"}),
     ("store", {"store"}),
     ("service", {"warmstart", "jobs", "query", "interpolate", "plot"}),

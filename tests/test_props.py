@@ -4,13 +4,16 @@ import mujoco
 import numpy as np
 import pytest
 
-from cmrt import evaluate, library_curve, load_task, simulate
+from cmrt import CmrtError, evaluate, library_curve, load_model, load_task, simulate
 from cmrt.props import (
     BALL_RADIUS_M,
     FOREARM_RADIUS_M,
     GRIP_TOLERANCE_M,
     HAND_OFFSET_M,
+    PROPS,
+    Prop,
     ball_release,
+    prop_class,
     strike_success,
 )
 from cmrt.task import task_from_dict
@@ -42,6 +45,24 @@ def point_velocity(task, qpos, qvel, point_xz):
     jacp = np.zeros((3, m.nv))
     mujoco.mj_jac(m, d, jacp, None, np.array([point_xz[0], 0.0, point_xz[1]]), m.body("forearm_r").id)
     return (jacp @ qvel)[[0, 2]]
+
+
+def test_one_class_per_prop_kind():
+    """Each kind's class declares its parameters and adds itself after the humanoid (whose indices stay)."""
+    human = load_model()
+    assert prop_class(None) is Prop and Prop.PARAMS == {} and Prop.MODEL_PARAMS == ()
+    for kind, cls in PROPS.items():
+        assert issubclass(cls, Prop) and cls.kind == kind and set(cls.MODEL_PARAMS) <= set(cls.PARAMS)
+        task = task_from_dict({"prop": {"kind": kind}})
+        assert {k: task.params[k] for k in cls.PARAMS} == cls.PARAMS
+        m = task.model()
+        for obj, count in (("body", human.nbody), ("joint", human.njnt), ("geom", human.ngeom)):
+            names = [getattr(m, obj)(i).name for i in range(count)]
+            assert names == [getattr(human, obj)(i).name for i in range(count)]
+        assert m.nbody == human.nbody + 1 and m.body(human.nbody).name in (kind, cls.mass_body)
+        assert isinstance(cls(m, task.params), cls)
+    with pytest.raises(CmrtError, match="prop.kind must be one of ball, slab, wall"):
+        task_from_dict({"prop": {"kind": "anvil"}})
 
 
 @pytest.fixture(scope="module")

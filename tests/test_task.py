@@ -3,7 +3,7 @@ import pytest
 
 from cmrt.character import character
 from cmrt.errors import CmrtError
-from cmrt.task import available_tasks, load_task, task_from_dict
+from cmrt.task import DEFAULT_PARAMS, Task, available_tasks, load_task, task_from_dict
 
 
 def test_shipped_tasks_load():
@@ -11,6 +11,20 @@ def test_shipped_tasks_load():
     bend = load_task("bend")
     assert bend.speed == 0.4 and bend.clip_s == 2.6 and bend.preparation_s == 1.0
     assert bend.with_speed(1.2).decay_s == pytest.approx(0.4)  # ABC Table 1, slow bend
+
+
+def test_common_parameters_are_typed_properties():
+    """Every task's parameters are explicit read-only properties; any other is read from ``params``."""
+    catch = load_task("catch").with_params(duration_s=0.5)
+    for key in DEFAULT_PARAMS:
+        assert isinstance(getattr(Task, key), property) and getattr(Task, key).__doc__
+        assert getattr(catch, key) == catch.params[key]
+    assert catch.duration_s == 0.5
+    assert not hasattr(Task, "__getattr__")
+    with pytest.raises(AttributeError):
+        catch.ball_mass_kg  # noqa: B018 - a prop's parameter: catch.params["ball_mass_kg"]
+    with pytest.raises(AttributeError):
+        catch.clip_s = 1.0
 
 
 def test_reference_eases_between_poses():
