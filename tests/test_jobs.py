@@ -8,7 +8,7 @@ import time
 import pytest
 
 from cmrt.errors import CmrtError
-from cmrt.jobs import claim, optimize_family, run_claimed, submit
+from cmrt.jobs import claim, optimize_family, run_claimed, submit, work
 from cmrt.parallel import Evaluator
 from cmrt.store import open_store
 from cmrt.task import load_task
@@ -151,3 +151,11 @@ def test_a_speed_family_warm_starts_each_member_from_the_previous(tmp_path):
         assert first.init_source == "none" and first.sigma0 == 0.5 and first.speed == 0.4
         assert second.init_source == f"run {first.id}" and second.init_params == first.best_params
         assert second.sigma0 == 0.2 and second.speed == 0.45 and second.status == "done"
+
+
+def test_work_needs_no_evaluator(tmp_path):
+    """``work`` takes the same default (batched) evaluator as ``optimize_now``."""
+    with open_store(tmp_path / "s.sqlite") as store:
+        rid = submit(store, TASK, init="none", max_evals=5, popsize=5)
+        assert work(store, until_idle=True) == [rid]
+        assert store.run(rid).status == "done" and store.run(rid).evaluations == 5
