@@ -52,9 +52,11 @@ class Character:
 
     @property
     def foot_point_geoms(self) -> tuple[int, ...]:
+        """Geom ids of the heel and toe spheres (right heel, right toe, left heel, left toe)."""
         return tuple(g for pair in self.foot_points for g in pair)
 
     def dof(self, joint_name: str) -> int:
+        """The dof index of a joint by name."""
         return int(self.model.joint(joint_name).dofadr[0])
 
 

@@ -98,6 +98,7 @@ class Cmrt:
 
     @classmethod
     def from_dict(cls, obj: dict) -> Cmrt:
+        """From ``to_dict``'s form; CmrtError if it is not one."""
         try:
             return cls(float(obj["clip_s"]), tuple(map(float, obj["knot_times_s"])), tuple(map(float, obj["values_m"])))
         except (KeyError, TypeError, ValueError) as exc:
@@ -106,10 +107,12 @@ class Cmrt:
             raise CmrtError(f"not a CMRT object (need clip_s, knot_times_s, values_m): {exc}") from None
 
     def to_json(self) -> str:
+        """``to_dict`` as JSON text."""
         return json.dumps(self.to_dict())
 
     @classmethod
     def from_json(cls, text: str) -> Cmrt:
+        """From JSON text (a CMRT file's content)."""
         try:
             obj = json.loads(text)
         except json.JSONDecodeError as exc:

@@ -43,6 +43,7 @@ class Perturbation:
     time_scale: float = 1.0  # the motion's duration T x this
 
     def push_at(self, t_s: np.ndarray) -> np.ndarray:
+        """The member's extra thorax push at times ``t_s`` (N)."""
         on = (t_s >= self.push_start_s) & (t_s < self.push_start_s + self.push_duration_s)
         return np.where(on, self.push_force_n, 0.0)
 
@@ -84,6 +85,7 @@ class RobustSpec:
 
     @classmethod
     def from_table(cls, table: dict, source: str = "<dict>") -> RobustSpec:
+        """From a task file's ``[robust]`` table (validated; errors name ``source``)."""
         known = {f.name for f in fields(cls)}
         unknown = set(table) - known
         if unknown:
@@ -101,6 +103,7 @@ class RobustSpec:
             raise CmrtError(f"{source}: {exc}") from None
 
     def to_table(self) -> dict:
+        """As a ``[robust]`` table (``from_table`` round-trips it)."""
         out = asdict(self)
         out["push_moments"] = list(self.push_moments)
         return out

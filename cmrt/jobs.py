@@ -38,6 +38,7 @@ __all__ = ["Claim", "LostClaim", "claim", "optimize_family", "optimize_now", "ru
 
 
 def worker_id() -> str:
+    """host:pid, the name a worker claims runs under."""
     return f"{socket.gethostname()}:{os.getpid()}"
 
 

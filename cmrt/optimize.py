@@ -98,6 +98,7 @@ class CmaState:
         self.__dict__.update(state)
 
     def dumps(self) -> bytes:
+        """The checkpoint blob stored after every generation."""
         return pickle.dumps(self, protocol=pickle.HIGHEST_PROTOCOL)
 
     @staticmethod
@@ -129,6 +130,7 @@ def new_state(settings: OptimizeSettings) -> CmaState:
 
 
 def popsize_of(state: CmaState) -> int:
+    """The current (re)start's population."""
     return int(state.es.popsize)
 
 
@@ -178,6 +180,7 @@ def _restart_popsize(state: CmaState, settings: OptimizeSettings) -> int | None:
 
 
 def stop_reason(state: CmaState, settings: OptimizeSettings) -> str | None:
+    """Why the run should stop now (threshold, budget, converged...), or None to go on."""
     if state.best_success_objective < settings.stop_threshold:
         return "threshold"
     if state.evaluations >= settings.max_evals or (
@@ -204,4 +207,5 @@ def restart_if_stalled(state: CmaState, settings: OptimizeSettings) -> bool:
 
 
 def best_cmrt(state: CmaState, clip_s: float) -> Cmrt:
+    """The best candidate so far as a CMRT."""
     return Cmrt.from_params(state.best_x, clip_s)

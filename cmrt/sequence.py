@@ -42,6 +42,7 @@ class SuperposedCmrt:
         self.parts = parts  # (offset_s, curve): the curve's t = 0 is at offset_s in the sequence
 
     def displacement_m(self, t_s):
+        """d(t): the sum of the shifted CMRTs (m)."""
         t = np.asarray(t_s, dtype=float)
         return sum((c.displacement_m(t - off) for off, c in self.parts), np.zeros_like(t))
 
@@ -73,12 +74,14 @@ class SequenceTask(Task):
     motions: tuple[Motion, ...] = field(default_factory=tuple)
 
     def start_qpos(self) -> np.ndarray:
+        """The first motion's start pose."""
         return self.motions[0].task.start_qpos()
 
     def end_qpos(self) -> np.ndarray:
         return self.motions[-1].task.end_qpos()
 
     def reference(self, t_s):
+        """Each motion's reference from its start to the next one's: q, qd, qdd at ``t_s``."""
         t = np.atleast_1d(np.asarray(t_s, dtype=float))
         nv = self.start_qpos().size
         q, qd, qdd = np.zeros((t.size, nv)), np.zeros((t.size, nv)), np.zeros((t.size, nv))

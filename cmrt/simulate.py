@@ -99,10 +99,12 @@ class Trajectory:
 
     @property
     def max_lift_m(self) -> float:
+        """Highest any heel/toe point rose above its settled height (m): a planted foot should not lift."""
         lift = self.point_lift_m[np.isfinite(self.point_lift_m).all(axis=1)]
         return float(lift.max()) if lift.size else 0.0
 
     def as_npz_dict(self) -> dict[str, np.ndarray]:
+        """The arrays ``--trace`` saves."""
         out = {k: v for k, v in self.__dict__.items() if isinstance(v, np.ndarray)}
         for key in ("fell", "diverged", "clip_s", "final_com_speed_m_s"):
             out[key] = np.array(getattr(self, key))

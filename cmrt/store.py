@@ -287,6 +287,7 @@ class Store:
         self.db = sqlite_utils.Database(conn)
 
     def close(self) -> None:
+        """Close the connection (``with open_store(...)`` does it)."""
         self.conn.close()
 
     def __enter__(self) -> Store:
@@ -316,6 +317,7 @@ class Store:
 
     @property
     def schema_version(self) -> int:
+        """``PRAGMA user_version``: how many MIGRATIONS the file has had."""
         return int(self.conn.execute("PRAGMA user_version").fetchone()[0])
 
     def migrate(self) -> None:

@@ -48,6 +48,9 @@ DEFAULT_PARAMS: dict[str, float] = {
 
 @dataclass(frozen=True)
 class Task:
+    """A task: its parameters (a mapping, so ``--set`` reaches every number), poses, timing, prop and robust
+    ensemble. Immutable: ``with_params``/``with_speed``/``with_robust`` return validated copies."""
+
     name: str
     summary: str
     params: dict[str, float]
@@ -117,10 +120,12 @@ class Task:
 
     @property
     def speed(self) -> float | None:
+        """The value of the task's speed parameter (None if it has none)."""
         return self.params[self.speed_param] if self.speed_param else None
 
     @property
     def decay_s(self) -> float:
+        """D = L - P - T: the clip after the motion (s)."""
         return self.clip_s - self.preparation_s - self.duration_s
 
     def with_params(self, **overrides: float) -> Task:
@@ -145,6 +150,7 @@ class Task:
         return replace(self, robust=replace(self.robust, enabled=enabled))
 
     def with_speed(self, speed: float | None) -> Task:
+        """A copy at this speed (None: unchanged)."""
         if speed is None:
             return self
         if not self.speed_param:
@@ -152,6 +158,7 @@ class Task:
         return self.with_params(**{self.speed_param: speed})
 
     def validate(self) -> None:
+        """CmrtError if a parameter is out of its range or the timing is impossible."""
         p = self.params
         for key, (lo, hi) in self.param_ranges.items():
             if not lo <= p[key] <= hi:
@@ -183,10 +190,12 @@ class Task:
 
     @property
     def has_goal(self) -> bool:
+        """Whether a prop judges the task (catch, topple, strike) besides the pose change."""
         return self.prop is not None
 
     # --- motion -----------------------------------------------------------------
     def start_qpos(self) -> np.ndarray:
+        """The start pose as humanoid qpos, feet flat and balanced over the support."""
         return _pose_qpos(tuple(sorted(self.start_pose_deg.items())), self.balance_joint)
 
     def end_qpos(self) -> np.ndarray:
@@ -305,6 +314,7 @@ def _bad_robust(source: str):
 
 
 def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task") -> Task:
+    """A task from a task-file dict (TOML, or a stored run's definition), validated; errors name ``source``."""
     allowed = {
         "name",
         "summary",
