@@ -135,6 +135,7 @@ def test_slow_bend_library_beats_zero():
     assert lib.objective < zero.objective
 
 
+@pytest.mark.slow  # three catch clips
 def test_expectation_mismatch_light_ball():
     """ABC 5: the CMRT optimized for the heavy ball, used on a 1 kg ball, does worse than no
     anticipation at all (measured: 3x the objective; balance is kept - the paper's character falls)."""
