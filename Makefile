@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint clean
+.PHONY: demo test test-fast lint clean
 
 $(BIN)/cmrt: pyproject.toml
 	@# Offscreen rendering without a GPU needs the OSMesa system library (Debian: libosmesa6).
@@ -24,6 +24,10 @@ demo: $(BIN)/cmrt
 test: $(BIN)/cmrt
 	$(BIN)/ruff check cmrt tests tools
 	$(BIN)/python -m pytest -q
+
+# The quick loop while editing: everything but the tests marked slow (pyproject.toml), under a minute.
+test-fast: $(BIN)/cmrt
+	$(BIN)/python -m pytest -q -m "not slow"
 
 clean:
 	rm -rf $(VENV)

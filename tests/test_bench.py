@@ -1,8 +1,13 @@
 import json
 
+import pytest
+
+from cmrt.cli import main
+
 from .service_helpers import cmrt
 
 
+@pytest.mark.slow  # times every backend, repeated
 def test_bench_json_reports_every_figure():
     r = cmrt("bench", "--population", "4", "--repeat", "2", "--backends", "batch,serial", "--json", check=True)
     out = json.loads(r.stdout)
@@ -14,6 +19,13 @@ def test_bench_json_reports_every_figure():
     assert out["robust_members"] == 7 and out["robust_s_per_member"] > 0 and out["ratio_robust_member_to_plain"] > 0
 
 
+@pytest.mark.slow  # a cmrt process
 def test_bench_bad_options():
     r = cmrt("bench", "--backends", "gpu")
     assert r.returncode == 2 and "bad bench options" in r.stderr
+
+
+def test_bench_bad_options_in_process(capsys):
+    """The same refusal through ``cmrt.cli.main`` in this process."""
+    assert main(["bench", "--backends", "gpu"]) == 2
+    assert "bad bench options" in capsys.readouterr().err

@@ -12,6 +12,7 @@ def run(*args):
     return subprocess.run([sys.executable, "-m", "cmrt.cli", *args], capture_output=True, text=True, timeout=300)
 
 
+@pytest.mark.slow  # cmrt process
 def test_simulate_json_fields_and_trace(tmp_path):
     trace = tmp_path / "t.npz"
     r = run("simulate", "bend", "--speed", "1.2", "--json", "--trace", str(trace))
@@ -42,6 +43,7 @@ def test_simulate_json_fields_and_trace(tmp_path):
     assert z["qpos"].shape == (round((2.6 + 0.5) / 0.002), 15)  # the clip and its standing tail
 
 
+@pytest.mark.slow  # two cmrt processes
 def test_library_curve_and_set_override():
     r = run("simulate", "bend", "--curve", "library", "--json")
     out = json.loads(r.stdout)
@@ -51,6 +53,7 @@ def test_library_curve_and_set_override():
     assert out["params"]["push_force_n"] == 250 and out["fell"] is True and out["success"] is False
 
 
+@pytest.mark.slow  # a cmrt process
 def test_curve_file(tmp_path):
     f = tmp_path / "c.json"
     f.write_text(json.dumps({"clip_s": 2.6, "knot_times_s": [0.5, 1.0, 1.5, 2.0], "values_m": [0, 0.01, 0, 0]}))
@@ -59,21 +62,24 @@ def test_curve_file(tmp_path):
     assert json.loads(r.stdout)["curve"] == str(f)
 
 
-@pytest.mark.parametrize(
-    "args, words",
-    [
-        (("simulate", "nosuchtask"), "unknown task"),
-        (("simulate", "bend", "--speed", "fast"), "invalid float"),
-        (("simulate", "bend", "--speed", "9"), "range"),
-        (("simulate", "bend", "--set", "duration_s"), "KEY=VALUE"),
-        (("simulate", "bend", "--set", "mass=3"), "no parameter"),
-        (("simulate", "bend", "--curve", "/nonexistent/c.json"), "cannot read"),
-        (("simulate", "stand", "--speed", "0.4"), "no speed"),
-        (("simulate", "bend", "--curve", "library", "--speed", "0.9"), "no library CMRT"),
-        (("simulate", "bend", "--trace", "/nonexistent/dir/t.npz"), "does not exist"),
-        (("frobnicate",), "invalid choice"),
-    ],
-)
+BAD_INPUT = [
+    (("simulate", "nosuchtask"), "unknown task"),
+    (("simulate", "bend", "--speed", "fast"), "invalid float"),
+    (("simulate", "bend", "--speed", "9"), "range"),
+    (("simulate", "bend", "--set", "duration_s"), "KEY=VALUE"),
+    (("simulate", "bend", "--set", "mass=3"), "no parameter"),
+    (("simulate", "bend", "--curve", "/nonexistent/c.json"), "cannot read"),
+    (("simulate", "stand", "--speed", "0.4"), "no speed"),
+    (("simulate", "bend", "--curve", "library", "--speed", "0.9"), "no library CMRT"),
+    (("simulate", "bend", "--trace", "/nonexistent/dir/t.npz"), "does not exist"),
+    (("frobnicate",), "invalid choice"),
+]
+#: the fast loop starts one cmrt process (``-m "not slow"``: the entry point works); the other cases are slow
+FAST_BAD_INPUT = ("unknown task",)
+
+
+@pytest.mark.parametrize("args, words", [case if case[1] in FAST_BAD_INPUT
+                                         else pytest.param(*case, marks=pytest.mark.slow) for case in BAD_INPUT])
 def test_bad_input_is_one_line_and_exit_2(args, words):
     r = run(*args)
     assert r.returncode == 2
@@ -82,6 +88,7 @@ def test_bad_input_is_one_line_and_exit_2(args, words):
     assert "Traceback" not in r.stderr
 
 
+@pytest.mark.slow  # cmrt process
 def test_bad_curve_file_content(tmp_path):
     f = tmp_path / "c.json"
     f.write_text("[1, 2]")

@@ -7,6 +7,8 @@ import json
 
 import pytest
 
+from cmrt.cli import main
+
 from .service_helpers import FAST_BEND, cmrt
 
 
@@ -18,6 +20,7 @@ def store_with_run(tmp_path_factory):
     return path, json.loads(r.stdout)
 
 
+@pytest.mark.slow  # shares an optimization run in a cmrt process
 def test_optimize_json(store_with_run):
     _, out = store_with_run
     for key in ("run_id", "best_objective", "evaluations", "fell", "wall_s"):
@@ -28,6 +31,7 @@ def test_optimize_json(store_with_run):
     assert rb["validation_total"] == 20 and 0 <= rb["validation_survived"] <= 20
 
 
+@pytest.mark.slow  # shares an optimization run; five cmrt processes
 def test_queries(store_with_run):
     path, out = store_with_run
     rid = out["run_id"]
@@ -45,6 +49,7 @@ def test_queries(store_with_run):
     assert sim["objective"] == out["best_objective"]
 
 
+@pytest.mark.slow  # shares an optimization run; two cmrt processes
 def test_export(store_with_run, tmp_path):
     path, out = store_with_run
     text = cmrt("export", str(out["run_id"]), "--format", "csv", store=path, check=True).stdout
@@ -56,6 +61,7 @@ def test_export(store_with_run, tmp_path):
     assert len(data["evaluations"]) == 20 and len(data["generations"]) == 4
 
 
+@pytest.mark.slow  # a queued run and a worker process
 def test_submit_and_worker(tmp_path):
     path = tmp_path / "q.sqlite"
     sub = json.loads(cmrt("submit", "bend", "--speed", "0.5", "--set", "cop_sample_step_s=0.02", "--seed", "4",
@@ -91,6 +97,7 @@ def digest(path):
     (("submit", "bend", "--stall-generations", "0"), "stall_generations >= 1"),
     (("submit", "BADROBUST"), "robust: worst_weight"),
 ])
+@pytest.mark.slow  # shares an optimization run; two cmrt processes per case
 def test_bad_input_leaves_store_byte_identical(store_with_run, tmp_path, args, words):
     path, _ = store_with_run
     bad_task = tmp_path / "bad.toml"
@@ -106,6 +113,7 @@ def test_bad_input_leaves_store_byte_identical(store_with_run, tmp_path, args, w
     assert digest(path) == before
 
 
+@pytest.mark.slow  # three cmrt processes
 def test_not_a_store(tmp_path):
     path = tmp_path / "notes.txt"
     path.write_text("my notes\n")
@@ -116,6 +124,7 @@ def test_not_a_store(tmp_path):
     assert digest(path) == before
 
 
+@pytest.mark.slow  # a 60-evaluation optimization
 def test_threshold_stops_only_on_a_success(tmp_path):
     """A user's pose-change task with a generous threshold: candidates that keep balance but do not
     perform the motion score under it, yet only a success may stop the run."""
@@ -138,3 +147,14 @@ def test_threshold_stops_only_on_a_success(tmp_path):
         assert out["success"] is True and out["best_objective"] < 20.0
     else:
         assert out["stop_reason"] == "budget"
+
+
+def test_not_a_store_in_process(tmp_path, capsys):
+    """The same refusal through ``cmrt.cli.main`` in this process: the fast loop's check (no process start)."""
+    path = tmp_path / "notes.txt"
+    path.write_text("my notes\n")
+    before = digest(path)
+    for args in (("runs",), ("submit", "bend")):
+        assert main([*args, "--store", str(path)]) == 2
+        assert "not a CMRT store" in capsys.readouterr().err
+    assert digest(path) == before

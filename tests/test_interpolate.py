@@ -80,6 +80,7 @@ def test_four_poses_superposed_succeed_zero_falls():
     assert sup.success
 
 
+@pytest.mark.slow  # five cmrt processes
 def test_cli_interpolate_and_sequence(tmp_path):
     out = tmp_path / "c.json"
     r = cmrt("interpolate", "bend", "--speed", "0.5", "--out", str(out), "--json", check=True)

@@ -49,6 +49,7 @@ def test_run_stores_every_evaluation_and_generation(tmp_path):
     assert all(e.success in (True, False) for e in evals)
 
 
+@pytest.mark.slow  # worker processes, SIGKILL and resume
 def test_sigkill_mid_run_then_resume_is_bit_identical(tmp_path):
     kw = dict(seed=7, max_evals=48, popsize=6)
     reference, ref_evals = finished_run(tmp_path / "ref.sqlite", **kw)
@@ -74,6 +75,7 @@ def test_sigkill_mid_run_then_resume_is_bit_identical(tmp_path):
     assert [(e.params, e.objective) for e in evals] == [(e.params, e.objective) for e in ref_evals]
 
 
+@pytest.mark.slow  # four worker processes, eight runs
 def test_four_workers_eight_jobs_each_done_exactly_once(tmp_path):
     path = tmp_path / "busy.sqlite"
     with open_store(path) as store:
@@ -110,6 +112,7 @@ def test_lost_claim_stops_the_old_worker(tmp_path):
         assert store.evaluations(rid) == []
 
 
+@pytest.mark.slow  # worker processes, robust ensemble runs
 def test_sigkilled_robust_run_resumes_bit_identically_across_a_restart(tmp_path):
     """A robust run (7 ensemble members per candidate) whose search restarts (IPOP) after the kill."""
     task = TASK.with_robust()

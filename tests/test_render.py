@@ -4,6 +4,12 @@ import json
 
 import matplotlib.image as mpimg
 import numpy as np
+import pytest
+
+from cmrt.curve import Cmrt
+from cmrt.errors import CmrtError
+from cmrt.render import render as render_clip
+from cmrt.task import load_task
 
 from .service_helpers import FAST_BEND, cmrt
 
@@ -14,6 +20,7 @@ def render(tmp_path, name, *args):
     return mpimg.imread(out), json.loads(r.stdout)
 
 
+@pytest.mark.slow  # two software-rendered clips
 def test_filmstrip_is_not_blank_and_anticipation_shows(tmp_path):
     zero, zinfo = render(tmp_path, "zero.png", "--curve", "zero")
     lib, linfo = render(tmp_path, "lib.png", "--curve", "library")
@@ -25,6 +32,7 @@ def test_filmstrip_is_not_blank_and_anticipation_shows(tmp_path):
     assert np.abs(zero[..., :3] - lib[..., :3]).mean() > 0.01  # the two clips look different
 
 
+@pytest.mark.slow  # two software-rendered clips
 def test_compare_stacks_two_rows(tmp_path):
     both, info = render(tmp_path, "both.png", "--curve", "library", "--compare", "zero")
     single, _ = render(tmp_path, "one.png", "--curve", "library")
@@ -32,12 +40,20 @@ def test_compare_stacks_two_rows(tmp_path):
     assert both.shape[0] > 1.6 * single.shape[0]
 
 
+@pytest.mark.slow  # encodes a video
 def test_mp4(tmp_path):
     out = tmp_path / "clip.mp4"
     cmrt("render", *FAST_BEND, "--fps", "5", "--out", str(out), check=True)
     assert out.stat().st_size > 5_000
 
 
+@pytest.mark.slow  # a cmrt process
 def test_bad_output_name(tmp_path):
     r = cmrt("render", *FAST_BEND, "--out", str(tmp_path / "clip.gif"))
     assert r.returncode == 2 and ".png or .mp4" in r.stderr
+
+
+def test_bad_output_name_in_process(tmp_path):
+    """The same refusal by ``cmrt.render.render`` in this process, before anything is simulated or drawn."""
+    with pytest.raises(CmrtError, match=r"\.png or \.mp4"):
+        render_clip(load_task("bend").with_speed(0.4), Cmrt.zero(2.6), tmp_path / "clip.gif")

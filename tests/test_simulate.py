@@ -24,6 +24,7 @@ def stand():
     return load_task("stand")
 
 
+@pytest.mark.slow  # a 10 s clip (stand is in the fast loop through tests/test_tasks.py)
 def test_quiet_standing_ten_seconds(stand):
     traj = simulate(stand)
     ev = evaluate(stand, traj)
@@ -33,6 +34,7 @@ def test_quiet_standing_ten_seconds(stand):
     assert_plausible(ev)
 
 
+@pytest.mark.slow  # 10 s clips
 @pytest.mark.parametrize("force_n", [100.0, -100.0])
 def test_push_is_recovered_and_the_character_settles(stand, force_n):
     task = stand.with_params(push_force_n=force_n, push_start_s=2.0, push_duration_s=0.1)
