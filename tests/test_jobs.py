@@ -141,6 +141,7 @@ def test_sigkilled_robust_run_resumes_bit_identically_across_a_restart(tmp_path)
     assert [(e.params, e.objective) for e in evals] == [(e.params, e.objective) for e in ref_evals]
 
 
+@pytest.mark.slow
 def test_a_speed_family_warm_starts_each_member_from_the_previous(tmp_path):
     """``optimize_family`` (``cmrt optimize --speeds``): the first member starts as asked, each later one from
     its neighbour's best with the family step size; a bad step size is refused before anything is queued."""
