@@ -14,6 +14,7 @@ import argparse
 import json
 import math
 import os
+import signal
 import sys
 import tempfile
 import time
@@ -26,7 +27,7 @@ import numpy as np
 from cmrt import jobs, query
 from cmrt.bench import run_bench
 from cmrt.curve import Cmrt
-from cmrt.errors import CmrtError
+from cmrt.errors import CmrtError, Terminated, TransientFault
 from cmrt.interpolate import interpolate, superpose, to_json
 from cmrt.library import library_curve
 from cmrt.objective import Evaluation, evaluate
@@ -38,6 +39,7 @@ from cmrt.store import DEFAULT_STORE, RUN_STATUSES, Run, Store, open_store, reso
 from cmrt.task import Task, available_tasks, load_task
 
 EXIT_BAD_INPUT = 2
+EXIT_TEMPFAIL = 75  # sysexits EX_TEMPFAIL: a fault of the machine; the run is back in the queue
 _DEFAULTS = OptimizeSettings()
 
 
@@ -209,7 +211,7 @@ def resolve_curve(spec: str, task: Task, store_path: str | None = None) -> tuple
     if spec in ("library", "library-robust"):
         return library_curve(task, robust=spec == "library-robust"), spec
     if spec.isdigit():
-        with _store(store_path, create=False) as store:
+        with _store(store_path, readonly=True) as store:
             curve = query.run_curve(store, int(spec))
         if abs(curve.clip_s - task.clip_s) > 1e-9:
             raise CmrtError(f"run {spec} is for a {curve.clip_s:g} s clip, task clip is {task.clip_s:g} s")
@@ -223,11 +225,13 @@ def resolve_curve(spec: str, task: Task, store_path: str | None = None) -> tuple
     raise CmrtError(f"--curve must be zero, library, a run id or a CMRT .json file, got '{spec}'")
 
 
-def _store(path: str | None, create: bool = True) -> Store:
+def _store(path: str | None, readonly: bool = False) -> Store:
+    """The store for writing (created if missing), or ``readonly`` for the verbs that only read it (they
+    never create, convert or write a byte)."""
     p = resolve_path(path)
-    if create and p == DEFAULT_STORE and not p.parent.exists():
+    if not readonly and p == DEFAULT_STORE and not p.parent.exists():
         p.parent.mkdir(parents=True)
-    return open_store(p, create=create)
+    return open_store(p, readonly=readonly)
 
 
 def _init_arg(value: str) -> str | int:
@@ -464,14 +468,31 @@ class Worker(Command):
             if not args.json:
                 print(f"worker {jobs.worker_id()}: run {c.run_id} (attempt {c.attempt})", flush=True)
 
+        def on_failure(run_id: int, message: str) -> None:
+            print(f"cmrt: worker: run {run_id}: {message}", file=sys.stderr, flush=True)
+
+        if not (math.isfinite(args.stale_after) and args.stale_after > 0):
+            raise CmrtError(f"--stale-after must be a finite number of seconds > 0, got '{args.stale_after}'")
         evaluator = Evaluator(args.backend, args.workers, args.scheduler)
         try:
             with _store(args.store) as store:
                 done = jobs.work(store, evaluator, until_idle=args.until_idle, once=args.once,
-                                 stale_after_s=args.stale_after, on_claim=on_claim)
+                                 stale_after_s=args.stale_after, on_claim=on_claim, on_failure=on_failure)
         finally:
             evaluator.close()
         return Output({"finished": done}, f"worker finished runs: {', '.join(map(str, done)) or 'none'}")
+
+
+class Requeue(Command):
+    name, help = "requeue", "put a failed run back in the queue (it resumes from its last checkpoint)"
+
+    def add_arguments(self, p):
+        p.add_argument("run", type=int)
+
+    def run(self, args):
+        with _store(args.store) as store:
+            run = store.requeue(args.run)
+        return Output({"run_id": run.id, "status": run.status}, f"run {run.id} is queued again")
 
 
 class Jobs(Command):
@@ -482,7 +503,7 @@ class Jobs(Command):
         p.add_argument("--status", choices=RUN_STATUSES)
 
     def run(self, args):
-        with _store(args.store, create=False) as store:
+        with _store(args.store, readonly=True) as store:
             rows = [{k: getattr(r, k) for k in self.KEYS} for r in store.runs(status=args.status)]
         return Output(rows, _table(rows, self.KEYS[:-2]))
 
@@ -496,7 +517,7 @@ class Runs(Command):
         p.add_argument("--task")
 
     def run(self, args):
-        with _store(args.store, create=False) as store:
+        with _store(args.store, readonly=True) as store:
             rows = [query.run_summary(r) for r in store.runs(task=args.task)]
         return Output(rows, _table(rows, self.COLUMNS))
 
@@ -508,7 +529,7 @@ class Show(Command):
         p.add_argument("run", type=int)
 
     def run(self, args):
-        with _store(args.store, create=False) as store:
+        with _store(args.store, readonly=True) as store:
             d = query.run_details(store, args.run)
 
         def text(d):
@@ -526,7 +547,7 @@ class Best(Command):
 
     def run(self, args):
         task = resolve_task(args.task, args.speed, args.set)
-        with _store(args.store, create=False) as store:
+        with _store(args.store, readonly=True) as store:
             return Output(_result(query.best_run(store, task)), _result_text)
 
 
@@ -539,7 +560,7 @@ class Export(Command):
         p.add_argument("--out", metavar="FILE")
 
     def run(self, args):
-        with _store(args.store, create=False) as store:
+        with _store(args.store, readonly=True) as store:
             text = query.export_run(store, args.run, args.format)
         if args.out:
             _write_text(args.out, text)
@@ -558,7 +579,7 @@ class Interpolate(Command):
 
     def run(self, args):
         task = resolve_task(args.task, args.speed, args.set)
-        store = _store(args.store, create=False) if args.source == "store" else None
+        store = _store(args.store, readonly=True) if args.source == "store" else None
         try:
             r = interpolate(task, args.param, args.source, store)
         finally:
@@ -631,7 +652,7 @@ class Plot(Command):
             raise CmrtError(f"cannot create {out}: {exc.strerror}") from None
         paths = []
         if args.run is not None:
-            with _store(args.store, create=False) as store:
+            with _store(args.store, readonly=True) as store:
                 paths += [str(p) for p in plot.plot_run(store, args.run, out)]
         if args.family:
             paths.append(str(plot.plot_family(args.family, out / f"{args.family}_family.png")))
@@ -746,8 +767,8 @@ class Demo(Command):
 
 
 COMMANDS: tuple[Command, ...] = (
-    Tasks(), Simulate(), Submit(), Optimize(), Worker(), Jobs(), Runs(), Show(), Best(), Export(), Interpolate(),
-    Sequence(), Plot(), Render(), Bench(), Demo(),
+    Tasks(), Simulate(), Submit(), Optimize(), Worker(), Requeue(), Jobs(), Runs(), Show(), Best(), Export(),
+    Interpolate(), Sequence(), Plot(), Render(), Bench(), Demo(),
 )
 
 
@@ -768,6 +789,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Run one verb; exit status 0, 2 for bad input (one line on stderr), 130 on Ctrl-C."""
+    previous = signal.signal(signal.SIGTERM, _terminate)  # a worker gives its run back, as on Ctrl-C
     try:
         args = build_parser().parse_args(argv)
         out = args.command.run(args)
@@ -777,12 +799,24 @@ def main(argv: list[str] | None = None) -> int:
     except CmrtError as exc:
         print(f"cmrt: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except TransientFault as exc:
+        print(f"cmrt: error: {exc}", file=sys.stderr)
+        return EXIT_TEMPFAIL
+    except Terminated:
+        print("cmrt: terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print("cmrt: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # output piped into `head` and the like
         sys.stderr.close()
         return 0
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _terminate(signum, frame) -> None:
+    raise Terminated()
 
 
 if __name__ == "__main__":

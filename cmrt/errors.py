@@ -7,3 +7,13 @@ class CmrtError(ValueError):
     The message is a single line meant for the user; the CLI prints it without a
     traceback and exits with status 2.
     """
+
+
+class TransientFault(RuntimeError):
+    """A fault of the machine, not of the input or the code: a full disk, a lost dask or loky worker, a
+    SIGTERM. The worker gives the run back to the queue (it resumes from its last checkpoint) up to
+    ``cmrt.store.MAX_RETRIES`` times, then marks it failed with the reason."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, turned into an exception so that a worker gives its run back before exiting (like Ctrl-C)."""

@@ -15,13 +15,14 @@ where the uninterrupted run would be.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import socket
 import time
 from collections.abc import Callable, Iterator, Sequence
 
 from cmrt.curve import Cmrt
-from cmrt.errors import CmrtError
+from cmrt.errors import CmrtError, TransientFault
 from cmrt.objective import evaluate
 from cmrt.optimize import CmaState, OptimizeSettings, best_cmrt, new_state, restart_if_stalled, step, stop_reason
 from cmrt.parallel import Evaluator
@@ -161,8 +162,14 @@ def optimize_now(
         c = claim(store, worker_id(), run_id=run_id)
         try:
             return run_claimed(store, c, ev, on_generation)
-        except KeyboardInterrupt:
+        except KeyboardInterrupt:  # Ctrl-C, SIGTERM: back in the queue, a worker resumes it
             store.release(c)
+            raise
+        except TransientFault as exc:
+            store.retry_later(c, str(exc))
+            raise TransientFault(f"run {run_id} is back in the queue ('cmrt worker' resumes it): {exc}") from exc
+        except Exception as exc:  # never leave the run 'running' until its heartbeat goes stale
+            store.mark_failed(c, str(exc) if isinstance(exc, CmrtError) else f"{type(exc).__name__}: {exc}")
             raise
 
 
@@ -220,12 +227,18 @@ def work(
     poll_s: float = 2.0,
     on_claim: Callable[[Claim], None] | None = None,
     on_generation: ProgressFn | None = None,
+    on_failure: Callable[[int, str], None] | None = None,
 ) -> list[int]:
     """The worker loop: claim, optimize, repeat. Returns the ids of the runs it finished.
 
-    A run whose optimization raises is marked failed with the message (the worker goes on); Ctrl-C gives
-    the current run back to the queue. ``evaluator`` defaults to the batched one, as in :func:`optimize_now`.
+    A transient fault (full disk, lost worker process: :class:`TransientFault`) gives the run back to the
+    queue - it resumes from its last checkpoint - a bounded number of times (``store.MAX_RETRIES``); any
+    other error marks it failed with the message (``on_failure(run_id, message)``) and the worker goes on.
+    Ctrl-C and SIGTERM give the current run back to the queue and stop the worker. ``evaluator`` defaults
+    to the batched one, as in :func:`optimize_now`.
     """
+    if not (isinstance(stale_after_s, int | float) and math.isfinite(stale_after_s) and stale_after_s > 0):
+        raise CmrtError(f"stale_after_s must be a finite number of seconds > 0, got {stale_after_s!r}")
     me = worker_id()
     finished = []
     with _evaluator(evaluator) as ev:
@@ -243,12 +256,17 @@ def work(
                 finished.append(c.run_id)
             except LostClaim:
                 pass
-            except KeyboardInterrupt:
+            except KeyboardInterrupt:  # Ctrl-C, SIGTERM (cmrt.errors.Terminated)
                 store.release(c)
                 raise
-            except CmrtError as exc:
-                store.mark_failed(c, str(exc))
-            except Exception as exc:  # a bug must not take the worker (and the queue) down
-                store.mark_failed(c, f"{type(exc).__name__}: {exc}")
+            except TransientFault as exc:
+                store.retry_later(c, str(exc))
+                if on_failure:
+                    on_failure(c.run_id, f"transient fault, back in the queue: {exc}")
+            except Exception as exc:  # a bug or a bad stored run must not take the worker (and the queue) down
+                message = str(exc) if isinstance(exc, CmrtError) else f"{type(exc).__name__}: {exc}"
+                store.mark_failed(c, message)
+                if on_failure:
+                    on_failure(c.run_id, message)
             if once:
                 return finished

@@ -25,7 +25,7 @@ import numpy as np
 
 from cmrt.curve import Cmrt
 from cmrt.ensemble import combine, training_members
-from cmrt.errors import CmrtError
+from cmrt.errors import CmrtError, TransientFault
 from cmrt.objective import EvalRecord, evaluate
 from cmrt.props import prop_class
 from cmrt.simulate import simulate_batch
@@ -69,6 +69,12 @@ def _chunks(xs: Sequence[np.ndarray], k: int) -> list[list[np.ndarray]]:
     return [list(xs[i : i + size]) for i in range(0, len(xs), size)]
 
 
+#: exception class names that mean a worker process died under an evaluation: dask's KilledWorker (a task
+#: killed its worker too often), loky's TerminatedWorkerError / BrokenProcessPool. Matched by name so that
+#: this module imports neither dask nor loky internals up front.
+LOST_WORKER_ERRORS = frozenset({"KilledWorker", "TerminatedWorkerError", "BrokenProcessPool", "CommClosedError"})
+
+
 class Evaluator:
     """Scores generations on one backend; create it once (it connects to dask up front,
     so an unreachable scheduler fails before anything is written) and ``close()`` it."""
@@ -86,6 +92,16 @@ class Evaluator:
             self._client, self._cluster = _dask_client(scheduler, workers)
 
     def __call__(self, task: Task, xs: Sequence[np.ndarray]) -> list[EvalRecord]:
+        """Score candidates ``xs`` of ``task``, in order. A worker process or dask worker that died under
+        the evaluation is a :class:`TransientFault` (the run is retried from its checkpoint)."""
+        try:
+            return self._evaluate(task, xs)
+        except Exception as exc:
+            if type(exc).__name__ in LOST_WORKER_ERRORS:
+                raise TransientFault(f"{self.backend} worker lost ({type(exc).__name__})") from exc
+            raise
+
+    def _evaluate(self, task: Task, xs: Sequence[np.ndarray]) -> list[EvalRecord]:
         if self.backend == "serial":
             return [evaluate_candidate(task, x) for x in xs]
         if self.backend == "batch":

@@ -59,10 +59,12 @@ def export_run(store: Store, run_id: int, fmt: str) -> str:
     """json: run, generations and evaluations; csv: one row per evaluation."""
     if fmt not in ("json", "csv"):
         raise CmrtError(f"--format must be json or csv, got '{fmt}'")
-    evaluations = store.evaluations(run_id)
+    with store.snapshot():  # one consistent state even while a worker commits generations
+        details, generations, evaluations = run_details(store, run_id), store.generations(run_id), \
+            store.evaluations(run_id)
     if fmt == "json":
         return json.dumps(
-            {"run": run_details(store, run_id), "generations": [asdict(g) for g in store.generations(run_id)],
+            {"run": details, "generations": [asdict(g) for g in generations],
              "evaluations": [asdict(e) for e in evaluations]},
             indent=2,
         )

@@ -21,10 +21,13 @@ Schema changes go through ``MIGRATIONS`` (``PRAGMA user_version`` holds the vers
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import random
 import sqlite3
+import stat
+import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass
@@ -32,7 +35,7 @@ from pathlib import Path
 
 import sqlite_utils
 
-from cmrt.errors import CmrtError
+from cmrt.errors import CmrtError, TransientFault
 
 DEFAULT_STORE = Path("store") / "cmrt.sqlite"
 BUSY_TIMEOUT_MS = 30_000
@@ -41,6 +44,9 @@ SQLITE_MAGIC = b"SQLite format 3\x00"
 APP_ID = "cmrt"
 
 RUN_STATUSES = ("queued", "running", "done", "failed")
+#: a run is given back to the queue after a transient fault (or taken over after its worker died) at most
+#: this many times; then it is failed with the reason (as optuna's RetryFailedTrialCallback bounds retries)
+MAX_RETRIES = 10
 
 
 def _v1(db: sqlite_utils.Database) -> None:
@@ -94,8 +100,13 @@ def _v3(db: sqlite_utils.Database) -> None:
     db["runs"].add_column("robustness", str)  # JSON: the best CMRT on the validation ensemble
 
 
+def _v4(db: sqlite_utils.Database) -> None:
+    """Transient faults (full disk, lost worker, SIGTERM, a stale heartbeat) retried a bounded number of times."""
+    db["runs"].add_column("retries", int)  # NULL: none yet
+
+
 #: MIGRATIONS[k] takes a store from version k to k + 1.
-MIGRATIONS: list[Callable[[sqlite_utils.Database], None]] = [_v1, _v2, _v3]
+MIGRATIONS: list[Callable[[sqlite_utils.Database], None]] = [_v1, _v2, _v3, _v4]
 SCHEMA_VERSION = len(MIGRATIONS)
 
 
@@ -104,25 +115,61 @@ def resolve_path(path: str | os.PathLike | None) -> Path:
     return Path(path or os.environ.get("CMRT_STORE") or DEFAULT_STORE)
 
 
-def _check_is_cmrt_store(path: Path) -> None:
-    """Refuse, without writing a byte, a file that is not a CMRT store."""
-    with open(path, "rb") as fh:
-        head = fh.read(16)
+def _connect_readonly(path: Path) -> sqlite3.Connection:
+    """A connection that cannot write a byte. A WAL store in a directory we cannot write to cannot get its
+    shared-memory file: it is then read as immutable (no writer can be working in such a directory)."""
+    con = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=BUSY_TIMEOUT_MS / 1000)
+    try:
+        con.execute("SELECT 1 FROM sqlite_master LIMIT 1").fetchall()
+        return con
+    except sqlite3.OperationalError as exc:
+        con.close()
+        if "unable to open" not in str(exc) or os.access(path.parent, os.W_OK):
+            raise
+    return sqlite3.connect(f"file:{path}?mode=ro&immutable=1", uri=True, timeout=BUSY_TIMEOUT_MS / 1000)
+
+
+def _inspect(path: Path) -> str:
+    """What is at ``path``, without writing a byte: "missing", "empty" (no bytes, or an SQLite file without a
+    single table: a creation that failed) or "store"; CmrtError for anything else."""
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        return "missing"
+    except OSError as exc:
+        raise CmrtError(f"cannot read store {path}: {exc.strerror}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise CmrtError(f"{path} is a directory, not a CMRT store")
+    if not stat.S_ISREG(st.st_mode):
+        raise CmrtError(f"{path} is not a regular file, not a CMRT store")
+    if st.st_size == 0:
+        return "empty"
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(16)
+    except OSError as exc:
+        raise CmrtError(f"cannot read store {path}: {exc.strerror}") from None
     if head != SQLITE_MAGIC:
         raise CmrtError(f"{path} is not a CMRT store (not an SQLite database)")
     try:
-        con = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=BUSY_TIMEOUT_MS / 1000)
+        con = _connect_readonly(path)
         try:
-            row = con.execute("SELECT value FROM meta WHERE key = 'app'").fetchone()
+            tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
             version = con.execute("PRAGMA user_version").fetchone()[0]
+            row = con.execute("SELECT value FROM meta WHERE key = 'app'").fetchone() if "meta" in tables else None
         finally:
             con.close()
-    except sqlite3.Error:
-        raise CmrtError(f"{path} is not a CMRT store (no cmrt metadata)") from None
+    except sqlite3.DatabaseError as exc:
+        if isinstance(exc, sqlite3.OperationalError) and "unable to open" in str(exc):
+            raise CmrtError(f"cannot open store {path} (permissions?)") from None
+        raise CmrtError(f"{path} is a corrupted SQLite file ({' '.join(str(exc).split())[:120]})") from None
+    if not tables and version == 0:
+        return "empty"
     if not row or row[0] != APP_ID:
         raise CmrtError(f"{path} is not a CMRT store (no cmrt metadata)")
     if version > SCHEMA_VERSION:
         raise CmrtError(f"{path} has schema version {version}, newer than this cmrt ({SCHEMA_VERSION})")
+    return "store"
 
 
 class LostClaim(RuntimeError):
@@ -206,6 +253,7 @@ class Run:
     stall_generations: int | None  # None: the default (OptimizeSettings)
     robust: dict | None
     robustness: dict | None  # cmrt.validate.robustness of the best CMRT
+    retries: int | None = None  # transient faults and take-overs so far (NULL before schema 4: none)
 
     @classmethod
     def from_row(cls, row: sqlite3.Row) -> Run:
@@ -274,12 +322,13 @@ class Store:
         self.path = path
         self.readonly = readonly
         if readonly:
-            conn = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=BUSY_TIMEOUT_MS / 1000)
+            conn = _connect_readonly(path)
         else:
             conn = sqlite3.connect(str(path), timeout=BUSY_TIMEOUT_MS / 1000)
         conn.execute(f"PRAGMA busy_timeout = {BUSY_TIMEOUT_MS}")
         if not readonly:
-            conn.execute("PRAGMA journal_mode = WAL")
+            if conn.execute("PRAGMA journal_mode").fetchone()[0] != "wal":
+                conn.execute("PRAGMA journal_mode = WAL")
             conn.execute("PRAGMA synchronous = NORMAL")  # WAL + NORMAL: safe against process crashes
             conn.execute("PRAGMA foreign_keys = ON")
         conn.row_factory = sqlite3.Row
@@ -309,11 +358,33 @@ class Store:
                 time.sleep(min(2.0, 0.05 * 2**attempt) * (0.5 + random.random()))
         try:
             yield self.conn
-        except BaseException:
-            self.conn.rollback()
-            raise
-        else:
             self.conn.commit()
+        except BaseException as exc:
+            with contextlib.suppress(sqlite3.Error):
+                self.conn.rollback()
+            if isinstance(exc, sqlite3.OperationalError) and _is_full(exc):
+                raise TransientFault(f"store {self.path}: {exc}") from exc
+            raise
+
+    @contextlib.contextmanager
+    def snapshot(self) -> Iterator[None]:
+        """Reads inside see one consistent state of the store (a read transaction: a writer committing
+        meanwhile is not seen half-way), e.g. ``export`` while a worker runs."""
+        self.conn.execute("BEGIN")
+        try:
+            yield
+        finally:
+            self.conn.rollback()
+
+    def check_integrity(self) -> None:
+        """CmrtError if SQLite's integrity check fails (a damaged file must not be written to)."""
+        try:
+            rows = [r[0] for r in self.conn.execute("PRAGMA integrity_check(5)")]
+        except sqlite3.DatabaseError as exc:
+            raise CmrtError(f"{self.path} is a corrupted store ({exc})") from None
+        if rows != ["ok"]:
+            first = " ".join(str(rows[0]).split())[:120]  # SQLite's report spans lines: keep the error one line
+            raise CmrtError(f"{self.path} is a corrupted store (integrity check: {first})")
 
     @property
     def schema_version(self) -> int:
@@ -355,28 +426,35 @@ class Store:
     def claim(self, worker: str, stale_after_s: float, run_id: int | None = None) -> Claim | None:
         """Take run ``run_id`` (if claimable), else the oldest queued run, else an orphaned running one
         (heartbeat older than ``stale_after_s``); None if there is none. The claim bumps the run's attempt:
-        the (worker, attempt) pair fences every later write."""
+        the (worker, attempt) pair fences every later write. Taking over an orphan counts as a retry; an
+        orphan already retried ``MAX_RETRIES`` times is failed instead (a run that kills its worker every
+        time must not take the queue down with it)."""
         now = time.time()
         with self.transaction() as conn:
-            if run_id is not None:
-                row = conn.execute(
-                    "SELECT id FROM runs WHERE id = ? AND (status = 'queued' OR (status = 'running' "
-                    "AND heartbeat_at < ?))", (run_id, now - stale_after_s),
-                ).fetchone()
-            else:
-                row = conn.execute("SELECT id FROM runs WHERE status = 'queued' ORDER BY id LIMIT 1").fetchone()
+            while True:
+                stale = "(status = 'running' AND heartbeat_at < ?)"
+                if run_id is not None:
+                    row = conn.execute(f"SELECT id, status, retries, error FROM runs WHERE id = ? AND "
+                                       f"(status = 'queued' OR {stale})", (run_id, now - stale_after_s)).fetchone()
+                else:
+                    row = conn.execute("SELECT id, status, retries, error FROM runs WHERE status = 'queued' "
+                                       "ORDER BY id LIMIT 1").fetchone()
+                    if row is None:
+                        row = conn.execute(f"SELECT id, status, retries, error FROM runs WHERE {stale} "
+                                           "ORDER BY id LIMIT 1", (now - stale_after_s,)).fetchone()
                 if row is None:
-                    row = conn.execute(
-                        "SELECT id FROM runs WHERE status = 'running' AND heartbeat_at < ? ORDER BY id LIMIT 1",
-                        (now - stale_after_s,),
-                    ).fetchone()
-            if row is None:
-                return None
-            rid = int(row[0])
+                    return None
+                rid, retries = int(row[0]), (row[2] or 0) + (row[1] == "running")
+                if retries <= MAX_RETRIES:
+                    break
+                conn.execute("UPDATE runs SET status = 'failed', finished_at = ?, error = ? WHERE id = ?",
+                             (now, f"gave up after {MAX_RETRIES} retries; last: {row[3] or 'its worker died'}", rid))
+                if run_id is not None:
+                    return None
             conn.execute(
                 "UPDATE runs SET status = 'running', worker = ?, attempt = attempt + 1, heartbeat_at = ?, "
-                "started_at = COALESCE(started_at, ?) WHERE id = ?",
-                (worker, now, now, rid),
+                "started_at = COALESCE(started_at, ?), retries = ? WHERE id = ?",
+                (worker, now, now, retries, rid),
             )
             attempt = conn.execute("SELECT attempt FROM runs WHERE id = ?", (rid,)).fetchone()[0]
         return Claim(rid, worker, int(attempt))
@@ -427,6 +505,32 @@ class Store:
         was already lost."""
         with contextlib.suppress(LostClaim), self.transaction() as conn:
             _fenced_update(conn, claim, "status = 'queued', worker = NULL", ())
+
+    def retry_later(self, claim: Claim, message: str) -> None:
+        """After a transient fault: give the run back to the queue (it resumes from its last checkpoint), or
+        fail it once it has been retried MAX_RETRIES times. If the store cannot be written now (a full disk),
+        nothing changes and the run's heartbeat goes stale: the next worker takes it over, counted too."""
+        with contextlib.suppress(LostClaim, TransientFault), self.transaction() as conn:
+            retries = (conn.execute("SELECT retries FROM runs WHERE id = ?", (claim.run_id,)).fetchone()[0] or 0) + 1
+            if retries > MAX_RETRIES:
+                _fenced_update(conn, claim, "status = 'failed', error = ?, finished_at = ?",
+                               (f"gave up after {MAX_RETRIES} retries; last: {message}", time.time()))
+            else:
+                _fenced_update(conn, claim, "status = 'queued', worker = NULL, retries = ?, error = ?",
+                               (retries, f"retry {retries}/{MAX_RETRIES} after: {message}"))
+
+    def requeue(self, run_id: int) -> Run:
+        """Put a failed run back in the queue (``cmrt requeue``): it resumes from its last checkpoint, its
+        retry count starts over."""
+        with self.transaction() as conn:
+            row = conn.execute("SELECT status FROM runs WHERE id = ?", (run_id,)).fetchone()
+            if row is None:
+                raise CmrtError(f"no run {run_id} in {self.path}")
+            if row[0] != "failed":
+                raise CmrtError(f"run {run_id} is {row[0]}: only a failed run can be requeued")
+            conn.execute("UPDATE runs SET status = 'queued', worker = NULL, retries = 0, error = NULL, "
+                         "finished_at = NULL WHERE id = ?", (run_id,))
+        return self.run(run_id)
 
     def mark_failed(self, claim: Claim, message: str) -> None:
         """Mark a claimed run failed with ``message`` (a no-op if the claim was already lost)."""
@@ -510,22 +614,69 @@ def _fenced_update(conn: sqlite3.Connection, claim: Claim, sets: str, args: tupl
         raise LostClaim(f"run {claim.run_id} was taken over by another worker")
 
 
+def _is_full(exc: BaseException) -> bool:
+    return "full" in str(exc) or getattr(exc, "errno", None) in (errno.ENOSPC, errno.EDQUOT)
+
+
+def _create(path: Path, replace: bool) -> None:
+    """Create a store atomically: built in a temporary file beside ``path`` and moved into place only when
+    complete, so a failure (a full disk) leaves nothing behind. ``replace``: ``path`` is an empty file (or a
+    creation that failed before this version) to be replaced; otherwise a store created meanwhile by another
+    process is kept."""
+    if not path.parent.is_dir():
+        raise CmrtError(f"cannot create store {path}: directory {path.parent} does not exist")
+    tmp = None
+    try:
+        fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".creating")
+        os.close(fd)
+        tmp = Path(name)
+        store = Store(tmp)
+        try:
+            store.migrate()
+        finally:
+            store.close()
+        if replace:
+            os.replace(tmp, path)
+        else:
+            with contextlib.suppress(FileExistsError):
+                os.link(tmp, path)
+    except (sqlite3.Error, OSError, TransientFault) as exc:
+        reason = "disk full" if _is_full(exc) else getattr(exc, "strerror", None) or str(exc)
+        raise CmrtError(f"cannot create store {path}: {reason}") from None
+    finally:
+        if tmp is not None:
+            for leftover in (tmp, Path(f"{tmp}-wal"), Path(f"{tmp}-shm")):
+                with contextlib.suppress(OSError):
+                    leftover.unlink()
+
+
 def open_store(path: str | os.PathLike | None = None, *, create: bool = True, readonly: bool = False) -> Store:
-    """Open (and create or migrate) a store; a foreign file is refused untouched."""
+    """Open a store.
+
+    ``readonly`` (every command that only reads): never creates, converts or writes a byte. Otherwise the
+    store is opened for writing: created atomically if missing (``create``), integrity-checked, migrated.
+    A foreign, corrupted or newer file is refused untouched, with a one-line CmrtError."""
     p = resolve_path(path)
-    if p.exists():
-        if p.is_dir():
-            raise CmrtError(f"{p} is a directory, not a CMRT store")
-        if p.stat().st_size > 0:
-            _check_is_cmrt_store(p)
-    elif readonly or not create:
-        raise CmrtError(f"no CMRT store at {p}")
-    elif not p.parent.exists():
-        raise CmrtError(f"cannot create store {p}: directory {p.parent} does not exist")
+    kind = _inspect(p)
+    if kind != "store" and (readonly or not create):
+        raise CmrtError(f"no CMRT store at {p}" + (" (the file is empty)" if kind == "empty" else ""))
+    if kind != "store":
+        _create(p, replace=kind == "empty")
+        if _inspect(p) != "store":
+            raise CmrtError(f"cannot create store {p}")
     try:
         store = Store(p, readonly=readonly)
-        if not readonly and store.schema_version < SCHEMA_VERSION:
-            store.migrate()
     except sqlite3.Error as exc:
         raise CmrtError(f"cannot open store {p}: {exc}") from None
+    try:
+        if not readonly:
+            store.check_integrity()
+            if store.schema_version < SCHEMA_VERSION:
+                store.migrate()
+    except BaseException as exc:
+        store.close()
+        if isinstance(exc, sqlite3.Error):
+            reason = "read-only" if "readonly" in str(exc) else str(exc)
+            raise CmrtError(f"cannot write store {p}: {reason}") from None
+        raise
     return store

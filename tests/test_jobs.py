@@ -62,7 +62,7 @@ def test_sigkill_mid_run_then_resume_is_bit_identical(tmp_path):
         killed = store.run(rid)
     assert killed.status == "running" and 3 <= killed.generations < 8  # really killed mid-run
 
-    resumer = spawn_worker(path, "--until-idle", "--stale-after", "0")
+    resumer = spawn_worker(path, "--until-idle", "--stale-after", "0.01")
     out, err = resumer.communicate(timeout=600)
     assert resumer.returncode == 0, err
     with open_store(path) as store:
@@ -131,7 +131,7 @@ def test_sigkilled_robust_run_resumes_bit_identically_across_a_restart(tmp_path)
         killed = store.run(rid)
     assert killed.status == "running" and killed.restarts < reference.restarts
 
-    resumer = spawn_worker(path, "--until-idle", "--stale-after", "0")
+    resumer = spawn_worker(path, "--until-idle", "--stale-after", "0.01")
     _, err = resumer.communicate(timeout=600)
     assert resumer.returncode == 0, err
     with open_store(path) as store:

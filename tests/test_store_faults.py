@@ -1,0 +1,223 @@
+"""A store survives what happens to files: failed creation, empty/foreign/damaged files, read-only use, a full
+disk mid-run, SIGTERM, retries and requeue. Real SQLite files, a real tmpfs where the machine lets us mount one."""
+
+import contextlib
+import hashlib
+import os
+import signal
+import sqlite3
+import subprocess
+import time
+
+import pytest
+
+from cmrt.cli import main
+from cmrt.errors import CmrtError
+from cmrt.jobs import claim, run_claimed, submit, work
+from cmrt.parallel import Evaluator
+from cmrt.store import MAX_RETRIES, open_store
+from cmrt.task import load_task
+
+from .service_helpers import cmrt, spawn_worker
+
+TASK = load_task("bend").with_speed(0.4)
+SMALL = dict(seed=5, max_evals=20, popsize=5, init="none")
+
+
+def digest(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@contextlib.contextmanager
+def tiny_disk(tmp_path, size="160k"):
+    """A tmpfs of ``size`` (a real full disk); skipped where mounting is not allowed."""
+    mnt = tmp_path / "disk"
+    mnt.mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mnt)], capture_output=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here ({r.stderr.decode().strip() or 'not root'})")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+def fill(directory, leave_bytes: int) -> None:
+    """Fill the file system of ``directory`` up to ``leave_bytes`` free."""
+    st = os.statvfs(directory)
+    free = st.f_bavail * st.f_frsize
+    with open(directory / "filler", "wb") as fh:
+        with contextlib.suppress(OSError):
+            fh.write(b"\0" * max(0, free - leave_bytes))
+
+
+@pytest.mark.slow  # cmrt processes or two optimizations
+def test_failed_creation_leaves_nothing_and_the_next_command_creates_it(tmp_path):
+    with tiny_disk(tmp_path) as disk:
+        fill(disk, 4096)
+        r = cmrt("submit", "bend", "--store", str(disk / "new.sqlite"))
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and "disk full" in r.stderr, r.stderr
+        assert sorted(p.name for p in disk.iterdir()) == ["filler"]  # no half-made store, no temp file
+        (disk / "filler").unlink()  # space returns
+        r = cmrt("submit", "bend", "--json", "--store", str(disk / "new.sqlite"))
+        assert r.returncode == 0, r.stderr
+        with open_store(disk / "new.sqlite", readonly=True) as store:
+            assert [run.status for run in store.runs()] == ["queued"]
+
+
+@pytest.mark.slow  # cmrt processes or two optimizations
+def test_read_commands_never_create_or_convert(tmp_path):
+    empty = tmp_path / "empty.sqlite"
+    empty.touch()
+    for verb in (["runs"], ["jobs"], ["show", "1"], ["best", "bend"], ["export", "1"]):
+        r = cmrt(*verb, store=empty)
+        assert r.returncode == 2 and "empty" in r.stderr and r.stderr.count("\n") == 1, (verb, r.stderr)
+    assert empty.stat().st_size == 0
+    # a rollback-journal store stays one when only read
+    path = tmp_path / "s.sqlite"
+    with open_store(path) as store:
+        submit(store, TASK, init="none")
+    con = sqlite3.connect(path)
+    assert con.execute("PRAGMA journal_mode = DELETE").fetchone()[0] == "delete"
+    con.close()
+    before = digest(path)
+    assert cmrt("runs", "--json", store=path, check=True).returncode == 0
+    assert digest(path) == before and not (tmp_path / "s.sqlite-wal").exists()
+    # a write command may initialise an empty file (it holds nothing to lose)
+    assert cmrt("submit", "bend", store=empty).returncode == 0
+    with open_store(empty, readonly=True) as store:
+        assert len(store.runs()) == 1
+
+
+@pytest.mark.slow  # cmrt processes or two optimizations
+def test_a_file_with_only_a_meta_table_is_refused_unchanged(tmp_path):
+    path = tmp_path / "meta.sqlite"
+    con = sqlite3.connect(path)
+    con.execute("CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT)")
+    con.commit()
+    con.close()
+    before = digest(path)
+    for verb in (["submit", "bend"], ["runs"]):
+        r = cmrt(*verb, store=path)
+        assert r.returncode == 2 and "not a CMRT store" in r.stderr
+    assert digest(path) == before
+
+
+def _damaged_copy(source, target, offset):
+    data = bytearray(source.read_bytes())
+    data[offset] ^= 0xFF
+    target.write_bytes(bytes(data))
+
+
+def test_damaged_and_truncated_stores_are_called_corrupted_and_not_written(tmp_path):
+    path = tmp_path / "s.sqlite"
+    with open_store(path) as store:
+        for seed in range(30):
+            submit(store, TASK, init="none", seed=seed)
+    with open_store(path) as store:  # checkpoint the WAL into the main file, then copy it
+        store.conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+    size = path.stat().st_size
+    refused = 0
+    for offset in range(4096, size, 4096):  # the page-type byte of every b-tree page but the first
+        bad = tmp_path / f"flip{offset}.sqlite"
+        _damaged_copy(path, bad, offset)
+        before = digest(bad)
+        with pytest.raises(CmrtError, match="corrupted") as exc:
+            open_store(bad).close()
+        assert "\n" not in str(exc.value) and digest(bad) == before  # refused without writing a byte
+        refused += 1
+    assert refused >= 3
+    short = tmp_path / "short.sqlite"
+    short.write_bytes(path.read_bytes()[: size // 2])
+    before = digest(short)
+    with pytest.raises(CmrtError, match="corrupted"):
+        open_store(short)
+    assert digest(short) == before
+
+
+@pytest.mark.slow  # cmrt processes or two optimizations
+def test_a_full_disk_mid_run_puts_the_run_back_and_it_resumes_bit_identical(tmp_path):
+    reference_path = tmp_path / "ref.sqlite"
+    with open_store(reference_path) as store:
+        rid = submit(store, TASK, **SMALL)
+        run_claimed(store, claim(store, "ref", run_id=rid), Evaluator("batch"))
+        reference, ref_evals = store.run(rid), store.evaluations(rid)
+    with tiny_disk(tmp_path, size="2m") as disk:
+        path = disk / "s.sqlite"
+        with open_store(path) as store:
+            rid = submit(store, TASK, **SMALL)
+
+            def after_generation(state, records, wall_s):
+                if state.generation == 2:
+                    fill(disk, 0)  # the disk is full from here on
+
+            failures = []
+            assert work(store, until_idle=True, once=True, on_generation=after_generation,
+                        on_failure=lambda r, m: failures.append(m)) == []
+            assert failures and "full" in failures[0]
+            stuck = store.run(rid)
+            assert stuck.status in ("queued", "running") and stuck.generations == 2  # the checkpoint is intact
+        (disk / "filler").unlink()
+        with open_store(path) as store:
+            assert work(store, until_idle=True, stale_after_s=0.01) == [rid]
+            run, evals = store.run(rid), store.evaluations(rid)
+    assert run.status == "done" and run.retries == 1
+    assert run.best_params == reference.best_params
+    assert [(e.params, e.objective) for e in evals] == [(e.params, e.objective) for e in ref_evals]
+
+
+@pytest.mark.slow  # a worker process
+def test_sigterm_gives_the_run_back_at_once(tmp_path):
+    path = tmp_path / "s.sqlite"
+    with open_store(path) as store:
+        rid = submit(store, TASK, seed=2, max_evals=60, popsize=6, init="none")
+    worker = spawn_worker(path, "--once", backend="serial")
+    deadline = time.time() + 300
+    while time.time() < deadline:
+        with open_store(path, readonly=True) as store:
+            if store.run(rid).generations >= 1:
+                break
+        time.sleep(0.05)
+    worker.send_signal(signal.SIGTERM)
+    _, err = worker.communicate(timeout=120)
+    assert worker.returncode == 143 and "terminated" in err
+    with open_store(path, readonly=True) as store:
+        run = store.run(rid)
+    assert run.status == "queued" and run.worker is None  # no waiting for the heartbeat to go stale
+
+
+def test_a_run_that_keeps_losing_its_worker_is_failed_after_the_retry_bound(tmp_path):
+    with open_store(tmp_path / "s.sqlite") as store:
+        rid = submit(store, TASK, init="none")
+        for i in range(MAX_RETRIES + 1):  # the first claim, then MAX_RETRIES take-overs of a dead worker
+            assert claim(store, f"w{i}", stale_after_s=1e-9, run_id=rid) is not None
+            time.sleep(0.002)
+        assert claim(store, "last", stale_after_s=1e-9, run_id=rid) is None
+        run = store.run(rid)
+        assert run.status == "failed" and run.retries == MAX_RETRIES and "gave up" in run.error
+
+
+def test_requeue_puts_a_failed_run_back_only(tmp_path, capsys):
+    path = tmp_path / "s.sqlite"
+    with open_store(path) as store:
+        rid = submit(store, TASK, init="none")
+        other = submit(store, TASK, init="none")
+        store.mark_failed(claim(store, "w", run_id=rid), "boom")
+    assert main(["requeue", str(rid), "--json", "--store", str(path)]) == 0
+    assert '"queued"' in capsys.readouterr().out
+    assert main(["requeue", str(other), "--store", str(path)]) == 2
+    assert "only a failed run" in capsys.readouterr().err
+    with open_store(path, readonly=True) as store:
+        run = store.run(rid)
+    assert run.status == "queued" and run.error is None and run.retries == 0
+
+
+def test_stale_after_must_be_a_positive_finite_time(tmp_path, capsys):
+    path = tmp_path / "s.sqlite"
+    open_store(path).close()
+    before = digest(path)
+    for value in ("0", "-1", "nan", "inf"):
+        assert main(["worker", "--until-idle", "--stale-after", value, "--store", str(path)]) == 2, value
+        err = capsys.readouterr().err
+        assert "--stale-after" in err and err.count("\n") == 1, err
+    assert digest(path) == before
