@@ -15,6 +15,7 @@ import json
 import math
 import os
 import signal
+import sqlite3
 import sys
 import tempfile
 import time
@@ -802,6 +803,9 @@ def main(argv: list[str] | None = None) -> int:
     except TransientFault as exc:
         print(f"cmrt: error: {exc}", file=sys.stderr)
         return EXIT_TEMPFAIL
+    except sqlite3.DatabaseError as exc:  # a store damaged where open_store's checks could not see it
+        print(f"cmrt: error: the store cannot be read ({' '.join(str(exc).split())[:120]})", file=sys.stderr)
+        return EXIT_BAD_INPUT
     except Terminated:
         print("cmrt: terminated", file=sys.stderr)
         return 143

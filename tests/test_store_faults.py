@@ -90,6 +90,22 @@ def test_read_commands_never_create_or_convert(tmp_path):
 
 
 @pytest.mark.slow  # cmrt processes or two optimizations
+def test_a_store_on_a_read_only_file_system_is_read_but_not_written(tmp_path, capsys):
+    with tiny_disk(tmp_path, size="1m") as disk:
+        path = disk / "s.sqlite"
+        with open_store(path) as store:
+            rid = submit(store, TASK, init="none")
+        r = subprocess.run(["mount", "-o", "remount,ro", str(disk)], capture_output=True)
+        if r.returncode != 0:
+            pytest.skip("cannot remount the tmpfs read-only")
+        assert main(["show", str(rid), "--json", "--store", str(path)]) == 0
+        assert '"queued"' in capsys.readouterr().out
+        for verb in (["submit", "bend"], ["worker", "--until-idle"], ["requeue", str(rid)]):
+            assert main([*verb, "--store", str(path)]) == 2
+            err = capsys.readouterr().err
+            assert "read-only" in err and err.count("\n") == 1, err
+
+
 def test_a_file_with_only_a_meta_table_is_refused_unchanged(tmp_path):
     path = tmp_path / "meta.sqlite"
     con = sqlite3.connect(path)
