@@ -7,6 +7,7 @@ import os
 import signal
 import sqlite3
 import subprocess
+import sys
 import time
 
 import pytest
@@ -237,3 +238,13 @@ def test_stale_after_must_be_a_positive_finite_time(tmp_path, capsys):
         err = capsys.readouterr().err
         assert "--stale-after" in err and err.count("\n") == 1, err
     assert digest(path) == before
+
+
+def test_ctrl_c_during_start_up_is_one_line(tmp_path):
+    """The console script's entry point (``cmrt.launch``) imports the heavy CLI with Ctrl-C handled."""
+    proc = subprocess.Popen([sys.executable, "-m", "cmrt.launch", "tasks"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    time.sleep(0.5)  # the interpreter is up and importing MuJoCo, numba, dask
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and err == "cmrt: interrupted\n", err
