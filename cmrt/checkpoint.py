@@ -13,7 +13,7 @@ A node is a JSON ``null``/``true``/``false``/int/float (``NaN``, ``Infinity`` al
 for the same Python value (exact type: a ``numpy.float64`` is not a ``float``), or a tagged
 array (``id`` numbers the mutable objects in the order they are first met, from 0):
 
-* ``["L", id, [node...]]`` a list, ``["T", [node...]]`` a tuple;
+* ``["L", id, [node...]]`` a list, ``["T", [node...]]`` a tuple, ``["N", start, stop, step]`` a range;
 * ``["D", id, [[key, node]...]]`` a dict (keys: None/bool/int/float/str, numpy scalars, tuples of keys);
 * ``["A", id, dtype, shape, order, base64]`` a numpy array of an allowlisted numeric dtype, order "C"/"F";
 * ``["S", dtype, value]`` a numpy scalar;
@@ -173,6 +173,8 @@ class _Encoder:
             return ["R", self.memo[id(obj)]]
         if t is tuple:
             return ["T", [self.encode(v, f"{path}[{i}]") for i, v in enumerate(obj)]]
+        if t is range:  # pycma's indices of mirrored samples (popsize < 6)
+            return ["N", obj.start, obj.stop, obj.step]
         if isinstance(obj, np.generic):
             if obj.dtype.str not in DTYPES or obj.dtype.kind not in _SCALAR_VALUE:
                 raise TypeError(f"cannot checkpoint {path}: numpy scalar of dtype {obj.dtype}")
@@ -312,7 +314,7 @@ class _Decoder:
     def _tagged(self, node: list) -> Any:
         _check(len(node) >= 2 and type(node[0]) is str, "malformed node")
         tag, args = node[0], node[1:]
-        arity = {"L": 2, "T": 1, "D": 2, "A": 5, "S": 2, "G": 3, "O": 4, "F": 1, "R": 1}
+        arity = {"L": 2, "T": 1, "N": 3, "D": 2, "A": 5, "S": 2, "G": 3, "O": 4, "F": 1, "R": 1}
         _check(tag in arity and len(args) == arity[tag], f"unknown node {tag!r}/{len(args)}")
         if tag == "R":
             n = args[0]
@@ -325,6 +327,9 @@ class _Decoder:
             return tuple(self.decode(v) for v in _shape(args[0]))
         if tag == "S":
             return self._scalar(*args)
+        if tag == "N":
+            _check(all(type(v) is int for v in args) and args[2] != 0, "malformed range")
+            return range(*args)
         if tag == "L":
             out = self._register(args[0], [])
             out.extend(self.decode(v) for v in _shape(args[1]))
