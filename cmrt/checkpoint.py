@@ -54,6 +54,7 @@ so a bit-identical resume) are not guaranteed across versions.
 from __future__ import annotations
 
 import base64
+import functools
 import inspect
 import json
 import math
@@ -288,6 +289,14 @@ def _shape(x: Any) -> list:
     return x
 
 
+@functools.lru_cache(maxsize=4096)
+def _shadows_code(cls: type, key: str) -> bool:
+    """Whether an instance attribute ``key`` would hide a method, property or other descriptor of ``cls``
+    (so that pycma calling ``obj.key(...)`` would call whatever the document put there)."""
+    static = inspect.getattr_static(cls, key, None)
+    return static is not None and (callable(static) or hasattr(type(static), "__get__"))
+
+
 class _Decoder:
     def __init__(self, classes: tuple[type, ...]):
         self.classes = {_name(c): c for c in classes}
@@ -417,9 +426,7 @@ class _Decoder:
             _check(type(pair) is list and len(pair) == 2 and type(pair[0]) is str, "malformed attribute")
             key = pair[0]
             _check(not (key.startswith("__") and key.endswith("__")), f"attribute {key!r} of {name}")
-            static = inspect.getattr_static(cls, key, None)
-            _check(static is None or not (callable(static) or hasattr(type(static), "__get__")),
-                   f"attribute {key!r} would shadow a method of {name}"[:160])
+            _check(not _shadows_code(cls, key), f"attribute {key!r} would shadow a method of {name}"[:160])
             state[key] = self.decode(pair[1])
         obj.__dict__.update(state)
         if isinstance(obj, dict):
