@@ -27,12 +27,16 @@ array (``id`` numbers the mutable objects in the order they are first met, from 
 Why this and not pickle with a restricted ``find_class``: a restricted unpickler still
 *calls* what it admits (``__reduce__`` callables, ``__setstate__``), so its safety rests on
 every admitted callable being harmless with attacker-chosen arguments. Here reading calls
-nothing named by the data: an allowlisted class is rebuilt as ``cls.__new__(cls)`` plus
-``__dict__.update`` (and ``dict.update``/``list.extend`` for dict/list subclasses) - never a
-constructor, ``__init__``, ``__setstate__``, ``__reduce__`` or ``eval``; a generator is built from
-an allowlisted bit generator class and given its state through the ``.state`` setter;
+nothing named by the data: an instance of an allowlisted class is made by the builtin
+``object.__new__`` (``dict.__new__``/``list.__new__`` for pycma's dict and list subclasses, whose
+entries go in through ``dict.__setitem__``/``list.extend``, not the subclass's methods) and a
+``__dict__.update`` - never a constructor, ``__init__``, ``__setstate__``, ``__reduce__`` or
+``eval``; an attribute may not hide a method or property of its class. A generator is built
+from an allowlisted bit generator class and given its state through the ``.state`` setter;
 arrays come from bytes (``numpy.frombuffer``, never ``dtype=object``). A function only ever
-comes back as one of the few objects in ``FUNCTIONS``, by name lookup in that table.
+comes back as one of the four objects in ``FUNCTIONS``, by name lookup in that table. The
+document's size (decompressed), nesting depth and array sizes (which must match their
+bytes) are bounded before anything is allocated for them.
 
 What it does not do by itself: the *values* in the document are attacker-chosen, and the
 pycma code that later runs on the rebuilt objects could misuse some of them (pycma
