@@ -108,7 +108,7 @@ def run_claimed(
         x0 = store.run(run.init_run).best_params
     settings = settings_for(run, x0)
     checkpoint = store.last_checkpoint(claim.run_id)
-    state = CmaState.loads(checkpoint[1]) if checkpoint else new_state(settings)
+    state = CmaState.loads(checkpoint[1], settings, run_id=run.id) if checkpoint else new_state(settings)
 
     if run.baseline_objective is None:
         base = evaluate(task, simulate(task, Cmrt.zero(task.clip_s)))

@@ -21,17 +21,31 @@ candidate, so a start that already succeeds is seen.
 Determinism: pycma seeds numpy's *global* RNG unless told otherwise; we pass
 ``seed=nan`` and our own ``randn`` drawing from a private ``numpy.random.Generator``
 seeded by the run's seed; restarts keep drawing from the same generator. The whole
-:class:`CmaState` (pycma object + generator + bookkeeping) is pickled after every
+:class:`CmaState` (pycma object + generator + bookkeeping) is checkpointed after every
 generation, so a resumed run continues - across restarts too - with exactly the
 samples an uninterrupted one would draw.
+
+Checkpoints are untrusted input (a store is shared and downloaded), so they are not
+pickles but :mod:`cmrt.checkpoint` documents, from which nothing is called, and
+:meth:`CmaState.loads` then checks what pycma would otherwise trust: pycma ``eval``s
+string-valued options (``CMAOptions.eval``: at construction, and on every ``stop()`` for
+the options it reads from its signals file), and its options name the functions it calls
+(``CMA_eigenmethod``, ``is_feasible``...). A loaded state's options must therefore equal,
+key by key and type by type, those :func:`_new_es` builds for the run's population (the
+same ``_Randn`` object as ``randn``); with the run's settings the population must also be
+the one its restart count implies. So the only strings left among the options are pycma's
+two file names, which it never evaluates, and the signals file is switched off
+(``signals_filename=""``): pycma would otherwise read ``cma_signals.in`` from the worker's
+current directory on every ``stop()`` and evaluate the options it finds there.
 """
 
 from __future__ import annotations
 
-import pickle
+import functools
+import math
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -39,6 +53,8 @@ with warnings.catch_warnings():
     warnings.simplefilter("ignore")  # pycma warns when matplotlib is missing
     import cma
 
+from cmrt import checkpoint
+from cmrt.checkpoint import InvalidCheckpoint
 from cmrt.curve import N_KNOTS, Cmrt
 from cmrt.objective import EvalRecord
 
@@ -63,7 +79,7 @@ class OptimizeSettings:
 
 
 class _Randn:
-    """pycma's ``randn`` option backed by a private generator (picklable, unlike a lambda)."""
+    """pycma's ``randn`` option backed by a private generator (checkpointable, unlike a lambda)."""
 
     def __init__(self, seed: int):
         self.rng = np.random.default_rng(seed)
@@ -74,7 +90,7 @@ class _Randn:
 
 @dataclass
 class CmaState:
-    """Everything needed to continue a run bit-identically (pickled as the checkpoint)."""
+    """Everything needed to continue a run bit-identically (the checkpoint: :mod:`cmrt.checkpoint`)."""
 
     es: cma.CMAEvolutionStrategy
     generation: int = 0
@@ -90,25 +106,36 @@ class CmaState:
     restart_history: list[float] = field(default_factory=list)  # best of the current restart, per generation
     randn: _Randn | None = None  # the private generator every restart draws from
 
-    def __setstate__(self, state: dict) -> None:
-        """Checkpoints written before restarts existed resume too."""
-        state.setdefault("restarts", 0)
-        state.setdefault("restart_history", list(state.get("best_history", [])))
-        state.setdefault("randn", state["es"].opts["randn"])
-        self.__dict__.update(state)
-
     def dumps(self) -> bytes:
-        """The checkpoint blob stored after every generation."""
-        return pickle.dumps(self, protocol=pickle.HIGHEST_PROTOCOL)
+        """The checkpoint blob stored after every generation (a data-only document, no pickle)."""
+        return checkpoint.dumps(self, _CHECKPOINT_CLASSES)
 
     @staticmethod
-    def loads(blob: bytes) -> CmaState:
-        return pickle.loads(blob)
+    def loads(blob: bytes, settings: OptimizeSettings | None = None, *, run_id: int | None = None) -> CmaState:
+        """The state in a checkpoint blob. Nothing in the blob is run; a blob that is not a valid checkpoint
+        of a run with ``settings`` (when given) raises InvalidCheckpoint (a CmrtError) naming run ``run_id``."""
+        try:
+            state, instances = checkpoint.loads(blob, _CHECKPOINT_CLASSES)
+            try:
+                _check_state(state, instances, settings)
+            except InvalidCheckpoint:
+                raise
+            except Exception as exc:  # a malformed graph the checks tripped over
+                raise InvalidCheckpoint(f"malformed state ({type(exc).__name__}: {exc})"[:200]) from None
+        except InvalidCheckpoint as exc:
+            of = "" if run_id is None else f" of run {run_id}"
+            why = " ".join(str(exc).split())
+            raise InvalidCheckpoint(f"checkpoint{of} is not a valid cmrt checkpoint: {why}") from None
+        return state
 
 
-def _new_es(settings: OptimizeSettings, randn: _Randn, popsize: int) -> cma.CMAEvolutionStrategy:
-    x0 = np.zeros(N_PARAMS) if settings.x0 is None else np.asarray(settings.x0, dtype=float)
-    opts = {
+_CHECKPOINT_CLASSES = (CmaState, _Randn)
+MAX_POPSIZE = 100_000
+
+
+def _cma_options(randn: _Randn, popsize: int) -> dict:
+    """The options every CMA-ES of a run is built with (a loaded checkpoint must have exactly these)."""
+    return {
         "popsize": popsize,
         "seed": np.nan,
         "randn": randn,
@@ -116,11 +143,77 @@ def _new_es(settings: OptimizeSettings, randn: _Randn, popsize: int) -> cma.CMAE
         "verb_log": 0,
         "verb_disp": 0,
         "maxfevals": np.inf,  # our own budget rule decides
+        "signals_filename": "",  # never read options (to evaluate) from a cma_signals.in in the cwd
     }
-    es = cma.CMAEvolutionStrategy(x0, settings.sigma0, opts)
+
+
+def _new_es(settings: OptimizeSettings, randn: _Randn, popsize: int) -> cma.CMAEvolutionStrategy:
+    x0 = np.zeros(N_PARAMS) if settings.x0 is None else np.asarray(settings.x0, dtype=float)
+    es = cma.CMAEvolutionStrategy(x0, settings.sigma0, _cma_options(randn, popsize))
     if settings.x0 is not None:
         es.inject([x0], force=True)  # the warm start itself is the first candidate
     return es
+
+
+@functools.lru_cache(maxsize=16)
+def _expected_options(popsize: int) -> tuple[dict, dict]:
+    """(items, attributes) of the CMAOptions a CMA-ES of ``popsize`` has after construction."""
+    opts = cma.CMAEvolutionStrategy(np.zeros(N_PARAMS), 1.0, _cma_options(_Randn(0), popsize)).opts
+    return dict(opts), dict(vars(opts))
+
+
+def _same(a, b) -> bool:
+    """Equal with the same types all the way down (nan equals nan; functions and classes by identity)."""
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, float):
+        return a == b or (math.isnan(a) and math.isnan(b))
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)):
+        return len(a) == len(b) and all(map(_same, a, b))
+    if isinstance(a, (type(None), bool, int, str)):
+        return a == b
+    return a is b
+
+
+def _options_differ(have: dict, want: dict, randn: _Randn) -> list[str]:
+    """The keys where ``have`` differs from ``want``; ``randn`` must be the state's own generator."""
+    bad = sorted(set(have) ^ set(want), key=str)
+    bad += [k for k in want if k in have and not (have[k] is randn if k == "randn" else _same(have[k], want[k]))]
+    return bad
+
+
+def _check_state(state, instances: dict, settings: OptimizeSettings | None) -> None:
+    """Refuse (InvalidCheckpoint) a loaded object graph that is not a CmaState cmrt would have written."""
+    def need(ok: bool, why: str) -> None:
+        if not ok:
+            raise InvalidCheckpoint(why)
+
+    need(type(state) is CmaState, "the root is not a CmaState")
+    need(set(vars(state)) == {f.name for f in fields(CmaState)}, "CmaState fields differ")
+    for cls in (cma.CMAEvolutionStrategy, cma.CMAOptions, _Randn, np.random.Generator):
+        need(len(instances.get(cls, ())) == 1, f"not exactly one {cls.__name__}")
+    randn, es = state.randn, state.es
+    need(type(randn) is _Randn and set(vars(randn)) == {"rng"} and type(randn.rng) is np.random.Generator,
+         "the random generator is malformed")
+    need(type(es) is cma.CMAEvolutionStrategy and type(es.opts) is cma.CMAOptions, "the CMA-ES is malformed")
+    need(es.sm.randn is randn, "the CMA-ES samples from another generator")
+    for name in ("generation", "evaluations", "restarts"):
+        need(type(getattr(state, name)) is int and getattr(state, name) >= 0, f"bad {name}")
+    need(state.best_x is None or (type(state.best_x) is np.ndarray and state.best_x.shape == (N_PARAMS,)),
+         "bad best_x")
+    popsize = es.opts.get("popsize")
+    need(type(popsize) is int and 2 <= popsize <= MAX_POPSIZE, f"bad population size {popsize!r}"[:80])
+    if settings is not None:
+        want = int(round(settings.popsize * settings.popsize_factor ** state.restarts))
+        need(state.restarts <= settings.max_restarts and popsize == want,
+             f"population {popsize} after {state.restarts} restarts, the run's settings give {want}")
+    items, attrs = _expected_options(popsize)
+    bad = _options_differ(dict(es.opts), items, randn) + _options_differ(vars(es.opts), attrs, randn)
+    need(not bad, "CMA-ES options differ from the run's: " + ", ".join(map(str, bad))[:120])
+    need(es.inputargs["inopts"] is es.inopts and not _options_differ(es.inopts, _cma_options(randn, popsize), randn),
+         "CMA-ES input options differ from the run's")
 
 
 def new_state(settings: OptimizeSettings) -> CmaState:
