@@ -17,7 +17,7 @@ LAYERS: list[tuple[str, set[str]]] = [
                     "control.kernel", "control.momentum", "control.planar"}),
     ("physics", {"props", "reference", "task", "sequence", "library", "simulate", "objective", "validate",
                  "render"}),
-    ("optimizer", {"optimize", "parallel", "bench"}),
+    ("optimizer", {"checkpoint", "optimize", "parallel", "bench"}),
     ("store", {"store"}),
     ("service", {"warmstart", "jobs", "query", "interpolate", "plot"}),
     ("shell", {"cli", "launch"}),
