@@ -3,6 +3,7 @@ an interrupt during start-up is one line and exit 130 like an interrupt later, n
 
 from __future__ import annotations
 
+import os
 import sys
 
 
@@ -11,8 +12,11 @@ def main() -> int:
     try:
         from cmrt.cli import main as cli_main  # heavy: everything the verbs need
     except KeyboardInterrupt:
-        print("cmrt: interrupted", file=sys.stderr)
-        return 130
+        # nothing is open yet; exit at once: finalising half-imported modules (threads, atexit hooks of
+        # dask/numba) could meet the interrupt again and end in a traceback or a death by SIGINT
+        sys.stderr.write("cmrt: interrupted\n")
+        sys.stderr.flush()
+        os._exit(130)
     return cli_main()
 
 

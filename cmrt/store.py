@@ -660,6 +660,8 @@ def open_store(path: str | os.PathLike | None = None, *, create: bool = True, re
     kind = _inspect(p)
     if kind != "store" and (readonly or not create):
         raise CmrtError(f"no CMRT store at {p}" + (" (the file is empty)" if kind == "empty" else ""))
+    if kind == "missing" and not readonly and create and not p.parent.is_dir():
+        raise CmrtError(f"cannot create store {p}: directory {p.parent} does not exist")
     if not readonly and not (os.access(p.parent, os.W_OK) and (kind == "missing" or os.access(p, os.W_OK))):
         raise CmrtError(f"cannot write store {p}: the file or its directory is read-only (reading it still works)")
     if kind != "store":

@@ -436,7 +436,7 @@ def assert_refused_and_nothing_else_changed(path, before, a, b, marker):
     assert run_a["baseline_objective"] is None  # refused before anything was simulated
     old_a = next(r for r in before["runs"] if r["id"] == a)
     changed = {k for k in run_a if run_a[k] != old_a[k]}
-    assert changed <= {"status", "error", "finished_at", "attempt", "worker", "heartbeat_at"}
+    assert changed <= {"status", "error", "finished_at", "attempt", "worker", "heartbeat_at", "retries"}
     assert [r for r in after["runs"] if r["id"] != a] == [r for r in before["runs"] if r["id"] != a]
     return error
 

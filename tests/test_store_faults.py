@@ -244,7 +244,13 @@ def test_ctrl_c_during_start_up_is_one_line(tmp_path):
     """The console script's entry point (``cmrt.launch``) imports the heavy CLI with Ctrl-C handled."""
     proc = subprocess.Popen([sys.executable, "-m", "cmrt.launch", "tasks"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
-    time.sleep(0.5)  # the interpreter is up and importing MuJoCo, numba, dask
+    maps = f"/proc/{proc.pid}/maps"
+    deadline = time.time() + 30
+    while time.time() < deadline and proc.poll() is None:  # wait until it is importing the heavy modules
+        with contextlib.suppress(OSError), open(maps) as fh:
+            if "numpy" in fh.read():
+                break
+        time.sleep(0.005)
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 130 and err == "cmrt: interrupted\n", err
