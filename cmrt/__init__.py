@@ -12,6 +12,8 @@ The public API for scripts; the CLI (``cmrt``) is a thin layer over it::
 
 import importlib
 import os as _os
+import sys
+import types
 from typing import TYPE_CHECKING
 
 # The controller's matrices are tiny: BLAS thread pools only add overhead and, with
@@ -107,6 +109,19 @@ def __getattr__(name: str):
 
 def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_API))
+
+
+class _Package(types.ModuleType):
+    """``cmrt.simulate`` and ``cmrt.interpolate`` are API functions with the names of their modules. Importing
+    a submodule binds it on the package; for these names the function wins, as it did with eager imports."""
+
+    def __setattr__(self, name: str, value) -> None:
+        if name in _API and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
 
 
 __all__ = [
