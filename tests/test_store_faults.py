@@ -90,7 +90,6 @@ def test_read_commands_never_create_or_convert(tmp_path):
         assert len(store.runs()) == 1
 
 
-@pytest.mark.slow  # cmrt processes or two optimizations
 def test_a_store_on_a_read_only_file_system_is_read_but_not_written(tmp_path, capsys):
     with tiny_disk(tmp_path, size="1m") as disk:
         path = disk / "s.sqlite"
@@ -107,6 +106,7 @@ def test_a_store_on_a_read_only_file_system_is_read_but_not_written(tmp_path, ca
             assert "read-only" in err and err.count("\n") == 1, err
 
 
+@pytest.mark.slow  # cmrt processes
 def test_a_file_with_only_a_meta_table_is_refused_unchanged(tmp_path):
     path = tmp_path / "meta.sqlite"
     con = sqlite3.connect(path)
