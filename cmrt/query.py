@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 from dataclasses import asdict
 
+from cmrt import inputs
 from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
 from cmrt.store import Run, Store
@@ -56,12 +56,13 @@ def run_curve(store: Store, run_id: int) -> Cmrt:
 
 
 def export_run(store: Store, run_id: int, fmt: str) -> str:
-    """json: run, generations and evaluations; csv: one row per evaluation."""
+    """json: run, generations and evaluations (non-finite numbers as null: valid JSON); csv: one row per
+    evaluation."""
     if fmt not in ("json", "csv"):
         raise CmrtError(f"--format must be json or csv, got '{fmt}'")
     evaluations = store.evaluations(run_id)
     if fmt == "json":
-        return json.dumps(
+        return inputs.dumps(
             {"run": run_details(store, run_id), "generations": [asdict(g) for g in store.generations(run_id)],
              "evaluations": [asdict(e) for e in evaluations]},
             indent=2,
