@@ -225,7 +225,11 @@ def resolve_curve(spec: str, task: Task, store_path: str | None = None, flag: st
     if spec == "zero":
         return Cmrt.zero(task.clip_s), "zero"
     if spec in ("library", "library-robust"):
-        return library_curve(task, robust=spec == "library-robust"), spec
+        curve = library_curve(task, robust=spec == "library-robust")
+        if abs(curve.clip_s - task.clip_s) > 1e-9:  # the library's entry for the task file's own clip
+            raise CmrtError(f"the {spec} CMRT of '{task.name}' is for a {curve.clip_s:g} s clip, task clip is "
+                            f"{task.clip_s:g} s")
+        return curve, spec
     if inputs.is_run_id(spec):  # ASCII digits only: str.isdigit() takes '²' too
         run_id = inputs.RUN_ID.check(spec, f"{flag} RUN")
         with _store(store_path, create=False) as store:
@@ -285,13 +289,13 @@ def _save_npz(path: str, arrays: dict, flag: str = "--trace") -> None:
 
 def simulate_report(task, curve, curve_name: str, trace: str | None = None) -> dict:
     """Simulate one clip and score it: what ``cmrt simulate`` prints (optionally saving the trace)."""
-    if trace:
+    if trace is not None:  # --trace '' is a bad path, not "no trace"
         inputs.check_output(trace, "--trace")  # before the simulation, not after it
     t0 = time.perf_counter()
     traj = simulate(task, curve)
     ev = evaluate(task, traj)
     wall = time.perf_counter() - t0
-    if trace:
+    if trace is not None:  # --trace '' is a bad path, not "no trace"
         _save_npz(trace, {**traj.as_npz_dict(), "dof_names": _dof_names(task)})
     return {
         "task": task.name,
@@ -566,11 +570,11 @@ class Export(Command):
         p.add_argument("--out", metavar="FILE")
 
     def run(self, args):
-        if args.out:
+        if args.out is not None:
             inputs.check_output(args.out, "--out")
         with _store(args.store, create=False) as store:
             text = query.export_run(store, args.run, args.format)
-        if args.out:
+        if args.out is not None:
             inputs.write_text(args.out, text, "--out")
             return None
         return Output(None, text.rstrip("\n"))
@@ -588,7 +592,7 @@ class Interpolate(Command):
     def run(self, args):
         if args.param is not None:
             inputs.param_name(args.param, "--param")
-        if args.out:
+        if args.out is not None:
             inputs.check_output(args.out, "--out")
         task = resolve_task(args.task, args.speed, args.set)
         store = _store(args.store, create=False) if args.source == "store" else None
@@ -598,7 +602,7 @@ class Interpolate(Command):
             if store:
                 store.close()
         text = to_json(r)
-        if args.out:
+        if args.out is not None:
             inputs.write_text(args.out, text + "\n", "--out")
         if r.extrapolated:
             print(f"cmrt: warning: {r.param} = {r.value:g} is outside the optimized range "
@@ -609,7 +613,7 @@ class Interpolate(Command):
             f"from {src} (weight {r.weight:.3f})\n"
             f"  knots {', '.join(f'{t:.3f}' for t in r.curve.knot_times_s)} s; values "
             f"{', '.join(f'{100 * v:+.2f}' for v in r.curve.values_m)} cm"
-            + (f"; written to {escape(args.out)}" if args.out else "")
+            + (f"; written to {escape(args.out)}" if args.out is not None else "")
         )
         return Output(json.loads(text), human)
 
@@ -623,14 +627,14 @@ class Sequence(Command):
         p.add_argument("--trace", metavar="FILE.npz")
 
     def run(self, args):
-        if args.trace:
+        if args.trace is not None:
             inputs.check_output(args.trace, "--trace")
         seq = load_sequence(args.file)
         curve = superpose(seq) if args.curve == "superposed" else Cmrt.zero(seq.clip_s)
         t0 = time.perf_counter()
-        traj = simulate(seq, curve, record=bool(args.trace))
+        traj = simulate(seq, curve, record=args.trace is not None)
         ev = evaluate(seq, traj)
-        if args.trace:
+        if args.trace is not None:
             _save_npz(args.trace, {**traj.as_npz_dict(), "dof_names": _dof_names(seq)})
         r = {
             "sequence": seq.name,

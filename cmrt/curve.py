@@ -112,13 +112,13 @@ class Cmrt:
             got = sorted(map(str, obj)) if isinstance(obj, dict) else obj
             raise CmrtError(f"{where}: not a CMRT object (need exactly clip_s, knot_times_s, values_m), got "
                             f"{shown(got)}")
-        clip_s = inputs.number(obj["clip_s"], f"{where}: clip_s", CLIP_S)
+        clip_s = inputs.number(obj["clip_s"], f"{where}: clip_s", CLIP_S, text=False)
         lists = {}
         for key, allowed in (("knot_times_s", Range()), ("values_m", values)):
             value = obj[key]
             if not isinstance(value, list) or len(value) != N_KNOTS:
                 raise CmrtError(f"{where}: {key} must be a list of {N_KNOTS} numbers, got {shown(value)}")
-            lists[key] = tuple(inputs.number(v, f"{where}: {key}", allowed) for v in value)
+            lists[key] = tuple(inputs.number(v, f"{where}: {key}", allowed, text=False) for v in value)
         try:
             return cls(clip_s, lists["knot_times_s"], lists["values_m"])
         except CmrtError as exc:

@@ -136,11 +136,14 @@ class Range:
         below = x < self.hi if self.hi_open else x <= self.hi
         return above and below
 
-    def check(self, value: object, where: str) -> float | int:
-        """``value`` (an int or float, not a bool; or text, parsed strictly) as a finite number inside the
-        range; CmrtError naming ``where`` otherwise."""
+    def check(self, value: object, where: str, text: bool = True) -> float | int:
+        """``value`` (an int or float, not a bool; or, with ``text``, a string parsed strictly: command-line
+        values, not a file's) as a finite number inside the range; CmrtError naming ``where`` otherwise."""
         kind = "an integer" if self.integer else "a finite number"
-        x = _parse_integer(value) if self.integer else _parse_number(value)
+        if isinstance(value, str) and not text:
+            x = None
+        else:
+            x = _parse_integer(value) if self.integer else _parse_number(value)
         if x is None or not self.contains(x):
             bounds = f" in {self}" if math.isfinite(self.lo) or math.isfinite(self.hi) else ""
             raise CmrtError(f"{where} must be {kind}{bounds}, got {shown(value)}")
@@ -178,9 +181,10 @@ def _parse_integer(value: object) -> int | None:
     return None
 
 
-def number(value: object, where: str, allowed: Range = Range()) -> float:
-    """A finite float inside ``allowed`` (default: any finite number)."""
-    return float(allowed.check(value, where))
+def number(value: object, where: str, allowed: Range = Range(), text: bool = True) -> float:
+    """A finite float inside ``allowed`` (default: any finite number); ``text=False`` for a value read from a
+    file (TOML, JSON), where a number must be written as one, not as a string."""
+    return float(allowed.check(value, where, text))
 
 
 def is_run_id(text: str) -> bool:

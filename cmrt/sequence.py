@@ -134,14 +134,14 @@ def load_sequence(name_or_path: str) -> SequenceTask:
             raise CmrtError(f"{at} needs exactly task, speed and start_s, got {shown(item)}")
         if not isinstance(item["task"], str):
             raise CmrtError(f"{at}: task must be a task's name or a .toml file, got {shown(item['task'])}")
-        speed = inputs.number(item["speed"], f"{at}: speed")
-        start_s = inputs.number(item["start_s"], f"{at}: start_s", START_S)
+        speed = inputs.number(item["speed"], f"{at}: speed", text=False)
+        start_s = inputs.number(item["start_s"], f"{at}: start_s", START_S, text=False)
         try:
             task = load_task(item["task"]).with_speed(speed)
         except CmrtError as exc:
             raise CmrtError(f"{at}: {exc}") from None
         motions.append(Motion(task, start_s))
-    tail_s = inputs.number(raw.get("tail_s", 1.0), f"{where}: tail_s", TAIL_S)
+    tail_s = inputs.number(raw.get("tail_s", 1.0), f"{where}: tail_s", TAIL_S, text=False)
     motions.sort(key=lambda m: m.start_s)
     for a, b in zip(motions, motions[1:], strict=False):
         if b.start_s < a.start_s + a.task.duration_s - 1e-9:
@@ -153,7 +153,7 @@ def load_sequence(name_or_path: str) -> SequenceTask:
     last = motions[-1]
     clip = max(max(m.offset_s + m.task.clip_s for m in motions), last.start_s + last.task.duration_s + tail_s)
     step = inputs.number(raw.get("cop_sample_step_s", motions[0].task.cop_sample_step_s),
-                         f"{where}: cop_sample_step_s", COP_SAMPLE_STEP_S)
+                         f"{where}: cop_sample_step_s", COP_SAMPLE_STEP_S, text=False)
     params = dict(DEFAULT_PARAMS)
     params.update(clip_s=clip, preparation_s=motions[0].start_s,
                   duration_s=last.start_s + last.task.duration_s - motions[0].start_s, cop_sample_step_s=step)

@@ -342,7 +342,7 @@ def _text(raw: dict, key: str, where: str, default: str) -> str:
 def _pose(table: dict | None, key: str, where: str) -> dict[str, float] | None:
     if table is None:
         return None
-    return {str(k): inputs.number(v, f"{where}: {key}.{k}", POSE_DEG) for k, v in table.items()}
+    return {str(k): inputs.number(v, f"{where}: {key}.{k}", POSE_DEG, text=False) for k, v in table.items()}
 
 
 def _pair(value: object, where: str) -> tuple[float, float] | None:
@@ -350,7 +350,7 @@ def _pair(value: object, where: str) -> tuple[float, float] | None:
     if not (isinstance(value, list) and len(value) == 2):
         return None
     try:
-        return inputs.number(value[0], where), inputs.number(value[1], where)
+        return inputs.number(value[0], where, text=False), inputs.number(value[1], where, text=False)
     except CmrtError:
         return None
 
@@ -376,7 +376,7 @@ def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task"
     limits = prop_class(prop).LIMITS
     for key, value in (_table(raw, "params", where) or {}).items():
         inputs.param_name(key, f"{where}: a key of [params]")
-        params[key] = inputs.number(value, f"{where}: parameter {key}", param_range(key, limits))
+        params[key] = inputs.number(value, f"{where}: parameter {key}", param_range(key, limits), text=False)
     ranges = {}
     for key, value in (_table(raw, "param_ranges", where) or {}).items():
         pair = _pair(value, where)
