@@ -93,7 +93,7 @@ def evaluation_dict(ev: Evaluation) -> dict:
 
 def _outcome(r: dict) -> str:
     if r["fell"]:
-        return f"LOST BALANCE at {r['fall_time_s']:.3f} s ({r['fall_reason']})"
+        return f"LOST BALANCE at {_n(r['fall_time_s'], '.3f')} s ({r['fall_reason']})"
     if r["success"]:
         return "SUCCESS (balance kept, motion performed, standing still)"
     why = []
@@ -104,19 +104,24 @@ def _outcome(r: dict) -> str:
     return "balance kept, but " + " and ".join(why)
 
 
+def _n(x, spec: str, scale: float = 1.0) -> str:
+    """A number for the text form; ``-`` for one that is not there (a NaN, null in JSON)."""
+    return "-" if x is None else format(scale * x, spec)
+
+
 def _report_text(r: dict) -> str:
     speed = f" --speed {r['speed']:g}" if r["speed"] is not None else ""
-    track = "-" if r["tracking_error_rad"] is None else f"{r['tracking_error_rad']:.3f}"
+    track = _n(r["tracking_error_rad"], ".3f")
     if r["tracking_bound_rad"] is not None:
         track += f" (bound {r['tracking_bound_rad']:.3f})"
     return "\n".join([
         f"{escape(r['task'])}{speed}  curve={escape(r['curve'])}: {_outcome(r)}",
-        f"  objective {r['objective']:.4f}  (CoP-error 2-norm {r['cop_error_norm']:.4f} m "
-        f"+ penalty {r['penalty']:.2f})",
-        f"  min CoP margin {100 * r['min_cop_margin_m']:.1f} cm  tracking error {track} rad  final pose error "
-        f"{r['final_pose_error_rad']:.3f} rad  [{r['wall_s']:.2f} s]",
-        f"  peak ground force {r['peak_normal_force_bw']:.2f} x body weight  airborne {r['airborne_s']:.3f} s  "
-        f"max joint speed {r['max_joint_speed_rad_s']:.1f} rad/s",
+        f"  objective {_n(r['objective'], '.4f')}  (CoP-error 2-norm {_n(r['cop_error_norm'], '.4f')} m "
+        f"+ penalty {_n(r['penalty'], '.2f')})",
+        f"  min CoP margin {_n(r['min_cop_margin_m'], '.1f', 100)} cm  tracking error {track} rad  final pose error "
+        f"{_n(r['final_pose_error_rad'], '.3f')} rad  [{r['wall_s']:.2f} s]",
+        f"  peak ground force {_n(r['peak_normal_force_bw'], '.2f')} x body weight  airborne "
+        f"{_n(r['airborne_s'], '.3f')} s  max joint speed {_n(r['max_joint_speed_rad_s'], '.1f')} rad/s",
     ])
 
 
@@ -644,9 +649,10 @@ class Sequence(Command):
             **evaluation_dict(ev),
             "wall_s": round(time.perf_counter() - t0, 3),
         }
-        return Output(r, f"{escape(seq.name)} ({len(seq.motions)} motions, {seq.clip_s:.2f} s) curve={args.curve}: "
-                         f"{_outcome(r)}\n  objective {r['objective']:.4f}  max |CoP error| "
-                         f"{r['max_cop_error_m']:.4f} m  final pose error {r['final_pose_error_rad']:.4f} rad")
+        return Output(r, lambda r: f"{escape(seq.name)} ({len(seq.motions)} motions, {seq.clip_s:.2f} s) "
+                      f"curve={args.curve}: {_outcome(r)}\n  objective {_n(r['objective'], '.4f')}  max |CoP error| "
+                      f"{_n(r['max_cop_error_m'], '.4f')} m  final pose error {_n(r['final_pose_error_rad'], '.4f')} "
+                      "rad")
 
 
 class Plot(Command):
