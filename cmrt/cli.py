@@ -300,7 +300,7 @@ def simulate_report(task, curve, curve_name: str, trace: str | None = None) -> d
     traj = simulate(task, curve)
     ev = evaluate(task, traj)
     wall = time.perf_counter() - t0
-    if trace is not None:  # --trace '' is a bad path, not "no trace"
+    if trace is not None:
         _save_npz(trace, {**traj.as_npz_dict(), "dof_names": _dof_names(task)})
     return {
         "task": task.name,
