@@ -5,7 +5,11 @@ API and returns an :class:`Output`, which one formatter prints as JSON (``--json
 text. Logic a script would want too lives in the API, not here.
 
 Bad input (unknown task, bad value, unreadable file) prints one line,
-``cmrt: error: ...``, and exits with status 2 - never a traceback.
+``cmrt: error: ...``, and exits with status 2 - never a traceback. Every argument is checked
+(``cmrt.inputs``: types, finiteness, ranges, input files, output paths) before the first
+simulation and before the first write; outputs are written to a temporary file and moved into
+place, so a failed write says so and leaves nothing half-written. Values from the user are printed
+with their control characters escaped; JSON output never contains NaN or Infinity (null instead).
 """
 
 from __future__ import annotations
@@ -16,8 +20,8 @@ import math
 import os
 import signal
 import sqlite3
+import stat
 import sys
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
@@ -25,10 +29,11 @@ from pathlib import Path
 
 import numpy as np
 
-from cmrt import jobs, query
+from cmrt import inputs, jobs, query
 from cmrt.bench import run_bench
 from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError, Terminated, TransientFault
+from cmrt.inputs import escape, shown
 from cmrt.interpolate import interpolate, superpose, to_json
 from cmrt.library import library_curve
 from cmrt.objective import Evaluation, evaluate
@@ -63,8 +68,8 @@ class Output:
 
 def format_output(out: Output, as_json: bool) -> str:
     """The one formatter: JSON (one line for objects, indented for lists) or the text form."""
-    if as_json:
-        return json.dumps(out.data, indent=None if isinstance(out.data, dict) else 2)
+    if as_json:  # never NaN or Infinity: null
+        return inputs.dumps(out.data, indent=None if isinstance(out.data, dict) else 2)
     return out.text(out.data) if callable(out.text) else out.text
 
 
@@ -72,7 +77,7 @@ def _table(rows: list[dict], keys: tuple[str, ...]) -> str:
     def fmt(v):
         if isinstance(v, float):
             return f"{v:.4g}"
-        return "-" if v is None else str(v)
+        return "-" if v is None else escape(str(v))  # a task name from a user's file: no control characters
 
     cells = [list(keys)] + [[fmt(r.get(k)) for k in keys] for r in rows]
     widths = [max(len(row[i]) for row in cells) for i in range(len(keys))]
@@ -90,7 +95,7 @@ def evaluation_dict(ev: Evaluation) -> dict:
 
 def _outcome(r: dict) -> str:
     if r["fell"]:
-        return f"LOST BALANCE at {r['fall_time_s']:.3f} s ({r['fall_reason']})"
+        return f"LOST BALANCE at {_n(r['fall_time_s'], '.3f')} s ({r['fall_reason']})"
     if r["success"]:
         return "SUCCESS (balance kept, motion performed, standing still)"
     why = []
@@ -101,19 +106,24 @@ def _outcome(r: dict) -> str:
     return "balance kept, but " + " and ".join(why)
 
 
+def _n(x, spec: str, scale: float = 1.0) -> str:
+    """A number for the text form; ``-`` for one that is not there (a NaN, null in JSON)."""
+    return "-" if x is None else format(scale * x, spec)
+
+
 def _report_text(r: dict) -> str:
     speed = f" --speed {r['speed']:g}" if r["speed"] is not None else ""
-    track = "-" if r["tracking_error_rad"] is None else f"{r['tracking_error_rad']:.3f}"
+    track = _n(r["tracking_error_rad"], ".3f")
     if r["tracking_bound_rad"] is not None:
         track += f" (bound {r['tracking_bound_rad']:.3f})"
     return "\n".join([
-        f"{r['task']}{speed}  curve={r['curve']}: {_outcome(r)}",
-        f"  objective {r['objective']:.4f}  (CoP-error 2-norm {r['cop_error_norm']:.4f} m "
-        f"+ penalty {r['penalty']:.2f})",
-        f"  min CoP margin {100 * r['min_cop_margin_m']:.1f} cm  tracking error {track} rad  final pose error "
-        f"{r['final_pose_error_rad']:.3f} rad  [{r['wall_s']:.2f} s]",
-        f"  peak ground force {r['peak_normal_force_bw']:.2f} x body weight  airborne {r['airborne_s']:.3f} s  "
-        f"max joint speed {r['max_joint_speed_rad_s']:.1f} rad/s",
+        f"{escape(r['task'])}{speed}  curve={escape(r['curve'])}: {_outcome(r)}",
+        f"  objective {_n(r['objective'], '.4f')}  (CoP-error 2-norm {_n(r['cop_error_norm'], '.4f')} m "
+        f"+ penalty {_n(r['penalty'], '.2f')})",
+        f"  min CoP margin {_n(r['min_cop_margin_m'], '.1f', 100)} cm  tracking error {track} rad  final pose error "
+        f"{_n(r['final_pose_error_rad'], '.3f')} rad  [{r['wall_s']:.2f} s]",
+        f"  peak ground force {_n(r['peak_normal_force_bw'], '.2f')} x body weight  airborne "
+        f"{_n(r['airborne_s'], '.3f')} s  max joint speed {_n(r['max_joint_speed_rad_s'], '.1f')} rad/s",
     ])
 
 
@@ -149,8 +159,8 @@ def _result_text(r: dict) -> str:
     speed = f" --speed {r['speed']:g}" if r["speed"] is not None else ""
     kind = "robust CMRT:   " if r["robust"] else "optimized CMRT:"
     lines = [
-        f"run {r['run_id']} {r['task']}{speed}: {r['status']} ({r['stop_reason']}) after {r['evaluations']} "
-        f"evaluations, {r['restarts']} restarts, {r['wall_s']:.1f} s; start: {r['init']}",
+        f"run {r['run_id']} {escape(r['task'])}{speed}: {r['status']} ({r['stop_reason']}) after "
+        f"{r['evaluations']} evaluations, {r['restarts']} restarts, {r['wall_s']:.1f} s; start: {escape(r['init'])}",
         f"  zero CMRT:      objective {r['baseline_objective']:.4f}  "
         f"{outcome(r['baseline_success'], r['baseline_fell'])}",
         f"  {kind} objective {r['best_objective']:.4f}  {outcome(r['success'], r['fell'])}",
@@ -187,12 +197,18 @@ class _Progress:
 
 # --- inputs ------------------------------------------------------------------------
 def _parse_sets(items: list[str] | None) -> dict[str, str]:
+    """``--set KEY=VALUE`` options: KEY a parameter name, VALUE a finite number (``Task.with_params`` checks
+    its range and shows the text as given)."""
     out = {}
+    if len(items or []) > inputs.MAX_SETS:
+        raise CmrtError(f"at most {inputs.MAX_SETS} --set options")
     for item in items or []:
         key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise CmrtError(f"--set expects KEY=VALUE, got '{item}'")
-        out[key.strip()] = value.strip()
+        if not sep or not key.strip():
+            raise CmrtError(f"--set expects KEY=VALUE, got {shown(item)}")
+        key = inputs.param_name(key.strip(), "--set KEY")
+        inputs.number(value.strip(), f"--set {key}")
+        out[key] = value.strip()
     return out
 
 
@@ -201,35 +217,58 @@ def resolve_task(name: str, speed: float | None, sets: list[str] | None) -> Task
     task = load_task(name)
     overrides = _parse_sets(sets)
     if overrides:
-        task = task.with_params(**overrides)
-    return task.with_speed(speed)
+        try:
+            task = task.with_params(**overrides)
+        except CmrtError as exc:
+            raise CmrtError(f"--set: {exc}") from None
+    try:
+        return task.with_speed(speed)
+    except CmrtError as exc:
+        raise CmrtError(f"--speed: {exc}") from None
 
 
-def resolve_curve(spec: str, task: Task, store_path: str | None = None) -> tuple[Cmrt, str]:
+def resolve_curve(spec: str, task: Task, store_path: str | None = None, flag: str = "--curve") -> tuple[Cmrt, str]:
     """zero | library | library-robust | RUN (a stored run id) | FILE.json -> (curve, description)."""
     if spec == "zero":
         return Cmrt.zero(task.clip_s), "zero"
     if spec in ("library", "library-robust"):
-        return library_curve(task, robust=spec == "library-robust"), spec
-    if spec.isdigit():
+        curve = library_curve(task, robust=spec == "library-robust")
+        if abs(curve.clip_s - task.clip_s) > 1e-9:  # the library's entry for the task file's own clip
+            raise CmrtError(f"the {spec} CMRT of '{task.name}' is for a {curve.clip_s:g} s clip, task clip is "
+                            f"{task.clip_s:g} s")
+        return curve, spec
+    if inputs.is_run_id(spec):  # ASCII digits only: str.isdigit() takes '²' too
+        run_id = inputs.RUN_ID.check(spec, f"{flag} RUN")
         with _store(store_path, readonly=True) as store:
-            curve = query.run_curve(store, int(spec))
+            curve = query.run_curve(store, run_id)
         if abs(curve.clip_s - task.clip_s) > 1e-9:
             raise CmrtError(f"run {spec} is for a {curve.clip_s:g} s clip, task clip is {task.clip_s:g} s")
         return curve, f"run {spec}"
     path = Path(spec)
-    if path.suffix.lower() == ".json" or path.exists():
+    if path.suffix.lower() == ".json" or os.path.lexists(spec):
         curve = Cmrt.load(path)
         if abs(curve.clip_s - task.clip_s) > 1e-9:
-            raise CmrtError(f"CMRT in {spec} is for a {curve.clip_s:g} s clip, task clip is {task.clip_s:g} s")
+            raise CmrtError(f"CMRT in {shown(spec)} is for a {curve.clip_s:g} s clip, task clip is "
+                            f"{task.clip_s:g} s")
         return curve, str(path)
-    raise CmrtError(f"--curve must be zero, library, a run id or a CMRT .json file, got '{spec}'")
+    raise CmrtError(f"{flag} must be zero, library, library-robust, a run id or a CMRT .json file, got {shown(spec)}")
 
 
 def _store(path: str | None, readonly: bool = False) -> Store:
-    """The store for writing (created if missing), or ``readonly`` for the verbs that only read it (they
-    never create, convert or write a byte)."""
+    """The store at ``path`` (``--store``). Before store.py opens it: a path that exists must be a regular file
+    (a FIFO or a device would block or be written), and a verb that only reads (``readonly``) opens it read-only:
+    it never creates, converts or writes a byte."""
     p = resolve_path(path)
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        st = None
+    except (OSError, ValueError) as exc:
+        raise CmrtError(f"cannot open store {shown(str(p))}: {getattr(exc, 'strerror', None) or exc}") from None
+    if st is not None and not stat.S_ISDIR(st.st_mode) and not stat.S_ISREG(st.st_mode):
+        raise CmrtError(f"{shown(str(p))} is not a CMRT store (not a regular file)")
+    if st is not None and stat.S_ISREG(st.st_mode) and st.st_size == 0 and readonly:
+        raise CmrtError(f"{shown(str(p))} is not a CMRT store (an empty file)")
     if not readonly and p == DEFAULT_STORE and not p.parent.exists():
         p.parent.mkdir(parents=True)
     return open_store(p, readonly=readonly)
@@ -238,10 +277,9 @@ def _store(path: str | None, readonly: bool = False) -> Store:
 def _init_arg(value: str) -> str | int:
     if value in ("auto", "none"):
         return value
-    try:
-        return int(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be auto, none or a run id, got '{value}'") from None
+    if inputs.is_run_id(value):
+        return inputs.run_id_arg(value)
+    raise argparse.ArgumentTypeError(f"must be auto, none or a run id, got {shown(value)}")
 
 
 def _dof_names(task: Task) -> np.ndarray:
@@ -250,35 +288,21 @@ def _dof_names(task: Task) -> np.ndarray:
     return np.array([m.joint(int(m.dof_jntid[i])).name for i in range(m.nv)])
 
 
-def _write_text(path: str, text: str) -> None:
-    try:
-        Path(path).write_text(text)
-    except OSError as exc:
-        raise CmrtError(f"cannot write {path}: {exc.strerror}") from None
-
-
-def _save_npz(path: str, arrays: dict) -> None:
-    """Write atomically: a failed write never leaves a half-written file."""
-    target = Path(path)
-    if not target.parent.exists():
-        raise CmrtError(f"cannot write trace: directory {target.parent} does not exist")
-    fd, tmp = tempfile.mkstemp(dir=target.parent, suffix=".npz.tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez_compressed(fh, **arrays)
-        os.replace(tmp, target)
-    except OSError as exc:
-        Path(tmp).unlink(missing_ok=True)
-        raise CmrtError(f"cannot write trace {path}: {exc.strerror}") from None
+def _save_npz(path: str, arrays: dict, flag: str = "--trace") -> None:
+    """Write atomically (``cmrt.inputs.atomic_output``): a failed write never leaves a half-written file."""
+    with inputs.atomic_output(path, flag) as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
 
 
 def simulate_report(task, curve, curve_name: str, trace: str | None = None) -> dict:
     """Simulate one clip and score it: what ``cmrt simulate`` prints (optionally saving the trace)."""
+    if trace is not None:  # --trace '' is a bad path, not "no trace"
+        inputs.check_output(trace, "--trace")  # before the simulation, not after it
     t0 = time.perf_counter()
     traj = simulate(task, curve)
     ev = evaluate(task, traj)
     wall = time.perf_counter() - t0
-    if trace:
+    if trace is not None:
         _save_npz(trace, {**traj.as_npz_dict(), "dof_names": _dof_names(task)})
     return {
         "task": task.name,
@@ -294,20 +318,22 @@ def simulate_report(task, curve, curve_name: str, trace: str | None = None) -> d
 # --- shared argument groups ------------------------------------------------------------
 def _task_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("task", help="a shipped task's name (cmrt tasks) or the path of a .toml task file")
-    p.add_argument("--speed", type=float, help="the task's speed parameter (bend: duration T in s)")
+    p.add_argument("--speed", type=inputs.arg(inputs.SPEED), help="the task's speed parameter (bend: duration T in s)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a task parameter")
 
 
 def _opt_args(p: argparse.ArgumentParser) -> None:
     """The optimizer's options; their defaults are OptimizeSettings' (the only place they are written)."""
-    p.add_argument("--seed", type=int, default=_DEFAULTS.seed)
-    p.add_argument("--max-evals", type=int, default=_DEFAULTS.max_evals)
-    p.add_argument("--min-evals", type=int, default=_DEFAULTS.min_evals, help="no slow-convergence stop before this")
-    p.add_argument("--popsize", type=int, default=_DEFAULTS.popsize)
-    p.add_argument("--stall-generations", type=int, default=_DEFAULTS.stall_generations,
+    p.add_argument("--seed", type=inputs.arg(inputs.SEED), default=_DEFAULTS.seed)
+    p.add_argument("--max-evals", type=inputs.arg(inputs.MAX_EVALS), default=_DEFAULTS.max_evals)
+    p.add_argument("--min-evals", type=inputs.arg(inputs.MIN_EVALS), default=_DEFAULTS.min_evals,
+                   help="no slow-convergence stop before this")
+    p.add_argument("--popsize", type=inputs.arg(inputs.POPSIZE), default=_DEFAULTS.popsize)
+    p.add_argument("--stall-generations", type=inputs.arg(inputs.STALL_GENERATIONS),
+                   default=_DEFAULTS.stall_generations,
                    help="a search whose best improved < 0.1%% over this many generations has stalled: it "
                    "restarts with a doubled population (IPOP) unless it already succeeded past --min-evals")
-    p.add_argument("--sigma0", type=float, default=_DEFAULTS.sigma0)
+    p.add_argument("--sigma0", type=inputs.arg(inputs.SIGMA0), default=_DEFAULTS.sigma0)
     p.add_argument("--robust", action="store_true",
                    help="score every candidate on the task's ensemble of perturbed clips ([robust] table)")
     p.add_argument("--init", type=_init_arg, default="auto", metavar="auto|none|RUN",
@@ -317,7 +343,8 @@ def _opt_args(p: argparse.ArgumentParser) -> None:
 
 def _backend_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", choices=BACKENDS, default="batch")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="processes (loky, LocalCluster)")
+    p.add_argument("--workers", type=inputs.arg(inputs.WORKERS), default=os.cpu_count() or 1,
+                   help="processes (loky, LocalCluster)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="dask scheduler (default: a LocalCluster)")
 
 
@@ -327,8 +354,12 @@ def _submit_kwargs(args) -> dict:
 
 
 def _opt_task(args, speed: float | None) -> Task:
-    """The task an optimization runs: with ``--robust``, scored on its ensemble."""
+    """The task an optimization runs: with ``--robust``, scored on its ensemble. A run id as ``--init`` must
+    exist before a store is created or written."""
     task = resolve_task(args.task, speed, args.set)
+    if isinstance(args.init, int):
+        with _store(args.store, readonly=True) as store:
+            store.run(args.init)
     return task.with_robust() if args.robust else task
 
 
@@ -393,7 +424,7 @@ class Submit(Command):
             run_id = jobs.submit(store, task, **_submit_kwargs(args))
         speed = f" --speed {task.speed:g}" if task.speed is not None else ""
         return Output({"run_id": run_id, "task": task.name, "speed": task.speed, "status": "queued"},
-                      f"queued run {run_id}: {task.name}{speed}")
+                      f"queued run {run_id}: {escape(task.name)}{speed}")
 
 
 class Optimize(Command):
@@ -403,7 +434,8 @@ class Optimize(Command):
         _task_args(p)
         _opt_args(p)
         p.add_argument("--speeds", metavar="S1,S2,...", help="a speed family, each warm-started from the previous")
-        p.add_argument("--family-sigma0", type=float, default=0.15, help="step size of the warm-started members")
+        p.add_argument("--family-sigma0", type=inputs.arg(inputs.SIGMA0), default=0.15,
+                       help="step size of the warm-started members")
         _backend_args(p)
         p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -426,10 +458,10 @@ class Optimize(Command):
     @staticmethod
     def _family(args) -> Output:
         """--speeds a,b,c: ``jobs.optimize_family``; each member's result is printed as it finishes."""
-        try:
-            speeds = [float(v) for v in args.speeds.split(",")]
-        except ValueError:
-            raise CmrtError(f"--speeds must be comma-separated numbers, got '{args.speeds}'") from None
+        items = args.speeds.split(",")
+        if len(items) > inputs.MAX_SPEEDS:
+            raise CmrtError(f"--speeds takes at most {inputs.MAX_SPEEDS} speeds, got {len(items)}")
+        speeds = [inputs.number(v.strip(), "--speeds") for v in items]
         if args.speed is not None or isinstance(args.init, int):
             raise CmrtError("--speeds replaces --speed and a run id as --init (each member starts from the previous)")
         if args.family_sigma0 <= 0:
@@ -460,7 +492,8 @@ class Worker(Command):
     def add_arguments(self, p):
         p.add_argument("--until-idle", action="store_true", help="exit when the queue is empty")
         p.add_argument("--once", action="store_true", help="run at most one job")
-        p.add_argument("--stale-after", type=float, default=jobs.DEFAULT_STALE_AFTER_S, metavar="SECONDS",
+        p.add_argument("--stale-after", type=inputs.arg(inputs.STALE_AFTER_S), default=jobs.DEFAULT_STALE_AFTER_S,
+                       metavar="SECONDS",
                        help="resume a running job whose heartbeat is older than this")
         _backend_args(p)
 
@@ -527,14 +560,14 @@ class Show(Command):
     name, help = "show", "one run in detail"
 
     def add_arguments(self, p):
-        p.add_argument("run", type=int)
+        p.add_argument("run", type=inputs.run_id_arg)
 
     def run(self, args):
         with _store(args.store, readonly=True) as store:
             d = query.run_details(store, args.run)
 
         def text(d):
-            return "\n".join(f"{k:20s} {json.dumps(v) if isinstance(v, (dict, list)) else v}"
+            return "\n".join(f"{k:20s} {escape(inputs.dumps(v) if isinstance(v, (dict, list)) else str(v))}"
                              for k, v in d.items() if k != "task_definition")
 
         return Output(d, text)
@@ -556,15 +589,17 @@ class Export(Command):
     name, help, json_flag = "export", "export a run's evaluations", False
 
     def add_arguments(self, p):
-        p.add_argument("run", type=int)
+        p.add_argument("run", type=inputs.run_id_arg)
         p.add_argument("--format", choices=("json", "csv"), default="json")
         p.add_argument("--out", metavar="FILE")
 
     def run(self, args):
+        if args.out is not None:
+            inputs.check_output(args.out, "--out")
         with _store(args.store, readonly=True) as store:
             text = query.export_run(store, args.run, args.format)
-        if args.out:
-            _write_text(args.out, text)
+        if args.out is not None:
+            inputs.write_text(args.out, text, "--out")
             return None
         return Output(None, text.rstrip("\n"))
 
@@ -579,6 +614,10 @@ class Interpolate(Command):
         p.add_argument("--out", metavar="FILE.json", help="write the CMRT (usable as --curve FILE.json)")
 
     def run(self, args):
+        if args.param is not None:
+            inputs.param_name(args.param, "--param")
+        if args.out is not None:
+            inputs.check_output(args.out, "--out")
         task = resolve_task(args.task, args.speed, args.set)
         store = _store(args.store, readonly=True) if args.source == "store" else None
         try:
@@ -587,18 +626,18 @@ class Interpolate(Command):
             if store:
                 store.close()
         text = to_json(r)
-        if args.out:
-            _write_text(args.out, text + "\n")
+        if args.out is not None:
+            inputs.write_text(args.out, text + "\n", "--out")
         if r.extrapolated:
             print(f"cmrt: warning: {r.param} = {r.value:g} is outside the optimized range "
                   f"[{r.sources[0][0]:g}, {r.sources[1][0]:g}]: extrapolated", file=sys.stderr)
         src = " and ".join(f"{lab}" for _, lab in r.sources)
         human = (
-            f"{task.name} {r.param} = {r.value:g}: {'extrapolated' if r.extrapolated else 'interpolated'} "
+            f"{escape(task.name)} {r.param} = {r.value:g}: {'extrapolated' if r.extrapolated else 'interpolated'} "
             f"from {src} (weight {r.weight:.3f})\n"
             f"  knots {', '.join(f'{t:.3f}' for t in r.curve.knot_times_s)} s; values "
             f"{', '.join(f'{100 * v:+.2f}' for v in r.curve.values_m)} cm"
-            + (f"; written to {args.out}" if args.out else "")
+            + (f"; written to {escape(args.out)}" if args.out is not None else "")
         )
         return Output(json.loads(text), human)
 
@@ -612,12 +651,14 @@ class Sequence(Command):
         p.add_argument("--trace", metavar="FILE.npz")
 
     def run(self, args):
+        if args.trace is not None:
+            inputs.check_output(args.trace, "--trace")
         seq = load_sequence(args.file)
         curve = superpose(seq) if args.curve == "superposed" else Cmrt.zero(seq.clip_s)
         t0 = time.perf_counter()
-        traj = simulate(seq, curve, record=bool(args.trace))
+        traj = simulate(seq, curve, record=args.trace is not None)
         ev = evaluate(seq, traj)
-        if args.trace:
+        if args.trace is not None:
             _save_npz(args.trace, {**traj.as_npz_dict(), "dof_names": _dof_names(seq)})
         r = {
             "sequence": seq.name,
@@ -627,16 +668,17 @@ class Sequence(Command):
             **evaluation_dict(ev),
             "wall_s": round(time.perf_counter() - t0, 3),
         }
-        return Output(r, f"{seq.name} ({len(seq.motions)} motions, {seq.clip_s:.2f} s) curve={args.curve}: "
-                         f"{_outcome(r)}\n  objective {r['objective']:.4f}  max |CoP error| "
-                         f"{r['max_cop_error_m']:.4f} m  final pose error {r['final_pose_error_rad']:.4f} rad")
+        return Output(r, lambda r: f"{escape(seq.name)} ({len(seq.motions)} motions, {seq.clip_s:.2f} s) "
+                      f"curve={args.curve}: {_outcome(r)}\n  objective {_n(r['objective'], '.4f')}  max |CoP error| "
+                      f"{_n(r['max_cop_error_m'], '.4f')} m  final pose error {_n(r['final_pose_error_rad'], '.4f')} "
+                      "rad")
 
 
 class Plot(Command):
     name, help = "plot", "figures of a stored run (CoP error, CMRT, convergence)"
 
     def add_arguments(self, p):
-        p.add_argument("run", type=int, nargs="?")
+        p.add_argument("run", type=inputs.run_id_arg, nargs="?")
         p.add_argument("--family", metavar="TASK", help="the task's speed family from the library (ABC Fig. 5)")
         p.add_argument("--sequence", metavar="FILE", help="a sequence's superposed CMRTs (ABC Fig. 6)")
         p.add_argument("--out", default="plots", metavar="DIR")
@@ -646,21 +688,17 @@ class Plot(Command):
 
         if args.run is None and not args.family and not args.sequence:
             raise CmrtError("plot what? give a RUN, --family TASK or --sequence FILE")
-        out = Path(args.out)
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise CmrtError(f"cannot create {out}: {exc.strerror}") from None
+        out = inputs.output_dir(args.out, "--out")  # created and checked before anything is simulated
         paths = []
         if args.run is not None:
             with _store(args.store, readonly=True) as store:
                 paths += [str(p) for p in plot.plot_run(store, args.run, out)]
         if args.family:
-            paths.append(str(plot.plot_family(args.family, out / f"{args.family}_family.png")))
+            paths.append(str(plot.plot_family(args.family, out / f"{Path(args.family).stem}_family.png")))
         if args.sequence:
             name = Path(args.sequence).stem
             paths.append(str(plot.plot_sequence(args.sequence, out / f"{name}_sequence.png")))
-        return Output({"run_id": args.run, "files": paths}, "\n".join(paths))
+        return Output({"run_id": args.run, "files": paths}, "\n".join(map(escape, paths)))
 
 
 class Render(Command):
@@ -671,21 +709,20 @@ class Render(Command):
         p.add_argument("--curve", default="library", help="zero | library | RUN | FILE.json (default library)")
         p.add_argument("--compare", help="a second CMRT to show beside it (e.g. zero)")
         p.add_argument("--out", required=True, metavar="FILE.png|FILE.mp4")
-        p.add_argument("--frames", type=int, default=8, help="filmstrip frames (PNG)")
-        p.add_argument("--fps", type=int, default=30, help="video frame rate (MP4)")
+        p.add_argument("--frames", type=inputs.arg(inputs.FRAMES), default=8, help="filmstrip frames (PNG)")
+        p.add_argument("--fps", type=inputs.arg(inputs.FPS), default=30, help="video frame rate (MP4)")
 
     def run(self, args):
-        from cmrt.render import render  # OpenGL: only this verb pays for it
+        from cmrt.render import OUT_SUFFIXES, render  # OpenGL: only this verb pays for it
 
+        inputs.check_output(args.out, "--out", OUT_SUFFIXES)  # before anything is simulated
         task = resolve_task(args.task, args.speed, args.set)
         curve, name = resolve_curve(args.curve, task, args.store)
-        compare, cname = resolve_curve(args.compare, task, args.store) if args.compare else (None, "")
-        if args.frames < 1 or args.fps < 1:
-            raise CmrtError("--frames and --fps must be >= 1")
+        compare, cname = resolve_curve(args.compare, task, args.store, "--compare") if args.compare else (None, "")
         r = render(task, curve, args.out, compare, (f"{name} CMRT", f"{cname} CMRT"), n_frames=args.frames,
                    fps=args.fps)
-        lines = [f"wrote {r['out']} ({r['frames']} frames)"] + [
-            f"  {c['label']}: {'lost balance' if c['fell'] else 'balanced'}, objective {c['objective']:.4f}"
+        lines = [f"wrote {escape(r['out'])} ({r['frames']} frames)"] + [
+            f"  {escape(c['label'])}: {'lost balance' if c['fell'] else 'balanced'}, objective {c['objective']:.4f}"
             for c in r["clips"]
         ]
         return Output(r, "\n".join(lines))
@@ -696,19 +733,20 @@ class Bench(Command):
 
     def add_arguments(self, p):
         p.add_argument("--task", default="bend")
-        p.add_argument("--speed", type=float, default=0.4)
+        p.add_argument("--speed", type=inputs.arg(inputs.SPEED), default=0.4)
         p.add_argument("--set", action="append", metavar="KEY=VALUE")
-        p.add_argument("--population", type=int, default=16)
-        p.add_argument("--repeat", type=int, default=5)
+        p.add_argument("--population", type=inputs.arg(inputs.POPULATION), default=16)
+        p.add_argument("--repeat", type=inputs.arg(inputs.REPEAT), default=5)
         p.add_argument("--backends", help=f"comma-separated subset of {','.join(BACKENDS)}")
-        p.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+        p.add_argument("--workers", type=inputs.arg(inputs.WORKERS), default=os.cpu_count() or 1)
 
     def run(self, args):
-        task = resolve_task(args.task, args.speed, args.set)
         backends = tuple(args.backends.split(",")) if args.backends else BACKENDS
         unknown = [b for b in backends if b not in BACKENDS]
-        if unknown or args.population < 1 or args.repeat < 1:
-            raise CmrtError(f"bad bench options (backends from {', '.join(BACKENDS)}; population, repeat >= 1)")
+        if unknown:
+            raise CmrtError(f"--backends must be a comma-separated subset of {', '.join(BACKENDS)}, got "
+                            f"{shown(args.backends)}")
+        task = resolve_task(args.task, args.speed, args.set)
         return Output(run_bench(task, args.population, args.repeat, backends, args.workers), self._text)
 
     @staticmethod
@@ -790,6 +828,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Run one verb; exit status 0, 2 for bad input (one line on stderr), 130 on Ctrl-C."""
+    args = None
     previous = signal.signal(signal.SIGTERM, _terminate)  # a worker gives its run back, as on Ctrl-C
     try:
         args = build_parser().parse_args(argv)
@@ -798,14 +837,15 @@ def main(argv: list[str] | None = None) -> int:
             print(format_output(out, getattr(args, "json", False)))
         return 0
     except CmrtError as exc:
-        print(f"cmrt: error: {exc}", file=sys.stderr)
+        print(f"cmrt: error: {inputs.one_line(str(exc))}", file=sys.stderr)  # one line, control characters escaped
+        return EXIT_BAD_INPUT
+    except sqlite3.DatabaseError as exc:  # a damaged store (store.py refuses foreign files; damage shows in a query)
+        store = shown(str(resolve_path(getattr(args, "store", None))))
+        print(f"cmrt: error: {inputs.one_line(f'store {store} is damaged: {exc}')}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except TransientFault as exc:
         print(f"cmrt: error: {exc}", file=sys.stderr)
         return EXIT_TEMPFAIL
-    except sqlite3.DatabaseError as exc:  # a store damaged where open_store's checks could not see it
-        print(f"cmrt: error: the store cannot be read ({' '.join(str(exc).split())[:120]})", file=sys.stderr)
-        return EXIT_BAD_INPUT
     except Terminated:
         print("cmrt: terminated", file=sys.stderr)
         return 143

@@ -23,11 +23,18 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import CubicSpline
 
+from cmrt import inputs
 from cmrt.errors import CmrtError
+from cmrt.inputs import MAX_RUN_S, Range, shown
 
 N_KNOTS = 4
 VALUE_SCALE_M = 0.05
 MIN_GAP_S = 0.05
+#: A CMRT given by a user (a file, a stored run): its clip and its displacements (a metre of CoM shift is
+#: already far outside any foot).
+CLIP_S = Range(0.0, MAX_RUN_S, lo_open=True, unit="s")
+VALUE_M = Range(-1.0, 1.0, unit="m")
+CMRT_KEYS = frozenset({"clip_s", "knot_times_s", "values_m"})
 
 
 @dataclass(frozen=True)
@@ -97,37 +104,43 @@ class Cmrt:
         return {"clip_s": self.clip_s, "knot_times_s": list(self.knot_times_s), "values_m": list(self.values_m)}
 
     @classmethod
-    def from_dict(cls, obj: dict) -> Cmrt:
-        """From ``to_dict``'s form; CmrtError if it is not one."""
+    def from_dict(cls, obj: dict, where: str = "CMRT", values: Range = Range()) -> Cmrt:
+        """From ``to_dict``'s form, checked: exactly ``clip_s`` (in (0, 60] s), ``knot_times_s`` and
+        ``values_m`` (4 finite numbers each, values inside ``values``: a user's file is held to ``VALUE_M``,
+        +-1 m); CmrtError naming ``where`` otherwise."""
+        if not isinstance(obj, dict) or set(obj) != CMRT_KEYS:
+            got = sorted(map(str, obj)) if isinstance(obj, dict) else obj
+            raise CmrtError(f"{where}: not a CMRT object (need exactly clip_s, knot_times_s, values_m), got "
+                            f"{shown(got)}")
+        clip_s = inputs.number(obj["clip_s"], f"{where}: clip_s", CLIP_S, text=False)
+        lists = {}
+        for key, allowed in (("knot_times_s", Range()), ("values_m", values)):
+            value = obj[key]
+            if not isinstance(value, list) or len(value) != N_KNOTS:
+                raise CmrtError(f"{where}: {key} must be a list of {N_KNOTS} numbers, got {shown(value)}")
+            lists[key] = tuple(inputs.number(v, f"{where}: {key}", allowed, text=False) for v in value)
         try:
-            return cls(float(obj["clip_s"]), tuple(map(float, obj["knot_times_s"])), tuple(map(float, obj["values_m"])))
-        except (KeyError, TypeError, ValueError) as exc:
-            if isinstance(exc, CmrtError):
-                raise
-            raise CmrtError(f"not a CMRT object (need clip_s, knot_times_s, values_m): {exc}") from None
+            return cls(clip_s, lists["knot_times_s"], lists["values_m"])
+        except CmrtError as exc:
+            raise CmrtError(f"{where}: {exc}") from None
 
     def to_json(self) -> str:
         """``to_dict`` as JSON text."""
         return json.dumps(self.to_dict())
 
     @classmethod
-    def from_json(cls, text: str) -> Cmrt:
-        """From JSON text (a CMRT file's content)."""
-        try:
-            obj = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise CmrtError(f"CMRT file is not JSON: {exc}") from None
+    def from_json(cls, text: str, where: str = "CMRT file") -> Cmrt:
+        """From JSON text (a CMRT file's content: a CMRT object, or an object with one under ``cmrt`` as
+        ``cmrt interpolate --json`` prints)."""
+        obj = inputs.parse_json(text, where)
         if isinstance(obj, dict) and "cmrt" in obj:
             obj = obj["cmrt"]
         if not isinstance(obj, dict):
-            raise CmrtError("CMRT JSON must be an object")
-        return cls.from_dict(obj)
+            raise CmrtError(f"{where}: CMRT JSON must be an object, got {shown(obj)}")
+        return cls.from_dict(obj, where, VALUE_M)
 
     @classmethod
     def load(cls, path: str | Path) -> Cmrt:
-        """A CMRT from a JSON file (as ``cmrt interpolate --out`` writes)."""
-        try:
-            text = Path(path).read_text()
-        except OSError as exc:
-            raise CmrtError(f"cannot read CMRT file {path}: {exc.strerror}") from None
-        return cls.from_json(text)
+        """A CMRT from a JSON file (as ``cmrt interpolate --out`` writes): a regular UTF-8 file of at most
+        ``cmrt.inputs.MAX_FILE_BYTES``."""
+        return cls.from_json(inputs.read_text(path, "CMRT file"), f"CMRT file {shown(str(path))}")

@@ -29,6 +29,8 @@ import numpy as np
 from cmrt.errors import CmrtError
 
 VALIDATION_MEMBERS = 20
+MAX_PUSH_MOMENTS = 4  # each adds two members to every candidate's batch (memory: cmrt.inputs)
+MAX_PUSH_FORCE_N = 1e4
 VALIDATION_SEED = 20091  # fixed: every run of every task is validated on the same draws
 
 
@@ -59,6 +61,12 @@ class Perturbation:
 NOMINAL = Perturbation()
 
 
+def _finite_number(v: object) -> bool:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    return math.isfinite(v) if isinstance(v, float) else abs(v) <= 10**15
+
+
 @dataclass(frozen=True)
 class RobustSpec:
     """The ``[robust]`` table of a task file (all optional); ``enabled`` turns robust scoring on."""
@@ -74,10 +82,14 @@ class RobustSpec:
     def __post_init__(self) -> None:
         numbers = [self.push_force_n, self.push_duration_s, self.mass_fraction, self.timing_fraction,
                    self.worst_weight, *self.push_moments]
-        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in numbers):
+        if not all(_finite_number(v) for v in numbers):
             raise CmrtError("robust: every value must be a finite number")
-        if self.push_force_n < 0 or self.push_duration_s < 0:
-            raise CmrtError("robust: push_force_n and push_duration_s must be >= 0")
+        if not 0 <= self.push_force_n <= MAX_PUSH_FORCE_N or not 0 <= self.push_duration_s <= 60:
+            raise CmrtError(f"robust: need 0 <= push_force_n <= {MAX_PUSH_FORCE_N:g} N and "
+                            "0 <= push_duration_s <= 60 s")
+        if len(self.push_moments) > MAX_PUSH_MOMENTS or not all(-1 <= m <= 2 for m in self.push_moments):
+            raise CmrtError(f"robust: push_moments must be at most {MAX_PUSH_MOMENTS} fractions of the task window, "
+                            "each in [-1, 2]")
         if not 0 <= self.mass_fraction < 1 or not 0 <= self.timing_fraction < 0.5:
             raise CmrtError("robust: need 0 <= mass_fraction < 1 and 0 <= timing_fraction < 0.5")
         if not 0 <= self.worst_weight <= 1:
@@ -89,7 +101,7 @@ class RobustSpec:
         known = {f.name for f in fields(cls)}
         unknown = set(table) - known
         if unknown:
-            raise CmrtError(f"{source}: unknown key(s) in [robust]: {', '.join(sorted(unknown))}")
+            raise CmrtError(f"{source}: unknown key(s) in [robust]: {', '.join(sorted(map(repr, unknown)))[:200]}")
         values = dict(table)
         if "enabled" in values and not isinstance(values["enabled"], bool):
             raise CmrtError(f"{source}: robust.enabled must be true or false")

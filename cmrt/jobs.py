@@ -15,12 +15,12 @@ where the uninterrupted run would be.
 from __future__ import annotations
 
 import contextlib
-import math
 import os
 import socket
 import time
 from collections.abc import Callable, Iterator, Sequence
 
+from cmrt import inputs
 from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError, TransientFault
 from cmrt.objective import evaluate
@@ -61,10 +61,12 @@ def submit(
 
     ``init``: "auto" starts from the nearest known successful CMRT of the task (store, then
     library; cold if none), "none" from the zero CMRT, a run id from that run's best."""
-    if isinstance(seed, bool) or not isinstance(seed, int):
-        raise CmrtError("seed must be an integer")
-    if max_evals < 1 or popsize < 2 or sigma0 <= 0 or min_evals < 0 or stall_generations < 1:
-        raise CmrtError("need max_evals >= 1, popsize >= 2, sigma0 > 0, min_evals >= 0, stall_generations >= 1")
+    # the same ranges as the CLI's (cmrt.inputs): nothing non-finite or out of range reaches the store
+    for value, where, allowed in ((seed, "seed", inputs.SEED), (max_evals, "max_evals", inputs.MAX_EVALS),
+                                  (popsize, "popsize", inputs.POPSIZE), (sigma0, "sigma0", inputs.SIGMA0),
+                                  (min_evals, "min_evals", inputs.MIN_EVALS),
+                                  (stall_generations, "stall_generations", inputs.STALL_GENERATIONS)):
+        allowed.check(value, where, text=False)
     start = resolve_init(store, task, init)
     return store.add_run(RunSpec(
         task=task.name, speed=task.speed, params=task.params, task_hash=task.content_hash(),
@@ -188,8 +190,7 @@ def optimize_family(
     their neighbour, one family shape that interpolates well (ABC section 5).
 
     ``submit_kwargs`` apply to every member (its ``init`` and ``sigma0`` to the first only)."""
-    if family_sigma0 <= 0:
-        raise CmrtError("family_sigma0 must be > 0")
+    inputs.SIGMA0.check(family_sigma0, "family_sigma0", text=False)
     if isinstance(submit_kwargs.get("init"), int) and not isinstance(submit_kwargs.get("init"), bool):
         raise CmrtError("a family's members start from each other: give no run id as init")
     runs: list[Run] = []
@@ -237,8 +238,7 @@ def work(
     Ctrl-C and SIGTERM give the current run back to the queue and stop the worker. ``evaluator`` defaults
     to the batched one, as in :func:`optimize_now`.
     """
-    if not (isinstance(stale_after_s, int | float) and math.isfinite(stale_after_s) and stale_after_s > 0):
-        raise CmrtError(f"stale_after_s must be a finite number of seconds > 0, got {stale_after_s!r}")
+    inputs.STALE_AFTER_S.check(stale_after_s, "stale_after_s", text=False)
     me = worker_id()
     finished = []
     with _evaluator(evaluator) as ev:

@@ -18,6 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from cmrt import inputs  # noqa: E402
 from cmrt.curve import Cmrt  # noqa: E402
 from cmrt.errors import CmrtError  # noqa: E402
 from cmrt.interpolate import candidates, interpolate, superpose  # noqa: E402
@@ -27,6 +28,17 @@ from cmrt.sequence import load_sequence  # noqa: E402
 from cmrt.simulate import simulate  # noqa: E402
 from cmrt.store import Store, StoredEvaluation  # noqa: E402
 from cmrt.task import Task, load_task  # noqa: E402
+
+
+def _save(fig, out: Path) -> Path:
+    """Write the figure atomically (``cmrt.inputs.atomic_output``): a failed write says so (one line) and
+    leaves no half-written PNG."""
+    try:
+        with inputs.atomic_output(out, "--out", (".png",)) as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
+    finally:
+        plt.close(fig)
+    return out
 
 
 def _phases(ax, task: Task) -> None:
@@ -57,9 +69,7 @@ def plot_cop_error(task: Task, curves: list[tuple[str, Cmrt]], out: Path) -> Pat
     axes[0, 0].legend(loc="upper right", fontsize=8)
     axes[-1, 0].set_xlabel("time (s)")
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save(fig, out)
 
 
 def plot_cmrt(task: Task, curve: Cmrt, out: Path, label: str = "best CMRT") -> Path:
@@ -79,9 +89,7 @@ def plot_cmrt(task: Task, curve: Cmrt, out: Path, label: str = "best CMRT") -> P
     ax.set_xlim(0, task.clip_s)
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save(fig, out)
 
 
 def plot_convergence(evaluations: list[StoredEvaluation], threshold: float, out: Path, title: str) -> Path:
@@ -103,9 +111,7 @@ def plot_convergence(evaluations: list[StoredEvaluation], threshold: float, out:
     ax.set_title(title, fontsize=10)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save(fig, out)
 
 
 def plot_run(store: Store, run_id: int, out_dir: str | Path) -> list[Path]:
@@ -113,11 +119,7 @@ def plot_run(store: Store, run_id: int, out_dir: str | Path) -> list[Path]:
     run = store.run(run_id)
     if not run.best_cmrt:
         raise CmrtError(f"run {run_id} has no result to plot yet (status {run.status})")
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise CmrtError(f"cannot create {out}: {exc.strerror}") from None
+    out = inputs.output_dir(out_dir, "--out")
     task = task_of(run)
     best = Cmrt.from_dict(run.best_cmrt)
     speed = f" T = {task.speed:g} s" if task.speed is not None else ""
@@ -175,9 +177,7 @@ def plot_family(
     ax.set_title(f"{task_name}: optimized (solid) and interpolated (dashed) CMRTs", fontsize=10)
     ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save(fig, out)
 
 
 def plot_sequence(seq_file: str, out: Path) -> Path:
@@ -210,6 +210,4 @@ def plot_sequence(seq_file: str, out: Path) -> Path:
     ax2.legend(fontsize=7)
     ax1.set_title(f"sequence {seq.name}", fontsize=10)
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save(fig, out)

@@ -44,6 +44,8 @@ import mujoco
 import numpy as np
 
 from cmrt.character import MODEL_PATH
+from cmrt.errors import CmrtError
+from cmrt.inputs import Range
 
 BALL_RADIUS_M = 0.12
 FOREARM_RADIUS_M = 0.035
@@ -111,6 +113,9 @@ class Prop:
     PARAMS: ClassVar[dict[str, float]] = {}
     #: the parameters that change the compiled model (the others only change how a clip runs)
     MODEL_PARAMS: ClassVar[tuple[str, ...]] = ()
+    #: the allowed range of each parameter (checked when a task is loaded or ``--set``): a mass, size or time
+    #: constant is positive, so MuJoCo never compiles a degenerate body
+    LIMITS: ClassVar[dict[str, Range]] = {}
     #: the body whose mass an ensemble member may scale (None: the prop has no mass that matters)
     mass_body: ClassVar[str | None] = None
     #: the prop acts every physics step (a ball released or caught at the right instant), not every control step
@@ -174,6 +179,11 @@ class Ball(Prop):
     PARAMS = {"ball_mass_kg": 7.0, "ball_speed_m_s": 4.0, "ball_angle_deg": 10.0, "ball_flight_s": 0.4,
               "ball_arrival_s": 1.35, "ball_height_m": 1.36, "ball_reach_m": 0.86, "max_ball_sag_m": 0.1}
     MODEL_PARAMS = ("ball_mass_kg",)
+    LIMITS = {"ball_mass_kg": Range(0.1, 100.0, unit="kg"),  # above BALL_RESIDUAL_MASS_KG: the hand-over moves it
+              "ball_speed_m_s": Range(0.0, 50.0, unit="m/s"), "ball_angle_deg": Range(-90.0, 90.0, unit="deg"),
+              "ball_flight_s": Range(0.01, 10.0, unit="s"), "ball_arrival_s": Range(0.0, 60.0, unit="s"),
+              "ball_height_m": Range(0.0, 5.0, unit="m"), "ball_reach_m": Range(-5.0, 5.0, unit="m"),
+              "max_ball_sag_m": Range(0.0, 2.0, unit="m")}
     mass_body = "ball"
     every_step = True
 
@@ -349,6 +359,8 @@ class Slab(Prop):
     kind = "slab"
     PARAMS = {"slab_mass_kg": 140.0, "slab_x_m": 0.62, "slab_thickness_m": 0.25, "slab_height_m": 1.8}
     MODEL_PARAMS = ("slab_mass_kg", "slab_x_m", "slab_thickness_m", "slab_height_m")
+    LIMITS = {"slab_mass_kg": Range(1.0, 10_000.0, unit="kg"), "slab_x_m": Range(0.2, 5.0, unit="m"),
+              "slab_thickness_m": Range(0.01, 2.0, unit="m"), "slab_height_m": Range(0.05, 5.0, unit="m")}
     mass_body = "slab"
 
     @classmethod
@@ -375,6 +387,8 @@ class Pad(Prop):
     kind = "wall"
     PARAMS = {"wall_x_m": 0.58, "wall_timeconst_s": 0.01, "strike_impulse_n_s": 3.0, "max_contact_s": 0.3}
     MODEL_PARAMS = ("wall_x_m", "wall_timeconst_s")
+    LIMITS = {"wall_x_m": Range(0.2, 5.0, unit="m"), "wall_timeconst_s": Range(0.001, 1.0, unit="s"),
+              "strike_impulse_n_s": Range(0.0, 1e4, unit="N s"), "max_contact_s": Range(0.0, 60.0, unit="s")}
 
     @classmethod
     def add_to_spec(cls, spec, p):
@@ -414,7 +428,10 @@ def build_model(kind: str | None, values: tuple[tuple[str, float], ...] = ()) ->
         if kind not in PROPS:
             raise ValueError(kind)
         PROPS[kind].add_to_spec(spec, dict(values))
-    return spec.compile()
+    try:
+        return spec.compile()
+    except ValueError as exc:  # MuJoCo's compiler: the parameters' ranges should make this unreachable
+        raise CmrtError(f"cannot build the {kind} model from {dict(values)}: {str(exc).splitlines()[0]}") from None
 
 
 def strike_success(force_n: np.ndarray, times: np.ndarray, window: tuple[float, float], impulse_n_s: float,

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 from dataclasses import asdict
 
+from cmrt import inputs
 from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
 from cmrt.store import Run, Store
@@ -56,14 +56,15 @@ def run_curve(store: Store, run_id: int) -> Cmrt:
 
 
 def export_run(store: Store, run_id: int, fmt: str) -> str:
-    """json: run, generations and evaluations; csv: one row per evaluation."""
+    """json: run, generations and evaluations (non-finite numbers as null: valid JSON); csv: one row per
+    evaluation."""
     if fmt not in ("json", "csv"):
         raise CmrtError(f"--format must be json or csv, got '{fmt}'")
     with store.snapshot():  # one consistent state even while a worker commits generations
         details, generations, evaluations = run_details(store, run_id), store.generations(run_id), \
             store.evaluations(run_id)
     if fmt == "json":
-        return json.dumps(
+        return inputs.dumps(
             {"run": details, "generations": [asdict(g) for g in generations],
              "evaluations": [asdict(e) for e in evaluations]},
             indent=2,

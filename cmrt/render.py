@@ -19,6 +19,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from cmrt import inputs
 from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
 from cmrt.objective import evaluate
@@ -29,6 +30,8 @@ CYAN = np.array([0.1, 0.8, 0.9, 1.0], dtype=np.float32)
 GREEN = np.array([0.1, 0.8, 0.2, 1.0], dtype=np.float32)
 RED = np.array([0.9, 0.1, 0.1, 1.0], dtype=np.float32)
 MARKER_Y_M = -0.35  # the camera looks along +y from the -y side
+OUT_SUFFIXES = (".png", ".mp4")
+VIDEO_CHUNK = 64  # video frames rendered at a time per clip: memory stays ~15 MB per clip however long the clip
 
 
 def _renderer(model: mujoco.MjModel, height: int, width: int) -> mujoco.Renderer:
@@ -97,33 +100,43 @@ def render(
     from tqdm import tqdm
 
     out = Path(out)
-    if out.suffix.lower() not in (".png", ".mp4"):
-        raise CmrtError(f"--out must end in .png or .mp4, got '{out.name}'")
-    if not out.parent.exists():
-        raise CmrtError(f"cannot write {out}: directory {out.parent} does not exist")
+    inputs.check_output(out, "--out", OUT_SUFFIXES)  # before anything is simulated
+    video = out.suffix.lower() == ".mp4"
     clips = [(compare, labels[1])] if compare is not None else []
     clips.append((curve, labels[0]))
     trajs = [simulate(task, c) for c, _ in clips]  # recorded: past a fall, the topple plays out
     scores = [evaluate(task, tr) for tr in trajs]
     end_s = max(tr.time_s[-1] for tr in trajs)  # the clip, its standing tail, or a topple
-    if out.suffix.lower() == ".png":
+    if not video:
         times = np.linspace(max(0.0, task.preparation_s - 0.2), end_s, n_frames)
     else:
         times = np.arange(0.0, end_s, 1.0 / fps)
     with tqdm(total=len(times) * len(trajs), desc="render", unit="frame", file=sys.stderr,
-              disable=not sys.stderr.isatty()) as bar:
-        rows = [render_frames(task, tr, times, height, width, bar) for tr in trajs]
-    if out.suffix.lower() == ".png":
-        _filmstrip(out, rows, times, [lab for _, lab in clips], scores)
-    else:
-        import imageio.v2 as imageio
-
-        with imageio.get_writer(out, fps=fps, codec="libx264", quality=7, macro_block_size=8) as writer:
-            for i in range(len(times)):
-                writer.append_data(np.concatenate([row[i] for row in rows], axis=1))
+              disable=not sys.stderr.isatty()) as bar, inputs.atomic_output(out, "--out", OUT_SUFFIXES) as tmp:
+        if not video:
+            rows = [render_frames(task, tr, times, height, width, bar) for tr in trajs]
+            _filmstrip(tmp, rows, times, [lab for _, lab in clips], scores)
+        else:
+            _video(tmp, task, trajs, times, fps, height, width, bar)
     return {"out": str(out), "frames": len(times), "clips": [
         {"label": lab, "success": s.success, "fell": s.fell, "fall_time_s": s.fall_time_s, "objective": s.objective}
         for (_, lab), s in zip(clips, scores, strict=True)]}
+
+
+def _video(out: Path, task: Task, trajs, times, fps: int, height: int, width: int, bar) -> None:
+    """The clips side by side as an MP4 (imageio's ffmpeg), rendered ``VIDEO_CHUNK`` frames at a time."""
+    import imageio.v2 as imageio
+
+    try:
+        with imageio.get_writer(out, format="FFMPEG", fps=fps, codec="libx264", quality=7,
+                                macro_block_size=8) as writer:
+            for start in range(0, len(times), VIDEO_CHUNK):
+                chunk = times[start:start + VIDEO_CHUNK]
+                rows = [render_frames(task, tr, chunk, height, width, bar) for tr in trajs]
+                for i in range(len(chunk)):
+                    writer.append_data(np.concatenate([row[i] for row in rows], axis=1))
+    except (RuntimeError, ValueError) as exc:  # ffmpeg missing or failing
+        raise CmrtError(f"cannot write the video: {type(exc).__name__}: {str(exc).splitlines()[0]}") from None
 
 
 def _filmstrip(out: Path, rows, times, labels, scores) -> None:
@@ -145,5 +158,7 @@ def _filmstrip(out: Path, rows, times, labels, scores) -> None:
             ax.set_title(f"{times[c]:.2f} s", fontsize=8)
         axes[r, 0].set_ylabel(f"{label}\n{status}", fontsize=9)
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
+    try:
+        fig.savefig(out, dpi=110, format="png")
+    finally:
+        plt.close(fig)

@@ -21,17 +21,24 @@ Format::
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from cmrt import inputs
 from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
-from cmrt.task import DEFAULT_PARAMS, TASKS_DIR, Task, load_task
+from cmrt.inputs import MAX_RUN_S, Range, shown
+from cmrt.task import DEFAULT_PARAMS, MAX_TEXT, TASKS_DIR, Task, load_task
 
 SEQUENCES_DIR = TASKS_DIR / "sequences"
+SEQUENCE_KEYS = frozenset({"name", "summary", "tail_s", "cop_sample_step_s", "motion"})
+MOTION_KEYS = frozenset({"task", "speed", "start_s"})
+MAX_MOTIONS = 32
+START_S = Range(0.0, MAX_RUN_S, unit="s")
+TAIL_S = Range(0.0, MAX_RUN_S, unit="s")
+COP_SAMPLE_STEP_S = Range(0.001, 1.0, unit="s")
 
 
 class SuperposedCmrt:
@@ -93,46 +100,65 @@ class SequenceTask(Task):
         return q, qd, qdd
 
 
+def _known_sequences() -> str:
+    return ", ".join(sorted(f.name.removesuffix(".toml") for f in SEQUENCES_DIR.iterdir() if f.name.endswith(".toml")))
+
+
 def load_sequence(name_or_path: str) -> SequenceTask:
-    """A shipped sequence by name (``four-poses``) or a sequence file by path: checked to chain (each motion
-    starts where the previous ended, after it ended)."""
+    """A shipped sequence by name (``four-poses``) or a sequence file by path (a regular UTF-8 file: see
+    ``cmrt.inputs.read_text``): every field of the right type, numbers finite and in range, motions that chain
+    (each starts where the previous ended, after it ended), the whole clip at most ``MAX_RUN_S``."""
+    if not isinstance(name_or_path, str) or not name_or_path:
+        raise CmrtError(f"a sequence is a shipped sequence's name or a .toml file, got {shown(name_or_path)}")
     path = Path(name_or_path)
     if path.suffix != ".toml":
-        path = SEQUENCES_DIR / f"{name_or_path}.toml"
-    try:
-        raw = tomllib.loads(path.read_text())
-    except OSError as exc:
-        known = ", ".join(sorted(f.name.removesuffix(".toml") for f in SEQUENCES_DIR.iterdir()
-                                 if f.name.endswith(".toml")))
-        raise CmrtError(f"cannot read sequence {name_or_path} ({exc.strerror}; known: {known})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise CmrtError(f"malformed sequence file {path}: {exc}") from None
+        shipped = SEQUENCES_DIR / f"{name_or_path}.toml"
+        if "/" in name_or_path or not shipped.is_file():
+            raise CmrtError(f"unknown sequence {shown(name_or_path)} (known: {_known_sequences()})")
+        path = Path(str(shipped))
+    where = f"sequence file {shown(str(path), 120)}"
+    raw = inputs.load_toml(path, "sequence file")
+    unknown = set(raw) - SEQUENCE_KEYS
+    if unknown:
+        raise CmrtError(f"{where}: unknown key(s) {', '.join(shown(k) for k in sorted(unknown))}")
     items = raw.get("motion")
-    if not isinstance(items, list) or not items:
-        raise CmrtError(f"{path}: a sequence needs [[motion]] entries")
+    if not isinstance(items, list) or not items or len(items) > MAX_MOTIONS:
+        raise CmrtError(f"{where}: a sequence needs 1 to {MAX_MOTIONS} [[motion]] entries")
+    for key in ("name", "summary"):
+        if not isinstance(raw.get(key, ""), str) or len(raw.get(key, "")) > MAX_TEXT:
+            raise CmrtError(f"{where}: {key} must be a string, got {shown(raw.get(key))}")
     motions = []
-    for item in items:
+    for i, item in enumerate(items, 1):
+        at = f"{where}: motion {i}"
+        if not isinstance(item, dict) or set(item) != MOTION_KEYS:
+            raise CmrtError(f"{at} needs exactly task, speed and start_s, got {shown(item)}")
+        if not isinstance(item["task"], str):
+            raise CmrtError(f"{at}: task must be a task's name or a .toml file, got {shown(item['task'])}")
+        speed = inputs.number(item["speed"], f"{at}: speed", text=False)
+        start_s = inputs.number(item["start_s"], f"{at}: start_s", START_S, text=False)
         try:
-            task = load_task(str(item["task"])).with_speed(float(item["speed"]))
-            motions.append(Motion(task, float(item["start_s"])))
-        except (KeyError, TypeError, ValueError) as exc:
-            if isinstance(exc, CmrtError):
-                raise
-            raise CmrtError(f"{path}: each motion needs task, speed and start_s ({exc})") from None
+            task = load_task(item["task"]).with_speed(speed)
+        except CmrtError as exc:
+            raise CmrtError(f"{at}: {exc}") from None
+        motions.append(Motion(task, start_s))
+    tail_s = inputs.number(raw.get("tail_s", 1.0), f"{where}: tail_s", TAIL_S, text=False)
     motions.sort(key=lambda m: m.start_s)
     for a, b in zip(motions, motions[1:], strict=False):
         if b.start_s < a.start_s + a.task.duration_s - 1e-9:
-            raise CmrtError(f"{path}: motion '{b.task.name}' starts before '{a.task.name}' has ended")
+            raise CmrtError(f"{where}: motion '{b.task.name}' starts before '{a.task.name}' has ended")
         if np.max(np.abs(a.task.end_qpos()[2:] - b.task.start_qpos()[2:])) > 1e-6:
-            raise CmrtError(f"{path}: '{b.task.name}' does not start from the pose '{a.task.name}' ends in")
+            raise CmrtError(f"{where}: '{b.task.name}' does not start from the pose '{a.task.name}' ends in")
     if any(m.task.prop for m in motions) or motions[0].offset_s < 0:
-        raise CmrtError(f"{path}: motions must be pose changes starting at or after their preparation time")
+        raise CmrtError(f"{where}: motions must be pose changes starting at or after their preparation time")
     last = motions[-1]
-    clip = max(max(m.offset_s + m.task.clip_s for m in motions), last.start_s + last.task.duration_s
-               + float(raw.get("tail_s", 1.0)))
+    clip = max(max(m.offset_s + m.task.clip_s for m in motions), last.start_s + last.task.duration_s + tail_s)
+    step = inputs.number(raw.get("cop_sample_step_s", motions[0].task.cop_sample_step_s),
+                         f"{where}: cop_sample_step_s", COP_SAMPLE_STEP_S, text=False)
     params = dict(DEFAULT_PARAMS)
     params.update(clip_s=clip, preparation_s=motions[0].start_s,
-                  duration_s=last.start_s + last.task.duration_s - motions[0].start_s,
-                  cop_sample_step_s=float(raw.get("cop_sample_step_s", motions[0].task.cop_sample_step_s)))
-    return SequenceTask(name=str(raw.get("name", path.stem)), summary=str(raw.get("summary", "")), params=params,
+                  duration_s=last.start_s + last.task.duration_s - motions[0].start_s, cop_sample_step_s=step)
+    if clip + params["tail_s"] > MAX_RUN_S:
+        raise CmrtError(f"{where}: the sequence's clip ({clip:g} s, with its {params['tail_s']:g} s standing tail) "
+                        f"is longer than the longest clip cmrt simulates ({MAX_RUN_S:g} s)")
+    return SequenceTask(name=raw.get("name", path.stem), summary=raw.get("summary", ""), params=params,
                         end_pose_deg=motions[-1].task.end_pose_deg, source=str(path), motions=tuple(motions))

@@ -151,6 +151,8 @@ def _inspect(path: Path) -> str:
         raise CmrtError(f"cannot read store {path}: {exc.strerror}") from None
     if head != SQLITE_MAGIC:
         raise CmrtError(f"{path} is not a CMRT store (not an SQLite database)")
+    side = [Path(f"{path}-wal"), Path(f"{path}-shm")]
+    existed = [p.exists() for p in side]
     try:
         con = _connect_readonly(path)
         try:
@@ -160,6 +162,10 @@ def _inspect(path: Path) -> str:
         finally:
             con.close()
     except sqlite3.DatabaseError as exc:
+        for p, was in zip(side, existed, strict=True):  # what opening a damaged file made beside it
+            if not was:
+                with contextlib.suppress(OSError):
+                    p.unlink()
         if isinstance(exc, sqlite3.OperationalError) and "unable to open" in str(exc):
             raise CmrtError(f"cannot open store {path} (permissions?)") from None
         raise CmrtError(f"{path} is a corrupted SQLite file ({' '.join(str(exc).split())[:120]})") from None
@@ -170,6 +176,17 @@ def _inspect(path: Path) -> str:
     if version > SCHEMA_VERSION:
         raise CmrtError(f"{path} has schema version {version}, newer than this cmrt ({SCHEMA_VERSION})")
     return "store"
+
+
+def _json(text, where: str, kind: type = object):
+    """A JSON column's value; CmrtError if the stored text is damaged (not JSON, or not a ``kind``)."""
+    try:
+        value = json.loads(text)
+    except (TypeError, ValueError, RecursionError):
+        raise CmrtError(f"the store is damaged: {where} is not valid JSON") from None
+    if not isinstance(value, kind):
+        raise CmrtError(f"the store is damaged: {where} is not a {kind.__name__}")
+    return value
 
 
 class LostClaim(RuntimeError):
@@ -257,13 +274,14 @@ class Run:
 
     @classmethod
     def from_row(cls, row: sqlite3.Row) -> Run:
-        """Decode a ``runs`` row (JSON columns, 0/1 flags)."""
+        """Decode a ``runs`` row (JSON columns, 0/1 flags); a damaged row is a CmrtError naming it."""
         d = dict(row)
-        d["task_definition"] = json.loads(d.pop("task_source"))
+        where = f"run {d.get('id')}"
+        d["task_definition"] = _json(d.pop("task_source"), f"{where}: task_source")
         for key in ("params", "best_cmrt", "robust", "robustness"):
-            d[key] = json.loads(d[key]) if d[key] else None
+            d[key] = _json(d[key], f"{where}: {key}") if d[key] else None
         for key in ("best_params", "init_params"):
-            d[key] = tuple(json.loads(d[key])) if d[key] else None
+            d[key] = tuple(_json(d[key], f"{where}: {key}", list)) if d[key] else None
         for key in ("best_fell", "baseline_fell", "best_success", "baseline_success"):
             d[key] = None if d[key] is None else bool(d[key])
         return cls(**d)
@@ -563,7 +581,7 @@ class Store:
             "ORDER BY gen, idx",
             (run_id,),
         )
-        return [StoredEvaluation(gen=r["gen"], idx=r["idx"], params=tuple(json.loads(r["params"])),
+        return [StoredEvaluation(gen=r["gen"], idx=r["idx"], params=tuple(_json(r["params"], "an evaluation", list)),
                                  objective=r["objective"], fell=bool(r["fell"]),
                                  success=None if r["success"] is None else bool(r["success"]), seconds=r["seconds"])
                 for r in rows]
@@ -576,8 +594,9 @@ class Store:
             (run_id,),
         )
         return [Generation(gen=r["gen"], sigma=r["sigma"], best_objective=r["best_objective"],
-                           gen_best_objective=r["gen_best_objective"], mean=tuple(json.loads(r["mean"])),
-                           evaluations=r["evaluations"], created_at=r["created_at"]) for r in rows]
+                           gen_best_objective=r["gen_best_objective"],
+                           mean=tuple(_json(r["mean"], "a generation", list)), evaluations=r["evaluations"],
+                           created_at=r["created_at"]) for r in rows]
 
     def successful_runs(self, task_name: str) -> list[Run]:
         """Finished runs of a task whose best CMRT is a success (warm-start candidates), oldest first."""

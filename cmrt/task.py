@@ -13,17 +13,18 @@ import hashlib
 import importlib.resources
 import json
 import math
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from cmrt import inputs
 from cmrt import reference as ref
-from cmrt.character import character, feet_flat_qpos, joint_angles_from_pose
+from cmrt.character import SIDED_JOINTS, character, feet_flat_qpos, joint_angles_from_pose
 from cmrt.ensemble import RobustSpec
 from cmrt.errors import CmrtError
-from cmrt.props import PROPS, build_model, model_values
+from cmrt.inputs import MAX_RUN_S, POSE_DEG, Range, param_range, shown
+from cmrt.props import PROPS, build_model, model_values, prop_class
 
 MIN_TAIL_S = 0.5
 #: The shipped task files (package data: present in an installed cmrt, not only in a checkout).
@@ -128,22 +129,22 @@ class Task:
         """D = L - P - T: the clip after the motion (s)."""
         return self.clip_s - self.preparation_s - self.duration_s
 
-    def with_params(self, **overrides: float) -> Task:
-        """A copy with parameters overridden (validated against names and ranges)."""
+    def with_params(self, **overrides: float | str) -> Task:
+        """A copy with parameters overridden (numbers, or text parsed strictly), validated against names and
+        ranges."""
         params = dict(self.params)
         for key, value in overrides.items():
             if key not in params:
-                raise CmrtError(f"task '{self.name}' has no parameter '{key}' (has: {', '.join(sorted(params))})")
-            try:
-                value = float(value)
-            except (TypeError, ValueError):
-                raise CmrtError(f"parameter '{key}' must be a number, got '{value}'") from None
-            if not math.isfinite(value):
-                raise CmrtError(f"parameter '{key}' must be finite, got '{value}'")
-            params[key] = value
+                raise CmrtError(f"task {shown(self.name)} has no parameter {shown(key)} "
+                                f"(has: {', '.join(sorted(params))})")
+            params[key] = inputs.number(value, f"parameter {key}", self.limit(key))
         task = replace(self, params=params)
         task.validate()
         return task
+
+    def limit(self, key: str) -> Range:
+        """The documented range of parameter ``key`` (``cmrt.inputs.TASK_PARAMS``, or the prop's ``LIMITS``)."""
+        return param_range(key, prop_class(self.prop).LIMITS)
 
     def with_robust(self, enabled: bool = True) -> Task:
         """A copy scored on its robust ensemble (``cmrt.ensemble``), or on the nominal clip alone."""
@@ -158,11 +159,17 @@ class Task:
         return self.with_params(**{self.speed_param: speed})
 
     def validate(self) -> None:
-        """CmrtError if a parameter is out of its range or the timing is impossible."""
+        """CmrtError if a parameter is not finite, outside its documented range (``limit``) or the task's own
+        ``param_ranges``, or the timing is impossible."""
         p = self.params
+        for key, value in p.items():
+            inputs.number(value, f"parameter {key}", self.limit(key))
         for key, (lo, hi) in self.param_ranges.items():
             if not lo <= p[key] <= hi:
-                raise CmrtError(f"{key} = {p[key]:g} is outside task '{self.name}' range [{lo:g}, {hi:g}]")
+                raise CmrtError(f"{key} = {p[key]:g} is outside task {shown(self.name)} range [{lo:g}, {hi:g}]")
+        if p["clip_s"] + p["tail_s"] > MAX_RUN_S:
+            raise CmrtError(f"clip_s + tail_s = {p['clip_s'] + p['tail_s']:g} s is longer than the longest clip "
+                            f"cmrt simulates ({MAX_RUN_S:g} s)")
         if p["clip_s"] <= 0 or p["preparation_s"] < 0 or p["duration_s"] < 0:
             raise CmrtError("clip_s must be > 0, preparation_s and duration_s >= 0")
         if self.decay_s < -1e-12:
@@ -294,95 +301,133 @@ def available_tasks() -> list[str]:
 
 
 def load_task(name_or_path: str) -> Task:
-    """Load a shipped task by name (``bend``) or a user's task file by path (anything ending in ``.toml``)."""
+    """Load a shipped task by name (``bend``) or a user's task file by path (anything ending in ``.toml``): a
+    regular UTF-8 file of at most ``cmrt.inputs.MAX_FILE_BYTES`` (``cmrt.inputs.read_text``)."""
+    if not isinstance(name_or_path, str) or not name_or_path:
+        raise CmrtError(f"a task is a shipped task's name or a .toml file, got {shown(name_or_path)}")
     path = Path(name_or_path)
     if path.suffix != ".toml":
         if name_or_path not in available_tasks():
-            raise CmrtError(f"unknown task '{name_or_path}' (known: {', '.join(available_tasks())})")
-        path = TASKS_DIR / f"{name_or_path}.toml"
-    try:
-        raw = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise CmrtError(f"cannot read task file {path}: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise CmrtError(f"malformed task file {path}: {exc}") from None
+            raise CmrtError(f"unknown task {shown(name_or_path)} (known: {', '.join(available_tasks())})")
+        raw = inputs.parse_toml((TASKS_DIR / f"{name_or_path}.toml").read_text(), f"task file {name_or_path}.toml")
+        path = Path(str(TASKS_DIR / f"{name_or_path}.toml"))
+    else:
+        raw = inputs.load_toml(path, "task file")
     return task_from_dict(raw, source=str(path), default_name=path.stem)
 
 
-def _bad_robust(source: str):
-    raise CmrtError(f"{source}: [robust] must be a table")
+#: The keys of a task file (README, *Task files*).
+TASK_KEYS = frozenset({"name", "summary", "speed_param", "balance_joint", "params", "param_ranges", "start_pose_deg",
+                       "end_pose_deg", "via_pose_deg", "timing", "prop", "robust"})
+MAX_TEXT = 1000  # characters of a task's name or summary
+
+
+def _table(raw: dict, key: str, where: str) -> dict | None:
+    """``raw[key]`` if it is a table (None if absent); CmrtError naming the file and the key otherwise."""
+    if key not in raw:
+        return None
+    value = raw[key]
+    if not isinstance(value, dict):
+        raise CmrtError(f"{where}: [{key}] must be a table, got {shown(value)}")
+    return value
+
+
+def _text(raw: dict, key: str, where: str, default: str) -> str:
+    value = raw.get(key, default)
+    if not isinstance(value, str) or len(value) > MAX_TEXT:
+        raise CmrtError(f"{where}: {key} must be a string of at most {MAX_TEXT} characters, got {shown(value)}")
+    return value
+
+
+def _pose(table: dict | None, key: str, where: str) -> dict[str, float] | None:
+    if table is None:
+        return None
+    return {str(k): inputs.number(v, f"{where}: {key}.{k}", POSE_DEG, text=False) for k, v in table.items()}
+
+
+def _pair(value: object, where: str) -> tuple[float, float] | None:
+    """``[a, b]`` of two finite numbers (not booleans), or None."""
+    if not (isinstance(value, list) and len(value) == 2):
+        return None
+    try:
+        return inputs.number(value[0], where, text=False), inputs.number(value[1], where, text=False)
+    except CmrtError:
+        return None
 
 
 def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task") -> Task:
-    """A task from a task-file dict (TOML, or a stored run's definition), validated; errors name ``source``."""
-    allowed = {
-        "name",
-        "summary",
-        "speed_param",
-        "balance_joint",
-        "params",
-        "param_ranges",
-        "start_pose_deg",
-        "end_pose_deg",
-        "via_pose_deg",
-        "timing",
-        "prop",
-        "robust",
-    }
-    unknown = set(raw) - allowed
+    """A task from a task-file dict (TOML, or a stored run's definition), validated: every value of the right
+    type, finite and in its documented range (``cmrt.inputs``); errors are one line naming ``source``."""
+    where = shown(source, 120).strip("'")
+    if not isinstance(raw, dict):
+        raise CmrtError(f"{where}: a task definition must be a table, got {shown(raw)}")
+    unknown = set(raw) - TASK_KEYS
     if unknown:
-        raise CmrtError(f"{source}: unknown key(s) {', '.join(sorted(unknown))}")
+        raise CmrtError(f"{where}: unknown key(s) {', '.join(shown(k) for k in sorted(map(str, unknown)))}")
     params = dict(DEFAULT_PARAMS)
-    prop = raw.get("prop", {}).get("kind") if isinstance(raw.get("prop"), dict) else None
-    if "prop" in raw:
-        if prop not in PROPS:
-            raise CmrtError(f"{source}: prop.kind must be one of {', '.join(PROPS)}")
+    prop = None
+    prop_table = _table(raw, "prop", where)
+    if prop_table is not None:
+        prop = prop_table.get("kind")
+        if set(prop_table) - {"kind"} or not isinstance(prop, str) or prop not in PROPS:
+            raise CmrtError(f"{where}: prop.kind must be one of {', '.join(PROPS)} (and [prop] nothing else), got "
+                            f"{shown(prop_table)}")
         params.update(PROPS[prop].PARAMS)
-    for key, value in raw.get("params", {}).items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise CmrtError(f"{source}: parameter '{key}' must be a number")
-        params[key] = float(value)
+    limits = prop_class(prop).LIMITS
+    for key, value in (_table(raw, "params", where) or {}).items():
+        inputs.param_name(key, f"{where}: a key of [params]")
+        params[key] = inputs.number(value, f"{where}: parameter {key}", param_range(key, limits), text=False)
     ranges = {}
-    for key, value in raw.get("param_ranges", {}).items():
-        if key not in params or not (isinstance(value, list) and len(value) == 2):
-            raise CmrtError(f"{source}: param_ranges.{key} must be [low, high] of a known parameter")
-        ranges[key] = (float(value[0]), float(value[1]))
+    for key, value in (_table(raw, "param_ranges", where) or {}).items():
+        pair = _pair(value, where)
+        if key not in params or pair is None or not pair[0] <= pair[1]:
+            raise CmrtError(f"{where}: param_ranges.{shown(key).strip(chr(39))} must be [low, high] (finite, "
+                            f"low <= high) of a known parameter, got {shown(value)}")
+        ranges[key] = pair
     speed_param = raw.get("speed_param")
-    if speed_param is not None and speed_param not in params:
-        raise CmrtError(f"{source}: speed_param '{speed_param}' is not a parameter")
-    for table in ("start_pose_deg", "end_pose_deg", "via_pose_deg"):
-        for key, value in raw.get(table, {}).items():
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise CmrtError(f"{source}: {table}.{key} must be a number of degrees")
+    if speed_param is not None and (not isinstance(speed_param, str) or speed_param not in params):
+        raise CmrtError(f"{where}: speed_param must name a parameter, got {shown(speed_param)}")
+    balance_joint = raw.get("balance_joint", "ankle")
+    if balance_joint is None:
+        balance_joint = ""
+    if not isinstance(balance_joint, str) or balance_joint not in ("", *SIDED_JOINTS):
+        raise CmrtError(f"{where}: balance_joint must be one of {', '.join(SIDED_JOINTS)} or \"\", "
+                        f"got {shown(balance_joint)}")
+    poses = {key: _pose(_table(raw, key, where), key, where) for key in ("start_pose_deg", "end_pose_deg",
+                                                                          "via_pose_deg")}
     timing = {}
-    for key, value in raw.get("timing", {}).items():
-        ok = isinstance(value, list) and len(value) == 2 and all(isinstance(v, (int, float)) for v in value)
-        if not ok or not 0.0 <= value[0] < value[1] <= 1.0:
-            raise CmrtError(f"{source}: timing.{key} must be [start, end] fractions of T with 0 <= start < end <= 1")
-        timing[key] = (float(value[0]), float(value[1]))
+    for key, value in (_table(raw, "timing", where) or {}).items():
+        pair = _pair(value, where)
+        if pair is None or not 0.0 <= pair[0] < pair[1] <= 1.0:
+            raise CmrtError(f"{where}: timing.{shown(key).strip(chr(39))} must be [start, end] fractions of T with "
+                            f"0 <= start < end <= 1, got {shown(value)}")
+        timing[str(key)] = pair
+    robust_table = _table(raw, "robust", where)
     task = Task(
-        name=str(raw.get("name", default_name)),
-        summary=str(raw.get("summary", "")),
+        name=_text(raw, "name", where, default_name),
+        summary=_text(raw, "summary", where, ""),
         params=params,
         param_ranges=ranges,
-        start_pose_deg={k: float(v) for k, v in raw.get("start_pose_deg", {}).items()},
-        end_pose_deg={k: float(v) for k, v in raw["end_pose_deg"].items()} if "end_pose_deg" in raw else None,
-        via_pose_deg={k: float(v) for k, v in raw["via_pose_deg"].items()} if "via_pose_deg" in raw else None,
-        balance_joint=raw.get("balance_joint", "ankle") or None,
+        start_pose_deg=poses["start_pose_deg"] or {},
+        end_pose_deg=poses["end_pose_deg"],
+        via_pose_deg=poses["via_pose_deg"],
+        balance_joint=balance_joint or None,
         timing=timing,
         prop=prop,
         speed_param=speed_param,
         source=source,
-        robust=RobustSpec.from_table(raw.get("robust", {}), source) if isinstance(raw.get("robust", {}), dict)
-        else _bad_robust(source),
+        robust=RobustSpec.from_table(robust_table, where) if robust_table is not None else RobustSpec(),
     )
-    task.validate()
     try:
+        task.validate()
         joint_angles_from_pose({k: 0.0 for k in timing})
     except CmrtError as exc:
-        raise CmrtError(f"{source}: timing: {exc}") from None
-    task.start_qpos()  # fail now on unknown joints or unbalanceable poses
-    task.end_qpos()
-    if task.via_pose_deg is not None:
-        task.via_qpos()
+        raise CmrtError(f"{where}: {exc}") from None
+    try:
+        task.start_qpos()  # fail now on unknown joints or unbalanceable poses
+        task.end_qpos()
+        if task.via_pose_deg is not None:
+            task.via_qpos()
+    except CmrtError as exc:
+        raise CmrtError(f"{where}: {exc}") from None
     return task

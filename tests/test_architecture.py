@@ -13,7 +13,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parent.parent / "cmrt"
 
 LAYERS: list[tuple[str, set[str]]] = [
-    ("foundation", {"errors", "balance", "character", "curve", "ensemble", "control", "control.controller",
+    ("foundation", {"errors", "inputs", "balance", "character", "curve", "ensemble", "control", "control.controller",
                     "control.kernel", "control.momentum", "control.planar"}),
     ("physics", {"props", "reference", "task", "sequence", "library", "simulate", "objective", "validate",
                  "render"}),

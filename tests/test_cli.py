@@ -64,7 +64,7 @@ def test_curve_file(tmp_path):
 
 BAD_INPUT = [
     (("simulate", "nosuchtask"), "unknown task"),
-    (("simulate", "bend", "--speed", "fast"), "invalid float"),
+    (("simulate", "bend", "--speed", "fast"), "argument --speed: must be a finite number"),
     (("simulate", "bend", "--speed", "9"), "range"),
     (("simulate", "bend", "--set", "duration_s"), "KEY=VALUE"),
     (("simulate", "bend", "--set", "mass=3"), "no parameter"),
