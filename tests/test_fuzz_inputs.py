@@ -33,7 +33,7 @@ from cmrt.props import PROPS
 from cmrt.task import DEFAULT_PARAMS, TASKS_DIR
 from tests.input_helpers import assert_valid_json, fake_evaluation, make_store, snapshot
 
-FAST = settings(max_examples=100, deadline=None, derandomize=True, database=None,
+FAST = settings(max_examples=25, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 SLOW = settings(max_examples=600, deadline=None, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])

@@ -40,6 +40,7 @@ def kill_worker_after(path, rid: int, generations: int, backend: str) -> None:
     worker.wait()
 
 
+@pytest.mark.slow  # a whole (small) optimization, serial
 def test_run_stores_every_evaluation_and_generation(tmp_path):
     run, evals = finished_run(tmp_path / "s.sqlite", seed=3, max_evals=15, popsize=5)
     assert run.status == "done" and run.stop_reason == "budget"

@@ -7,7 +7,6 @@ import signal
 import threading
 import time
 
-import dask
 import numpy as np
 import pytest
 
@@ -36,6 +35,8 @@ def test_a_worker_killed_mid_generation_changes_no_score():
 
 @pytest.mark.slow  # a LocalCluster
 def test_a_task_that_keeps_killing_workers_is_a_transient_fault():
+    import dask  # here: importing dask costs the fast test loop a second at collection
+
     with dask.config.set({"distributed.scheduler.allowed-failures": 0}), Evaluator("dask", workers=1) as ev:
         future = ev._client.submit(os._exit, 1, pure=False)
         with pytest.raises(Exception) as info:

@@ -48,6 +48,7 @@ def test_push_is_recovered_and_the_character_settles(stand, force_n):
     assert_plausible(ev)
 
 
+@pytest.mark.slow  # two 10 s clips recorded through the topple
 @pytest.mark.parametrize("force_n", [250.0, -250.0])
 def test_strong_push_topples_instead_of_launching(stand, force_n):
     """250 N for 0.1 s is a loss of balance: detected before the body is on its way down, then a topple
@@ -82,6 +83,7 @@ def test_fast_bend_is_not_a_success_without_anticipation():
     assert_plausible(ev)
 
 
+@pytest.mark.slow  # covered fast by test_tasks determinism and the warm-start tests
 def test_library_cmrt_makes_the_fast_bend_a_success():
     task = load_task("bend").with_speed(0.4)
     zero = evaluate(task, simulate(task))
@@ -125,6 +127,7 @@ def test_batched_clips_equal_clips_alone_and_falls_do_not_poison_the_batch():
         assert a == b
 
 
+@pytest.mark.slow  # two recorded clips
 def test_recording_a_trace_does_not_change_the_score():
     task = load_task("bend").with_speed(0.5)
     curve = library_curve(task.with_speed(0.4))

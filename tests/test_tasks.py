@@ -77,6 +77,7 @@ def test_task_file_and_model_are_consistent(name):
         assert points[:, 0].min() < d.subtree_com[1, 0] < points[:, 0].max()  # CoM over the feet
 
 
+@pytest.mark.slow  # two clips per task; test_determinism_per_task keeps every task in the fast loop
 @pytest.mark.parametrize("name", TASKS)
 def test_zero_and_library_cmrt(name):
     """What the task is for: the outcome of the reactive controller alone (zero CMRT) against the library's."""
