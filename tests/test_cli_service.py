@@ -86,7 +86,7 @@ def digest(path):
     (("submit", "nosuchtask"), "unknown task"),
     (("submit", "TASKFILE"), "malformed task file"),
     (("submit", "bend", "--speed", "7"), "outside task"),
-    (("submit", "bend", "--seed", "1.5"), "invalid int value"),
+    (("submit", "bend", "--seed", "1.5"), "--seed: must be an integer"),
     (("optimize", "bend", "--backend", "dask", "--scheduler", "tcp://127.0.0.1:1"), "cannot reach dask scheduler"),
     (("show", "999"), "no run 999"),
     (("best", "bend", "--speed", "1.0"), "no finished run"),
@@ -94,7 +94,7 @@ def digest(path):
     (("export", "1", "--format", "xml"), "invalid choice"),
     (("submit", "bend", "--init", "sometimes"), "must be auto, none or a run id"),
     (("submit", "bend", "--init", "999"), "no run 999"),
-    (("submit", "bend", "--stall-generations", "0"), "stall_generations >= 1"),
+    (("submit", "bend", "--stall-generations", "0"), "--stall-generations: must be an integer in [1, 100000]"),
     (("submit", "BADROBUST"), "robust: worst_weight"),
 ])
 @pytest.mark.slow  # shares an optimization run; two cmrt processes per case
