@@ -31,6 +31,7 @@ import numpy as np
 
 from cmrt import inputs, jobs, query
 from cmrt.bench import run_bench
+from cmrt.control.references import REFERENCE_MODES
 from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError, Terminated, TransientFault
 from cmrt.inputs import escape, shown
@@ -117,9 +118,10 @@ def _report_text(r: dict) -> str:
     if r["tracking_bound_rad"] is not None:
         track += f" (bound {r['tracking_bound_rad']:.3f})"
     return "\n".join([
-        f"{escape(r['task'])}{speed}  curve={escape(r['curve'])}: {_outcome(r)}",
+        f"{escape(r['task'])}{speed}  curve={escape(r['curve'])}  reference={r['reference']}: {_outcome(r)}",
         f"  objective {_n(r['objective'], '.4f')}  (CoP-error 2-norm {_n(r['cop_error_norm'], '.4f')} m "
-        f"+ penalty {_n(r['penalty'], '.2f')})",
+        f"+ penalty {_n(r['penalty'], '.2f')}; against its own reference CoP "
+        f"{_n(r['cop_error_own_reference_norm'], '.4f')} m)",
         f"  min CoP margin {_n(r['min_cop_margin_m'], '.1f', 100)} cm  tracking error {track} rad  final pose error "
         f"{_n(r['final_pose_error_rad'], '.3f')} rad  [{r['wall_s']:.2f} s]",
         f"  peak ground force {_n(r['peak_normal_force_bw'], '.2f')} x body weight  airborne "
@@ -133,6 +135,7 @@ def _result(run: Run) -> dict:
         "run_id": run.id,
         "task": run.task,
         "speed": run.speed,
+        "reference": run.reference,
         "status": run.status,
         "best_objective": run.best_objective,
         "success": run.best_success,
@@ -212,9 +215,9 @@ def _parse_sets(items: list[str] | None) -> dict[str, str]:
     return out
 
 
-def resolve_task(name: str, speed: float | None, sets: list[str] | None) -> Task:
-    """A task by name or path, with ``--set`` overrides and ``--speed`` applied (validated)."""
-    task = load_task(name)
+def resolve_task(name: str, speed: float | None, sets: list[str] | None, reference: str | None = None) -> Task:
+    """A task by name or path, with ``--set`` overrides, ``--speed`` and ``--reference`` applied (validated)."""
+    task = load_task(name).with_reference(reference)
     overrides = _parse_sets(sets)
     if overrides:
         try:
@@ -307,6 +310,7 @@ def simulate_report(task, curve, curve_name: str, trace: str | None = None) -> d
     return {
         "task": task.name,
         "speed": task.speed,
+        "reference": task.reference_mode,
         "params": task.params,
         "curve": curve_name,
         "cmrt": curve.to_dict(),
@@ -320,6 +324,13 @@ def _task_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("task", help="a shipped task's name (cmrt tasks) or the path of a .toml task file")
     p.add_argument("--speed", type=inputs.arg(inputs.SPEED), help="the task's speed parameter (bend: duration T in s)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a task parameter")
+    _reference_arg(p)
+
+
+def _reference_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--reference", choices=REFERENCE_MODES, default=None,
+                   help="where the controller's reference CoM/CoP come from: center (the support centre; ABC) or "
+                   "yu (GRF-weighted feet and Winter's CoP, reactive); default: the task file's, else center")
 
 
 def _opt_args(p: argparse.ArgumentParser) -> None:
@@ -356,7 +367,7 @@ def _submit_kwargs(args) -> dict:
 def _opt_task(args, speed: float | None) -> Task:
     """The task an optimization runs: with ``--robust``, scored on its ensemble. A run id as ``--init`` must
     exist before a store is created or written."""
-    task = resolve_task(args.task, speed, args.set)
+    task = resolve_task(args.task, speed, args.set, args.reference)
     if isinstance(args.init, int):
         with _store(args.store, readonly=True) as store:
             store.run(args.init)
@@ -406,7 +417,7 @@ class Simulate(Command):
         p.add_argument("--trace", metavar="FILE.npz", help="save the trajectories")
 
     def run(self, args):
-        task = resolve_task(args.task, args.speed, args.set)
+        task = resolve_task(args.task, args.speed, args.set, args.reference)
         curve, name = resolve_curve(args.curve, task, args.store)
         return Output(simulate_report(task, curve, name, args.trace), _report_text)
 
@@ -544,15 +555,16 @@ class Jobs(Command):
 
 class Runs(Command):
     name, help = "runs", "list stored runs"
-    COLUMNS = ("id", "task", "speed", "status", "seed", "best_objective", "best_success", "baseline_objective",
-               "baseline_success", "evaluations", "stop_reason")
+    COLUMNS = ("id", "task", "speed", "reference", "status", "seed", "best_objective", "best_success",
+               "baseline_objective", "baseline_success", "evaluations", "stop_reason")
 
     def add_arguments(self, p):
         p.add_argument("--task")
+        p.add_argument("--reference", choices=REFERENCE_MODES, help="only runs with this reference mode")
 
     def run(self, args):
         with _store(args.store, readonly=True) as store:
-            rows = [query.run_summary(r) for r in store.runs(task=args.task)]
+            rows = [query.run_summary(r) for r in store.runs(task=args.task, reference=args.reference)]
         return Output(rows, _table(rows, self.COLUMNS))
 
 
@@ -580,7 +592,7 @@ class Best(Command):
         _task_args(p)
 
     def run(self, args):
-        task = resolve_task(args.task, args.speed, args.set)
+        task = resolve_task(args.task, args.speed, args.set, args.reference)
         with _store(args.store, readonly=True) as store:
             return Output(_result(query.best_run(store, task)), _result_text)
 
@@ -618,7 +630,7 @@ class Interpolate(Command):
             inputs.param_name(args.param, "--param")
         if args.out is not None:
             inputs.check_output(args.out, "--out")
-        task = resolve_task(args.task, args.speed, args.set)
+        task = resolve_task(args.task, args.speed, args.set, args.reference)
         store = _store(args.store, readonly=True) if args.source == "store" else None
         try:
             r = interpolate(task, args.param, args.source, store)
@@ -716,7 +728,7 @@ class Render(Command):
         from cmrt.render import OUT_SUFFIXES, render  # OpenGL: only this verb pays for it
 
         inputs.check_output(args.out, "--out", OUT_SUFFIXES)  # before anything is simulated
-        task = resolve_task(args.task, args.speed, args.set)
+        task = resolve_task(args.task, args.speed, args.set, args.reference)
         curve, name = resolve_curve(args.curve, task, args.store)
         compare, cname = resolve_curve(args.compare, task, args.store, "--compare") if args.compare else (None, "")
         r = render(task, curve, args.out, compare, (f"{name} CMRT", f"{cname} CMRT"), n_frames=args.frames,
@@ -735,6 +747,7 @@ class Bench(Command):
         p.add_argument("--task", default="bend")
         p.add_argument("--speed", type=inputs.arg(inputs.SPEED), default=0.4)
         p.add_argument("--set", action="append", metavar="KEY=VALUE")
+        _reference_arg(p)
         p.add_argument("--population", type=inputs.arg(inputs.POPULATION), default=16)
         p.add_argument("--repeat", type=inputs.arg(inputs.REPEAT), default=5)
         p.add_argument("--backends", help=f"comma-separated subset of {','.join(BACKENDS)}")
@@ -746,7 +759,7 @@ class Bench(Command):
         if unknown:
             raise CmrtError(f"--backends must be a comma-separated subset of {', '.join(BACKENDS)}, got "
                             f"{shown(args.backends)}")
-        task = resolve_task(args.task, args.speed, args.set)
+        task = resolve_task(args.task, args.speed, args.set, args.reference)
         return Output(run_bench(task, args.population, args.repeat, backends, args.workers), self._text)
 
     @staticmethod

@@ -70,8 +70,9 @@ def candidates(task: Task, param: str, source: str, store: Store | None = None) 
     out: dict[float, tuple[float, Cmrt, str]] = {}
     if source == "library":
         for e in load_entries():
-            if e["task"] != task.name or e.get("robust", False) != task.robust.enabled:
-                continue  # one family: plain CMRTs for a plain task, robust ones for a robust task
+            if (e["task"] != task.name or e.get("robust", False) != task.robust.enabled
+                    or e.get("reference", "center") != task.reference_mode):
+                continue  # one family: plain CMRTs for a plain task, robust ones for a robust task, one mode
             params = e.get("params") or load_task(task.name).with_speed(e["speed"]).params
             if _physics(params, param) == want:
                 out[params[param]] = (
@@ -83,7 +84,7 @@ def candidates(task: Task, param: str, source: str, store: Store | None = None) 
         if store is None:
             raise CmrtError("interpolating from the store needs a store")
         best: dict[float, tuple[float, Run]] = {}
-        for run in store.runs(task=task.name, status="done"):
+        for run in store.runs(task=task.name, status="done", reference=task.reference_mode):
             if run.best_cmrt is None or not run.best_success:
                 continue  # only CMRTs that made the motion a success
             if (run.robust is not None) != task.robust.enabled:

@@ -74,7 +74,7 @@ def submit(
         min_evals=min_evals, stop_threshold=task.stop_threshold, stall_generations=stall_generations,
         backend=backend, init_source=start.source, init_params=start.params,
         init_run=init if isinstance(init, int) and not isinstance(init, bool) else None,
-        robust=task.robust.to_table() if task.robust.enabled else None,
+        robust=task.robust.to_table() if task.robust.enabled else None, reference=task.reference_mode,
     ))
 
 

@@ -38,11 +38,16 @@ def library_curve(task: Task, path: Path = LIBRARY_PATH, robust: bool = False) -
     CMRT used on a 1 kg ball); if several entries share the speed, the one whose
     parameters all match wins, else the one for the task file's defaults.
     """
-    entries = [e for e in load_entries(path) if e.get("robust", False) == robust]
+    entries = [e for e in load_entries(path) if e.get("robust", False) == robust
+               and e.get("reference", "center") == task.reference_mode]  # a CMRT belongs to its reference mode
     try:
         return _lookup(entries, task)
     except CmrtError as exc:
-        raise CmrtError(f"{exc}{' (robust CMRTs)' if robust else ''}") from None
+        kinds = ["robust CMRTs"] if robust else []
+        if task.reference_mode != "center":
+            kinds.append(f"reference {task.reference_mode}")
+        suffix = f" ({', '.join(kinds)})" if kinds else ""
+        raise CmrtError(f"{exc}{suffix}") from None
 
 
 def _lookup(entries: list[dict], task: Task) -> Cmrt:
@@ -67,10 +72,11 @@ def save_entry(entry: dict, path: Path = LIBRARY_PATH) -> None:
 
     def key(e: dict):
         params = e.get("params") or load_task(e["task"]).with_speed(e["speed"]).params  # older entries: defaults
-        return (e["task"], e["speed"], json.dumps(_physics(params), sort_keys=True), e.get("robust", False))
+        return (e["task"], e["speed"], json.dumps(_physics(params), sort_keys=True), e.get("robust", False),
+                e.get("reference", "center"))
 
     entries = [e for e in load_entries(path) if key(e) != key(entry)]
     entries.append(entry)
     entries.sort(key=lambda e: (e["task"], e["speed"], json.dumps(e.get("params", {}), sort_keys=True),
-                                e.get("robust", False)))
+                                e.get("robust", False), e.get("reference", "center")))
     path.write_text(json.dumps({"entries": entries}, indent=2) + "\n")

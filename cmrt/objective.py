@@ -71,6 +71,9 @@ class Evaluation:
     objective: float
     cop_error_norm: float
     penalty: float
+    # the same samples against the controller's own reference CoP (the support centre in center mode, Winter's in
+    # yu mode): how well each mode meets its own target, where the objective compares both on one scale
+    cop_error_own_reference_norm: float
     success: bool
     performed: bool | None
     settled: bool
@@ -155,6 +158,7 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
     idx = idx[_loaded(task, traj, idx)]
     e = traj.cop_x_m[idx] - traj.support_center_x_m[idx]
     norm = float(np.linalg.norm(e))
+    own = traj.cop_x_m[idx] - traj.cop_ref_x_m[idx]
     margin = np.minimum(traj.cop_x_m[idx] - traj.support_lo_x_m[idx], traj.support_hi_x_m[idx] - traj.cop_x_m[idx])
     before = _before_fall(traj)
     contact = _contact_summary(traj, before)
@@ -198,6 +202,7 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
         objective=norm + penalty,
         cop_error_norm=norm,
         penalty=penalty,
+        cop_error_own_reference_norm=float(np.linalg.norm(own[np.isfinite(own)])),
         success=bool(not traj.fell and performed is not False and settled),
         performed=performed,
         settled=settled,

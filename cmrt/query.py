@@ -12,7 +12,7 @@ from cmrt.errors import CmrtError
 from cmrt.store import Run, Store
 from cmrt.task import Task, task_from_dict
 
-SUMMARY_KEYS = ("id", "task", "speed", "status", "seed", "best_objective", "best_success", "best_fell",
+SUMMARY_KEYS = ("id", "task", "speed", "reference", "status", "seed", "best_objective", "best_success", "best_fell",
                 "baseline_objective", "baseline_success", "baseline_fell", "evaluations", "generations", "stop_reason",
                 "wall_s")
 

@@ -39,6 +39,7 @@ from cmrt.balance import REASONS, BalanceLimits, FallReason, capture_point_x, ch
 from cmrt.character import FOOT_POINT_RADIUS_M, character
 from cmrt.control import ControllerConfig, MomentumBalanceController
 from cmrt.control.planar import PlanarKinematics
+from cmrt.control.references import MotionCom, Targets, YuReference, motion_com
 from cmrt.curve import Cmrt
 from cmrt.ensemble import NOMINAL, Perturbation
 from cmrt.props import CONTACT_FORCE_N, model_values, prop_class
@@ -84,7 +85,8 @@ class Trajectory:
     prop_force_n: np.ndarray  # force between the character and the task's prop, every step (NaN: no prop)
     max_joint_speed_rad_s: np.ndarray  # largest |qvel| of the actuated joints (control steps)
     cmrt_displacement_m: np.ndarray
-    com_ref_x_m: np.ndarray
+    com_ref_x_m: np.ndarray  # the controller's reference CoM, CMRT included (control steps; held between them)
+    cop_ref_x_m: np.ndarray  # its reference CoP (the support centre, or Yu's eq. 3.4): at the CoP sample steps
     ctrl_nm: np.ndarray  # (n, nu): the torques applied during the step (control steps; every step in traces)
     protective: np.ndarray  # (n,) bool: torques came from the protective mode (after a fall)
     clip_s: float  # L: the end of the scored clip; the standing tail follows
@@ -218,18 +220,18 @@ def _judge_prop(prop, b, rows, force, times, windows, goal, extras) -> None:
         extras.setdefault(key, np.full(goal.size, np.nan))[rows] = values
 
 
-def _control(controller, f, refs, com_ref, com_ref_vel, center, contact, mass):
+def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass):
     """Torques for the given rows; a row whose plan is singular or non-finite gets zeros and bad=True."""
     with np.errstate(all="ignore"):
         try:
-            ctrl = controller.torques(f, *refs, com_ref, com_ref_vel, center, contact, mass).torque_nm
+            ctrl = controller.torques(f, *refs, com_ref, com_ref_vel, cop_ref, contact, mass).torque_nm
         except np.linalg.LinAlgError:  # find the culprits one by one; the others are unaffected
             ctrl = np.full((com_ref.size, controller.limits.size), np.nan)
             for i in range(com_ref.size):
                 fi = {name: v[i : i + 1] for name, v in f.items()}
                 try:
                     ctrl[i] = controller.torques(fi, *refs, com_ref[i : i + 1], com_ref_vel[i : i + 1],
-                                                 center[i : i + 1], contact[i : i + 1], mass[i : i + 1]).torque_nm[0]
+                                                 cop_ref[i : i + 1], contact[i : i + 1], mass[i : i + 1]).torque_nm[0]
                 except np.linalg.LinAlgError:
                     pass
     bad = ~np.all(np.isfinite(ctrl), axis=1)
@@ -241,8 +243,8 @@ class _Recorder:
     """Buffers (n, n_steps, ...) filled at the steps where each quantity is read; NaN elsewhere."""
 
     SHAPES = {"com": (2,), "com_vel": (), "xi": (), "cop": (), "sc": (), "lo": (), "hi": (), "fz": (),
-              "ffz": (2,), "lift": (4,), "contact": (4,), "roll": (2,), "jspeed": (), "cref": (), "ctrl": None,
-              "prop_force": (),
+              "ffz": (2,), "lift": (4,), "contact": (4,), "roll": (2,), "jspeed": (), "cref": (), "pref": (),
+              "ctrl": None, "prop_force": (),
               "qpos": None, "qvel": None}
 
     def __init__(self, n: int, n_steps: int, nq: int, nv: int, nu: int):
@@ -272,6 +274,7 @@ class _Drive:
     push_changes: np.ndarray  # (steps,): the push changes at this step (written to the batch only then)
     mass_scale: np.ndarray  # (n,): the prop's mass as a multiple of the task's
     windows_s: np.ndarray  # (n, 2): [P, P + T] of each row's timing
+    motion_com: list[MotionCom] | None = None  # per timing variant: the reference's foot-to-CoM (yu mode only)
 
     def refs_at(self, k: int, rows) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Reference q, qd, qdd at step ``k`` for simulations ``rows``."""
@@ -280,8 +283,16 @@ class _Drive:
         v = self.variant_of[rows]
         return self.q_ref[v, k], self.qd_ref[v, k], self.qdd_ref[v, k]
 
+    def foot_to_com_at(self, k: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The reference motion's foot-to-CoM x and its rate at step ``k``, (rows, 2) each (yu mode)."""
+        v = np.zeros(rows.size, int) if self.variant_of is None else self.variant_of[rows]
+        x = np.stack([mc.foot_to_com_x_m[k] for mc in self.motion_com])
+        vel = np.stack([mc.foot_to_com_vel_x_m_s[k] for mc in self.motion_com])
+        return x[v], vel[v]
+
 
 def _drive(task: Task, curves: list[Cmrt], members: list[Perturbation], times: np.ndarray) -> _Drive:
+    nv = character().nv
     scales = sorted({p.time_scale for p in members})
     variant_tasks = [Perturbation(time_scale=s).task_variant(task) for s in scales]
     variant_of = np.array([scales.index(p.time_scale) for p in members])
@@ -298,6 +309,8 @@ def _drive(task: Task, curves: list[Cmrt], members: list[Perturbation], times: n
         push_n=push, push_changes=np.concatenate([[True], np.any(np.diff(push, axis=1) != 0, axis=0)]),
         mass_scale=np.array([p.prop_mass_scale for p in members]),
         windows_s=np.array([vt.task_window_s() for vt in variant_tasks])[variant_of],
+        motion_com=[motion_com(character(), r[0][:, :nv], r[1][:, :nv]) for r in variant_refs]
+        if task.reference_mode == "yu" else None,
     )
 
 
@@ -341,23 +354,38 @@ class _Falls:
         self.end[sims] = end
 
 
+def _targets(yu: YuReference | None, b: dict, sel, ids: np.ndarray, drive: _Drive, k: int, center: np.ndarray,
+             lo: np.ndarray, hi: np.ndarray, com: np.ndarray, com_vel_x: np.ndarray, nb: int) -> Targets:
+    """The controller's reference CoM (CMRT included), its rate and the reference CoP of simulations ``ids``
+    (batch rows ``sel``) at step ``k``, in the task's reference mode (``cmrt.control.references``)."""
+    if yu is None:  # center: the support centre (Macchietto; ABC)
+        return Targets(center + drive.disp_m[sel, k], drive.disp_vel_m_s[sel, k], center)
+    touch = b["sensordata"][sel, :4]  # the last step's normal force at heel_r, toe_r, heel_l, toe_l
+    rel, rel_vel = drive.foot_to_com_at(k, ids)
+    return yu.targets(foot_force_n=np.stack([touch[:, 0] + touch[:, 1], touch[:, 2] + touch[:, 3]], axis=1),
+                      ankle_xz=b["xpos"][sel][:, yu.feet][:, :, [0, 2]], foot_to_com_x=rel, foot_to_com_vel_x=rel_vel,
+                      disp_m=drive.disp_m[sel, k], disp_vel_m_s=drive.disp_vel_m_s[sel, k], com=com,
+                      com_vel_x=com_vel_x, cinert=b["cinert"][sel, :nb], support_lo_x=lo, support_hi_x=hi)
+
+
 def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarray, fallen: np.ndarray,
-             drive: _Drive, k: int, center: np.ndarray, contact: np.ndarray, mass: np.ndarray,
+             drive: _Drive, k: int, targets: Targets, contact: np.ndarray, mass: np.ndarray,
              hold: np.ndarray, act: np.ndarray, nu: int) -> tuple[np.ndarray, np.ndarray]:
     """Torques of simulations ``ids`` (batch rows ``sel``): the controller for those standing, protective
     mode for those that fell. ``bad``: the controller's plan was singular or non-finite."""
+    t = targets
     if not fallen.any():  # everyone under control: the bound arrays themselves, no copies
         f = {name: b[name][sel] for name in CONTROL_FIELDS}
-        return _control(controller, f, drive.refs_at(k, ids), center + drive.disp_m[sel, k],
-                        drive.disp_vel_m_s[sel, k], center, contact, mass[sel])
+        return _control(controller, f, drive.refs_at(k, ids), t.com_x_m, t.com_vel_x_m_s, t.cop_x_m, contact,
+                        mass[sel])
     ctrl = np.zeros((ids.size, nu))
     bad = np.zeros(ids.size, bool)
     if not fallen.all():
         up = np.flatnonzero(~fallen)
         rows = ids[up]
         f = {name: b[name][rows] for name in CONTROL_FIELDS}
-        ctrl[up], bad[up] = _control(controller, f, drive.refs_at(k, rows), center[up] + drive.disp_m[rows, k],
-                                     drive.disp_vel_m_s[rows, k], center[up], contact[up], mass[rows])
+        ctrl[up], bad[up] = _control(controller, f, drive.refs_at(k, rows), t.com_x_m[up], t.com_vel_x_m_s[up],
+                                     t.cop_x_m[up], contact[up], mass[rows])
     rows = ids[fallen]
     ctrl[fallen] = _protective_torques(b["qpos"][rows][:, act], b["qvel"][rows][:, act], hold[rows],
                                        controller.limits)
@@ -398,6 +426,7 @@ def simulate_batch(
     disp = drive.disp_m
     geo = _Geometry()
     controller = MomentumBalanceController(ch, config)
+    yu = YuReference(ch, config.k_l, config.d_l) if task.reference_mode == "yu" else None
     kin = PlanarKinematics(ch.model)
     vel_stage = mujoco.mjtStage.mjSTAGE_VEL
     nq, nb = ch.model.nq, ch.model.nbody  # the humanoid's: a prop's coordinates follow
@@ -422,6 +451,7 @@ def simulate_batch(
     extras: dict[str, np.ndarray] = {}
     active = np.arange(n)
     ctrl_all = np.zeros((n, m.nu))
+    com_ref_now, cop_ref_now = np.full(n, np.nan), np.full(n, np.nan)  # the references, held between control steps
     control_dt = config.control_every * dt
     sample_every = max(1, int(round(task.cop_sample_step_s / dt)))
     n_points = geo.points.size
@@ -465,11 +495,13 @@ def simulate_batch(
                 rec["lift"][sel, k] = geom_xpos[:, geo.points, 2] - settled_z
                 rec["contact"][sel, k] = contact
                 rec["roll"][sel, k] = roll
-                rec["cref"][sel, k] = center + disp[sel, k]
         if control:
             rec["jspeed"][sel, k] = np.abs(b["qvel"][sel][:, act]).max(axis=1)
             mass = ch.mass_kg + prop.carried_kg  # what the controller knows it carries
-            ctrl, bad = _torques(controller, b, sel, ids, falls.code[ids] > 0, drive, k, center, contact, mass,
+            targets = _targets(yu, b, sel, ids, drive, k, center, lo, hi, com, vel_x, nb)
+            com_ref_now[ids], cop_ref_now[ids] = targets.com_x_m, targets.cop_x_m
+            rec["cref"][sel, k] = targets.com_x_m
+            ctrl, bad = _torques(controller, b, sel, ids, falls.code[ids] > 0, drive, k, targets, contact, mass,
                                  falls.hold, act, m.nu)
             ctrl_all[ids] = ctrl
             b["ctrl"][sel] = ctrl
@@ -493,6 +525,7 @@ def simulate_batch(
                 next_end = falls.end[ids].min()
         if record:
             rec["ctrl"][sel, k] = ctrl_all[sel]
+            rec["cref"][sel, k] = com_ref_now[sel]
             rec["qvel"][sel, k] = b["qvel"][sel]
         if drive.push_changes[k]:
             b["xfrc_applied"][sel, ch.thorax_body, 0] = drive.push_n[sel, k]
@@ -512,6 +545,7 @@ def simulate_batch(
         rec_fz[sel, k] = fz
         with np.errstate(all="ignore"):
             rec["cop"][sel, k] = np.where(fz > 1e-9, (touch * point_x).sum(axis=1) / fz, np.nan)
+        rec["pref"][sel, k] = cop_ref_now[sel]
         rec["ffz"][sel, k, 0] = touch[:, :2].sum(axis=1)
         rec["ffz"][sel, k, 1] = touch[:, 2:].sum(axis=1)
 
@@ -545,7 +579,7 @@ def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarra
             point_contact=r["contact"],
             foot_roll_rad=r["roll"], prop_force_n=r["prop_force"], max_joint_speed_rad_s=r["jspeed"],
             cmrt_displacement_m=disp[i, : last[i]], prop_extras={k: float(v[i]) for k, v in extras.items()},
-            com_ref_x_m=r["cref"], ctrl_nm=r["ctrl"], protective=protective, clip_s=task.clip_s,
+            com_ref_x_m=r["cref"], cop_ref_x_m=r["pref"], ctrl_nm=r["ctrl"], protective=protective, clip_s=task.clip_s,
             fell=bool(code), fall_time_s=float(times[falls.step[i]]) if code else None, fall_reason=reason,
             diverged=reason is FallReason.DIVERGED, final_qpos=final_qpos[i],
             final_com_speed_m_s=float(final_speed[i]),

@@ -105,8 +105,13 @@ def _v4(db: sqlite_utils.Database) -> None:
     db["runs"].add_column("retries", int)  # NULL: none yet
 
 
+def _v5(db: sqlite_utils.Database) -> None:
+    """The controller's reference mode (cmrt.control.references) a run was optimized with."""
+    db["runs"].add_column("reference", str)  # NULL: before schema 5, when every run used "center"
+
+
 #: MIGRATIONS[k] takes a store from version k to k + 1.
-MIGRATIONS: list[Callable[[sqlite_utils.Database], None]] = [_v1, _v2, _v3, _v4]
+MIGRATIONS: list[Callable[[sqlite_utils.Database], None]] = [_v1, _v2, _v3, _v4, _v5]
 SCHEMA_VERSION = len(MIGRATIONS)
 
 
@@ -223,6 +228,7 @@ class RunSpec:
     init_params: tuple[float, ...] | None  # the start point itself (a resume never re-resolves it)
     init_run: int | None = None  # the run id given as --init, if one was
     robust: dict | None = None  # the training ensemble's [robust] table (None: a plain run)
+    reference: str = "center"  # the controller's reference mode: "center" or "yu" (cmrt.control.references)
 
 
 @dataclass(frozen=True)
@@ -271,6 +277,7 @@ class Run:
     robust: dict | None
     robustness: dict | None  # cmrt.validate.robustness of the best CMRT
     retries: int | None = None  # transient faults and take-overs so far (NULL before schema 4: none)
+    reference: str = "center"  # the controller's reference mode the run was optimized with (NULL: "center")
 
     @classmethod
     def from_row(cls, row: sqlite3.Row) -> Run:
@@ -284,6 +291,7 @@ class Run:
             d[key] = tuple(_json(d[key], f"{where}: {key}", list)) if d[key] else None
         for key in ("best_fell", "baseline_fell", "best_success", "baseline_success"):
             d[key] = None if d[key] is None else bool(d[key])
+        d["reference"] = d.get("reference") or "center"
         return cls(**d)
 
     def to_dict(self) -> dict:
@@ -432,7 +440,7 @@ class Store:
             "init_run": spec.init_run, "robust": None if spec.robust is None else json.dumps(spec.robust),
             "init_source": spec.init_source,
             "init_params": None if spec.init_params is None else json.dumps(list(spec.init_params)),
-            "restarts": 0, "stall_generations": spec.stall_generations,
+            "restarts": 0, "stall_generations": spec.stall_generations, "reference": spec.reference,
             "status": "queued", "created_at": time.time(),
         }
         with self.transaction() as conn:
@@ -563,9 +571,12 @@ class Store:
             raise CmrtError(f"no run {run_id} in {self.path}")
         return Run.from_row(row)
 
-    def runs(self, task: str | None = None, status: str | None = None) -> list[Run]:
-        """Runs, oldest first, optionally of one task name and/or in one status."""
+    def runs(self, task: str | None = None, status: str | None = None, reference: str | None = None) -> list[Run]:
+        """Runs, oldest first, optionally of one task name, in one status and/or with one reference mode."""
         sql, args = "SELECT * FROM runs WHERE 1=1", []
+        if reference:
+            sql += " AND COALESCE(reference, 'center') = ?"
+            args.append(reference)
         if task:
             sql += " AND task = ?"
             args.append(task)
@@ -598,11 +609,12 @@ class Store:
                            mean=tuple(_json(r["mean"], "a generation", list)), evaluations=r["evaluations"],
                            created_at=r["created_at"]) for r in rows]
 
-    def successful_runs(self, task_name: str) -> list[Run]:
-        """Finished runs of a task whose best CMRT is a success (warm-start candidates), oldest first."""
+    def successful_runs(self, task_name: str, reference: str = "center") -> list[Run]:
+        """Finished runs of a task with this reference mode whose best CMRT is a success (warm-start candidates),
+        oldest first."""
         rows = self.conn.execute(
             "SELECT * FROM runs WHERE task = ? AND status = 'done' AND best_success = 1 AND best_params IS NOT NULL "
-            "ORDER BY id", (task_name,))
+            "AND COALESCE(reference, 'center') = ? ORDER BY id", (task_name, reference))
         return [Run.from_row(r) for r in rows]
 
     def best_run(self, task_hash: str) -> Run | None:

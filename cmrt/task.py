@@ -21,6 +21,7 @@ import numpy as np
 from cmrt import inputs
 from cmrt import reference as ref
 from cmrt.character import SIDED_JOINTS, character, feet_flat_qpos, joint_angles_from_pose
+from cmrt.control.references import DEFAULT_REFERENCE_MODE, REFERENCE_MODES
 from cmrt.ensemble import RobustSpec
 from cmrt.errors import CmrtError
 from cmrt.inputs import MAX_RUN_S, POSE_DEG, Range, param_range, shown
@@ -65,6 +66,9 @@ class Task:
     speed_param: str | None = None
     source: str = ""
     robust: RobustSpec = RobustSpec()  # the [robust] table: the ensemble a robust run is scored on
+    # where the controller's reference CoM and CoP come from (cmrt.control.references): "center" (the support
+    # centre, Macchietto; ABC) or "yu" (GRF-weighted feet and Winter's CoP, Yu eq. 3.2-3.4)
+    reference_mode: str = DEFAULT_REFERENCE_MODE
 
     # --- parameters -------------------------------------------------------------
     # Those every task has (DEFAULT_PARAMS) as typed properties; any other (a prop's, via_fraction) is read
@@ -149,6 +153,12 @@ class Task:
     def with_robust(self, enabled: bool = True) -> Task:
         """A copy scored on its robust ensemble (``cmrt.ensemble``), or on the nominal clip alone."""
         return replace(self, robust=replace(self.robust, enabled=enabled))
+
+    def with_reference(self, mode: str | None) -> Task:
+        """A copy whose controller takes its reference CoM/CoP from ``mode`` (None: unchanged)."""
+        if mode is None:
+            return self
+        return replace(self, reference_mode=_reference_mode(mode, "reference"))
 
     def with_speed(self, speed: float | None) -> Task:
         """A copy at this speed (None: unchanged)."""
@@ -251,6 +261,8 @@ class Task:
             out["speed_param"] = self.speed_param
         if self.robust != RobustSpec():
             out["robust"] = self.robust.to_table()
+        if self.reference_mode != DEFAULT_REFERENCE_MODE:  # absent for the default: older hashes stay valid
+            out["reference"] = self.reference_mode
         return out
 
     def content_hash(self) -> str:
@@ -318,7 +330,7 @@ def load_task(name_or_path: str) -> Task:
 
 #: The keys of a task file (README, *Task files*).
 TASK_KEYS = frozenset({"name", "summary", "speed_param", "balance_joint", "params", "param_ranges", "start_pose_deg",
-                       "end_pose_deg", "via_pose_deg", "timing", "prop", "robust"})
+                       "end_pose_deg", "via_pose_deg", "timing", "prop", "robust", "reference"})
 MAX_TEXT = 1000  # characters of a task's name or summary
 
 
@@ -336,6 +348,12 @@ def _text(raw: dict, key: str, where: str, default: str) -> str:
     value = raw.get(key, default)
     if not isinstance(value, str) or len(value) > MAX_TEXT:
         raise CmrtError(f"{where}: {key} must be a string of at most {MAX_TEXT} characters, got {shown(value)}")
+    return value
+
+
+def _reference_mode(value: object, where: str) -> str:
+    if not isinstance(value, str) or value not in REFERENCE_MODES:
+        raise CmrtError(f"{where} must be one of {', '.join(REFERENCE_MODES)}, got {shown(value)}")
     return value
 
 
@@ -417,6 +435,7 @@ def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task"
         speed_param=speed_param,
         source=source,
         robust=RobustSpec.from_table(robust_table, where) if robust_table is not None else RobustSpec(),
+        reference_mode=_reference_mode(raw.get("reference", DEFAULT_REFERENCE_MODE), f"{where}: reference"),
     )
     try:
         task.validate()

@@ -52,7 +52,7 @@ def _candidates(store: Store | None, task: Task) -> list[tuple[float, int, bool,
     """(distance, other kind (robust vs plain) than the run, 0 store / 1 library, objective, start)."""
     found = []
     if store is not None:
-        for run in store.successful_runs(task.name):
+        for run in store.successful_runs(task.name, task.reference_mode):  # a CMRT belongs to its mode
             if abs(run.params.get("clip_s", math.nan) - task.clip_s) > CLIP_TOLERANCE_S:
                 continue
             d = task_distance(task, run.params)

@@ -47,6 +47,8 @@ TASK_FILES: dict[str, str | bytes] = {
     "speed_unknown.toml": 'speed_param = "mass"\n',
     "joint_unknown.toml": 'balance_joint = "tail"\n' + POSE,
     "joint_number.toml": "balance_joint = 3\n" + POSE,
+    "reference_unknown.toml": 'reference = "zmp"\n',
+    "reference_number.toml": "reference = 3\n",
     "hip_nan.toml": "[params]\nduration_s = 0.5\n[end_pose_deg]\nhip = nan\n",
     "hip_inf.toml": "[params]\nduration_s = 0.5\n[end_pose_deg]\nhip = -inf\n",
     "hip_string.toml": '[params]\nduration_s = 0.5\n[end_pose_deg]\nhip = "deep"\n',
@@ -241,6 +243,8 @@ def _cases() -> list[Case]:
     add(Case(("submit", "nosuchtask"), words="unknown task"))
     add(Case(("submit", "bend\x1b[2J"), words="unknown task"))
     add(Case(("simulate", ""), words="task"))
+    add(Case(("simulate", "bend", "--reference", "zmp"), words="--reference"))
+    add(Case(("optimize", "bend", "--reference", "", "--no-progress"), words="--reference"))
     # curve files and --curve / --compare specs
     for name in [*CURVE_FILES, "fifo.json", "dir.json", "big.json", "missing.json"]:
         add(Case(("simulate", "bend", "--curve", "{d}/" + name), words=name))

@@ -5,6 +5,7 @@ the best CMRT with its provenance to ``cmrt/assets/library.json``, where
 ``--curve library`` finds it.
 
     python tools/find_library_curve.py bend --speed 0.4 --seed 1 --max-evals 1500 --stop-threshold 0
+    python tools/find_library_curve.py bend --speed 0.4 --reference yu   # for Yu's reactive reference
 
 ``--robust`` scores candidates on the task's ensemble (``cmrt.ensemble``); ``--init auto``
 starts from the nearest library CMRT (how the shipped robust CMRTs were made: each from
@@ -20,6 +21,7 @@ import time
 from pathlib import Path
 
 from cmrt import Evaluator, evaluate, load_task, open_store, optimize_now, run_curve, simulate
+from cmrt.control.references import REFERENCE_MODES
 from cmrt.library import save_entry
 
 
@@ -37,6 +39,8 @@ def main() -> None:
                     help="CMA-ES step size for warm-started family members: stay near the neighbour's solution "
                          "so the family keeps one shape and interpolates (ABC 4.2)")
     ap.add_argument("--robust", action="store_true", help="score candidates on the task's robust ensemble")
+    ap.add_argument("--reference", choices=REFERENCE_MODES, default="center",
+                    help="the controller's reference mode the CMRT is optimized for (kept apart in the library)")
     ap.add_argument("--init", default="none", choices=("none", "auto"), help="start of the first (or only) run")
     ap.add_argument("--sigma0", type=float, default=0.5, help="step size of the first (or only) run")
     ap.add_argument("--no-save", action="store_true")
@@ -47,6 +51,7 @@ def main() -> None:
         base = base.with_params(stop_threshold=args.stop_threshold)
     if args.robust:
         base = base.with_robust()
+    base = base.with_reference(args.reference)
     speeds = [float(s) for s in args.speeds.split(",")] if args.speeds else [args.speed]
     with tempfile.TemporaryDirectory() as tmp, open_store(Path(tmp) / "lib.sqlite") as store:
         previous = None
@@ -75,6 +80,8 @@ def record(task, run, curve, args, wall_s: float) -> None:
         "params": task.params, "robust": task.robust.enabled, "init": run.init_source,
         "restarts": run.restarts, "robustness": run.robustness,
     }
+    if task.reference_mode != "center":  # entries without the key are the center mode's
+        entry["reference"] = task.reference_mode
     print(json.dumps(entry, indent=2))
     if not args.no_save:
         save_entry(entry)
