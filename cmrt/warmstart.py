@@ -59,7 +59,8 @@ def _candidates(store: Store | None, task: Task) -> list[tuple[float, int, bool,
             other = (run.robust is not None) != task.robust.enabled
             found.append((d, other, 0, run.best_objective, Start(run.best_params, f"run {run.id}", d)))
     for entry in load_entries():
-        if entry["task"] != task.name or not entry.get("success") or "params" not in entry:
+        if (entry["task"] != task.name or not entry.get("success") or "params" not in entry
+                or entry.get("reference", "center") != task.reference_mode):
             continue
         curve = Cmrt.from_dict(entry["cmrt"])
         if abs(curve.clip_s - task.clip_s) > CLIP_TOLERANCE_S:

@@ -4,6 +4,10 @@ store, ``best``, ``interpolate``, warm starts and the library keep the modes apa
 from __future__ import annotations
 
 import json
+import math
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +17,7 @@ from cmrt.character import character
 from cmrt.cli import main
 from cmrt.control.references import motion_com
 from cmrt.interpolate import interpolate
+from cmrt.library import load_entries
 from cmrt.simulate import simulate_batch
 from cmrt.task import task_from_dict
 from cmrt.warmstart import nearest_start
@@ -130,3 +135,41 @@ def test_the_library_keeps_modes_apart():
         assert curve != library_curve(center)
     with pytest.raises(CmrtError, match=r"robust CMRTs, reference yu"):
         library_curve(load_task("bend").with_speed(0.5).with_reference("yu"), robust=True)
+
+
+def test_simulate_reports_its_reference_mode(capsys):
+    assert main(["simulate", "bend", "--speed", "0.4", "--reference", "yu", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["reference"] == "yu" and out["cop_error_own_reference_norm"] < out["cop_error_norm"]
+    assert main(["simulate", "punch", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["reference"] == "center"
+    assert out["cop_error_own_reference_norm"] == pytest.approx(out["cop_error_norm"], rel=1e-2)
+
+
+@pytest.mark.slow  # optimizes two pushes and sweeps four push batches
+def test_compare_references_tool_prints_a_row_per_task_mode_and_curve():
+    tool = Path(__file__).resolve().parent.parent / "tools" / "compare_references.py"
+    r = subprocess.run([sys.executable, str(tool), "--tasks", "punch", "--pushes", "250", "--max-evals", "8",
+                        "--push-max-evals", "8", "--json"], capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    keys = {(row["task"], row["reference"], row["curve"]) for row in out["rows"]}
+    for mode in ("center", "yu"):
+        assert {("punch", mode, "zero"), ("punch", mode, "optimized")} <= keys
+        assert ("stand push +250 N", mode, "zero") in keys and ("stand push -250 N", mode, "zero") in keys
+    assert all(isinstance(row["success"], bool) and math.isfinite(row["objective"]) for row in out["rows"])
+    # the reactive controller survives no 250 N push; the 5 N sweep finds its limit in between
+    assert not any(row["success"] for row in out["rows"] if "250" in row["task"] and row["curve"] == "zero")
+    for r in out["largest_push"]:
+        assert 100 <= r["zero_cmrt_n"] < 250
+
+
+def test_warm_starts_come_from_the_tasks_own_mode():
+    yu = load_task("bend").with_speed(0.5).with_reference("yu")
+    mine = {tuple(map(float, Cmrt.from_dict(e["cmrt"]).to_params())) for e in load_entries()
+            if e["task"] == "bend" and e.get("reference") == "yu" and e.get("success")}
+    start = nearest_start(None, yu)
+    assert (start is None) if not mine else (start.params in mine)
+    center = nearest_start(None, load_task("bend").with_speed(0.5))
+    assert center is not None and center.params not in mine
