@@ -173,3 +173,18 @@ def test_warm_starts_come_from_the_tasks_own_mode():
     assert (start is None) if not mine else (start.params in mine)
     center = nearest_start(None, load_task("bend").with_speed(0.5))
     assert center is not None and center.params not in mine
+
+
+def test_yu_library_entries_reproduce_and_interpolate_within_their_mode():
+    """The yu CMRTs (tools/find_library_curve.py --reference yu) score what they were shipped with, and
+    interpolation across speeds blends yu CMRTs only."""
+    entries = [e for e in load_entries() if e.get("reference") == "yu"]
+    assert {e["task"] for e in entries} >= {"bend", "punch", "catch", "push"}
+    for e in entries:
+        task = load_task(e["task"]).with_params(**e["params"]).with_reference("yu")
+        ev = evaluate(task, simulate(task, library_curve(task), record=False))
+        assert ev.objective == e["objective"] and ev.success == e["success"]
+    yu = interpolate(load_task("bend").with_speed(0.8).with_reference("yu"))
+    center = interpolate(load_task("bend").with_speed(0.8))
+    assert [v for v, _ in yu.sources] == [0.4, 1.2]  # the yu family: 0.4 and 1.2 s
+    assert 0.8 in [v for v, _ in center.sources] and yu.curve != center.curve  # the center family has 0.8 s
