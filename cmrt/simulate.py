@@ -598,7 +598,8 @@ def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarra
             task_success=None if np.isnan(goal[i]) else bool(goal[i]),
             step_times_s=() if stepper is None else tuple(t for t in stepper.step_times[i]
                                                           if not code or t <= times[falls.step[i]]),
-            footprints=() if stepper is None else tuple(stepper.footprints[i]),
+            footprints=() if stepper is None else tuple(f for f in stepper.footprints[i]
+                                                        if not code or f[1] <= times[falls.step[i]]),
         ))
     return out
 

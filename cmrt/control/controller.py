@@ -82,6 +82,7 @@ class ControllerConfig:
     swing_k: float = 400.0  # 1/s^2, swing foot stiffness about its planned path
     swing_d: float = 40.0  # 1/s, its damping (critical for swing_k)
     swing_leg_tracking: float = 0.01  # factor on the swing leg's joint-tracking weight while it swings
+    stance_knee_bend_rad: float = 0.5  # added to the stance knee's reference while the other foot swings
 
     def tracking_weights(self, ch: Character) -> np.ndarray:
         """Per-dof weight of joint tracking in the QP (root translation untracked: momentum sets it)."""
@@ -134,7 +135,7 @@ class MomentumBalanceController:
                              (kernel.P_RD, c.roll_d), (kernel.P_RADIUS, FOOT_POINT_RADIUS_M),
                              (kernel.P_DUALREG, DUAL_REGULARIZATION), (kernel.P_SW, c.swing_weight),
                              (kernel.P_SK, c.swing_k), (kernel.P_SD, c.swing_d),
-                             (kernel.P_SWT, c.swing_leg_tracking)):
+                             (kernel.P_SWT, c.swing_leg_tracking), (kernel.P_CROUCH, c.stance_knee_bend_rad)):
             params[index] = value
         self.params = params
 

@@ -29,8 +29,8 @@ from numba import njit
 FLAT, HEEL, TOE, AIR = 0, 1, 2, 3
 # Indices into the parameter vector (built by controller.MomentumBalanceController).
 (P_KL, P_DL, P_KT, P_DT, P_BL, P_BH, P_BT, P_EPS, P_G, P_MU, P_FMIN, P_DAMP, P_RW, P_RK, P_RD,
- P_RADIUS, P_DUALREG, P_SW, P_SK, P_SD, P_SWT) = range(21)
-N_PARAMS = 21
+ P_RADIUS, P_DUALREG, P_SW, P_SK, P_SD, P_SWT, P_CROUCH) = range(22)
+N_PARAMS = 22
 # The swing foot's task-space target (cmrt.control.stepping): heel point x, z, foot pitch; their rates
 # and accelerations. ``swing_foot`` per simulation: -1 (both feet support), 0 (right swings), 1 (left).
 N_SWING = 9
@@ -249,10 +249,16 @@ def control_step(cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, 
         g = params[P_BL] * (ldot_x - a[0]) * A[0] + params[P_BH] * (hdot - a[2]) * A[2]
         for j in range(nv):
             wj = w2[j]
-            if swing >= 0 and (j == leg_dofs[swing, 0] or j == leg_dofs[swing, 1] or j == leg_dofs[swing, 2]):
-                wj *= params[P_SWT]  # the swing leg follows its foot's target, not the standing pose
+            qr = q_ref[i, j]
+            if swing >= 0:
+                if j == leg_dofs[swing, 0] or j == leg_dofs[swing, 1] or j == leg_dofs[swing, 2]:
+                    wj *= params[P_SWT]  # the swing leg follows its foot's target, not the standing pose
+                elif j == leg_dofs[1 - swing, 1]:  # the stance knee bends (hip and ankle share the angle: the
+                    qr += params[P_CROUCH]  # foot stays flat, the trunk upright): a straight stance leg cannot
+                elif j == leg_dofs[1 - swing, 0] or j == leg_dofs[1 - swing, 2]:  # lower the hip, and a swing
+                    qr -= 0.5 * params[P_CROUCH]  # foot a hip too high cannot reach the floor
             Q[j, j] += params[P_BT] * wj + params[P_EPS]
-            g[j] += params[P_BT] * wj * (params[P_KT] * (q_ref[i, j] - q[j])
+            g[j] += params[P_BT] * wj * (params[P_KT] * (qr - q[j])
                                          + params[P_DT] * (qd_ref[i, j] - qd[j]) + qdd_ref[i, j])
 
         # support rows; a foot that is not flat gets a soft return-to-flat pitch target
