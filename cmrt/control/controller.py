@@ -82,7 +82,6 @@ class ControllerConfig:
     swing_k: float = 400.0  # 1/s^2, swing foot stiffness about its planned path
     swing_d: float = 40.0  # 1/s, its damping (critical for swing_k)
     swing_leg_tracking: float = 0.01  # factor on the swing leg's joint-tracking weight while it swings
-    stance_knee_bend_rad: float = 0.5  # added to the stance knee's reference while the other foot swings
 
     def tracking_weights(self, ch: Character) -> np.ndarray:
         """Per-dof weight of joint tracking in the QP (root translation untracked: momentum sets it)."""
@@ -135,7 +134,7 @@ class MomentumBalanceController:
                              (kernel.P_RD, c.roll_d), (kernel.P_RADIUS, FOOT_POINT_RADIUS_M),
                              (kernel.P_DUALREG, DUAL_REGULARIZATION), (kernel.P_SW, c.swing_weight),
                              (kernel.P_SK, c.swing_k), (kernel.P_SD, c.swing_d),
-                             (kernel.P_SWT, c.swing_leg_tracking), (kernel.P_CROUCH, c.stance_knee_bend_rad)):
+                             (kernel.P_SWT, c.swing_leg_tracking)):
             params[index] = value
         self.params = params
 
@@ -153,7 +152,8 @@ class MomentumBalanceController:
         References are (nv,) (shared) or (n, nv) (one per simulation); CoM/CoP targets are (n,);
         ``in_contact`` (n, 4) says which heel/toe points touch the ground; ``mass_kg`` (n,) the character's
         mass with what it carries (default: its own). ``swing_foot`` (n,): -1, or the foot (0 right, 1 left)
-        that swings toward ``swing_target`` (n, 9): heel point x, z, foot pitch, their rates and accelerations
+        that swings toward ``swing_target`` (n, 10): heel point x, z, foot pitch, their rates and accelerations,
+        the stance knee's extra bend
         (``cmrt.control.stepping``); default: no foot swings."""
         n = f["qvel"].shape[0]
         tau = np.empty((n, self.actuated.size))

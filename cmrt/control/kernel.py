@@ -29,11 +29,13 @@ from numba import njit
 FLAT, HEEL, TOE, AIR = 0, 1, 2, 3
 # Indices into the parameter vector (built by controller.MomentumBalanceController).
 (P_KL, P_DL, P_KT, P_DT, P_BL, P_BH, P_BT, P_EPS, P_G, P_MU, P_FMIN, P_DAMP, P_RW, P_RK, P_RD,
- P_RADIUS, P_DUALREG, P_SW, P_SK, P_SD, P_SWT, P_CROUCH) = range(22)
-N_PARAMS = 22
+ P_RADIUS, P_DUALREG, P_SW, P_SK, P_SD, P_SWT) = range(21)
+N_PARAMS = 21
 # The swing foot's task-space target (cmrt.control.stepping): heel point x, z, foot pitch; their rates
-# and accelerations. ``swing_foot`` per simulation: -1 (both feet support), 0 (right swings), 1 (left).
-N_SWING = 9
+# and accelerations; then the bend added to the stance knee's reference while the foot swings (rad).
+# ``swing_foot`` per simulation: -1 (both feet support), 0 (right swings), 1 (left).
+N_SWING = 10
+S_CROUCH = 9
 N_INFO = 6  # planned F_x, F_z, CoP x, right foot state, left foot state, torque saturated
 N_INEQ = 5  # F_z >= n f_min, two friction rows, two CoP rows
 MAX_PASSES = 8
@@ -254,9 +256,9 @@ def control_step(cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, 
                 if j == leg_dofs[swing, 0] or j == leg_dofs[swing, 1] or j == leg_dofs[swing, 2]:
                     wj *= params[P_SWT]  # the swing leg follows its foot's target, not the standing pose
                 elif j == leg_dofs[1 - swing, 1]:  # the stance knee bends (hip and ankle share the angle: the
-                    qr += params[P_CROUCH]  # foot stays flat, the trunk upright): a straight stance leg cannot
+                    qr += swing_target[i, S_CROUCH]  # foot stays flat, the trunk upright): a straight stance leg cannot
                 elif j == leg_dofs[1 - swing, 0] or j == leg_dofs[1 - swing, 2]:  # lower the hip, and a swing
-                    qr -= 0.5 * params[P_CROUCH]  # foot a hip too high cannot reach the floor
+                    qr -= 0.5 * swing_target[i, S_CROUCH]  # foot a hip too high cannot reach the floor
             Q[j, j] += params[P_BT] * wj + params[P_EPS]
             g[j] += params[P_BT] * wj * (params[P_KT] * (qr - q[j])
                                          + params[P_DT] * (qd_ref[i, j] - qd[j]) + qdd_ref[i, j])

@@ -57,7 +57,13 @@ class StepConfig:
     # 0.08; read as sigma = 0.08 of the step time instead, the foot is asked for 5.6 m/s and 100 m/s^2 on a
     # 0.45 m step of 0.4 s and cannot follow: docs/stepping.md)
     min_step_m: float = 0.10  # the foot's centre lands at least this far from the pivot foot's centre
-    max_step_m: float = 0.45  # and at most this far (0.9 m legs)
+    max_step_m: float = 0.45  # and at most this far forward (0.86 m hip to ankle)
+    max_back_step_m: float = 0.30  # and backward: the swing leg's reach behind a hip the push left over the
+    # stance ankle (a 0.45 m backward step needed 0.88-0.90 m of leg: the foot hovered; docs/stepping.md)
+    knee_bend_rad: float = 0.5  # added to the stance knee's reference during a forward step (hip and ankle
+    # take -half each: the stance foot stays flat, the trunk upright): a straight stance leg cannot lower the hip
+    back_knee_bend_rad: float = 0.8  # the same, stepping backward: the hip must come down 7 cm, not 3.5, for
+    # the swing ankle to reach the floor behind it
     retarget_until: float = 0.3  # the target follows the momenta until this fraction of the step (the foot
     # has covered 0.6 % of its path): a push still going on at lift-off makes the step longer
     touchdown_after: float = 0.5  # contact of the swing foot counts as touchdown after this fraction
@@ -107,7 +113,7 @@ class StepCommand:
     """What the supervisor asks of the controller this control step, for the rows it was given."""
 
     swing_foot: np.ndarray  # (k,) float: -1, 0 (right) or 1 (left)
-    swing_target: np.ndarray  # (k, 9): heel point x, z, foot pitch; rates; accelerations
+    swing_target: np.ndarray  # (k, 10): heel point x, z, foot pitch; rates; accelerations; stance knee bend
     com_ref_x_m: np.ndarray  # (k,) CoM target on the Bezier (NaN: not stepping, the task's own target)
     com_ref_vel_x_m_s: np.ndarray  # (k,)
 
@@ -149,7 +155,8 @@ class StepSupervisor:
 
     def _target_heel(self, rows, pivot_center, p_place, direction):
         c = self.config
-        reach = np.clip((p_place - pivot_center) * direction, c.min_step_m, c.max_step_m)
+        longest = np.where(direction > 0, c.max_step_m, c.max_back_step_m)
+        reach = np.clip((p_place - pivot_center) * direction, c.min_step_m, longest)
         return pivot_center + direction * reach - self.heel_to_center_m
 
     def update(self, ids: np.ndarray, time_s: float, com_x: np.ndarray, com_z: np.ndarray, momentum_x: np.ndarray,
@@ -220,7 +227,7 @@ class StepSupervisor:
         c = self.config
         k = ids.size
         swing = self.swing[ids]
-        target = np.zeros((k, 9))
+        target = np.zeros((k, 10))
         com_ref = np.full(k, np.nan)
         com_vel = np.full(k, np.nan)
         rows = np.flatnonzero(swing >= 0)
@@ -237,6 +244,7 @@ class StepSupervisor:
             target[rows, 1] = np.where(late, -0.005, c.lift_m * h)
             target[rows, 4] = np.where(late, 0.0, c.lift_m * dh / T)
             target[rows, 7] = np.where(late, 0.0, c.lift_m * ddh / T**2)
+            target[rows, 9] = np.where(self.direction[sims] > 0, c.knee_bend_rad, c.back_knee_bend_rad)
             pivot = self.pivot_x[sims]
             mid = 0.5 * (pivot + self.target_heel_x[sims] + self.heel_to_center_m)
             b, db = bezier(sr, self.com0_x[sims], pivot, mid)
