@@ -160,3 +160,26 @@ def test_a_real_topple_is_still_a_fall_with_stepping():
     task = load_task("push-recovery").with_params(push_force_n=700.0, push_duration_s=0.1, stepping=1)
     traj = simulate(task, None, record=False)
     assert traj.fell
+
+
+@pytest.mark.slow
+def test_a_backward_step_saves_a_backward_push_standing_cannot():
+    """-250 N x 0.1 s: the foot steps back within the leg's reach (0.30 m), lands flat and the character stands
+    still on both flat feet; planted feet fall."""
+    from cmrt.objective import evaluate
+    from cmrt.simulate import simulate
+
+    task = load_task("push-recovery").with_params(push_force_n=-250.0, push_duration_s=0.1)
+    planted = evaluate(task.with_params(stepping=0), simulate(task.with_params(stepping=0), None, record=False))
+    assert not planted.success and planted.fell
+    traj = simulate(task.with_params(stepping=1), None, record=True)
+    ev = evaluate(task.with_params(stepping=1), traj)
+    assert ev.success and ev.steps >= 1 and ev.final_com_speed_m_s < 0.05
+    foot, landed_s, heel_x = traj.footprints[0]
+    assert heel_x < -0.25 and landed_s < traj.step_times_s[0] + 0.5  # behind the other foot, on time
+    lift = traj.point_lift_m[:, 2 * foot]
+    assert 0.02 < np.nanmax(lift) < 0.10
+    k = int(np.searchsorted(traj.time_s, landed_s))
+    assert np.abs(traj.foot_roll_rad[k - 5:k + 5, foot]).max() < 0.05  # lands flat, not on its toe
+    assert ev.peak_normal_force_bw < 3.0 and ev.max_joint_speed_rad_s < 15.0 and ev.airborne_s <= 0.01
+    assert traj.point_contact[-1].astype(bool).all()  # both feet flat at the end
