@@ -126,6 +126,8 @@ def _report_text(r: dict) -> str:
         f"{_n(r['final_pose_error_rad'], '.3f')} rad  [{r['wall_s']:.2f} s]",
         f"  peak ground force {_n(r['peak_normal_force_bw'], '.2f')} x body weight  airborne "
         f"{_n(r['airborne_s'], '.3f')} s  max joint speed {_n(r['max_joint_speed_rad_s'], '.1f')} rad/s",
+        *([f"  steps {r['steps']} (lift-off at {', '.join(f'{t:.3f}' for t in r['step_times_s'])} s)"]
+          if r.get("steps") and isinstance(r.get("step_times_s"), list | tuple) else []),
     ])
 
 

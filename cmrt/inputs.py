@@ -232,6 +232,15 @@ TASK_PARAMS: dict[str, Range] = {
     "max_tracking_lag": Range(0.0, 1.0, lo_open=True),
     "tail_s": Range(0.5, MAX_RUN_S, unit="s"),
     "via_fraction": Range(0.0, 1.0, lo_open=True, hi_open=True),
+    "stepping": Range(0.0, 2.0),  # 0, 1 or 2 (checked by the task)
+    "push2_force_n": Range(-1e4, 1e4, unit="N"),
+    "push2_start_s": Range(0.0, MAX_RUN_S, unit="s"),
+    "push2_duration_s": Range(0.0, MAX_RUN_S, unit="s"),
+    "push3_force_n": Range(-1e4, 1e4, unit="N"),
+    "push3_start_s": Range(0.0, MAX_RUN_S, unit="s"),
+    "push3_duration_s": Range(0.0, MAX_RUN_S, unit="s"),
+    "step_time_s": Range(0.2, 1.0, unit="s"),
+    "step_height_m": Range(0.01, 0.15, unit="m"),
 }
 OTHER_PARAM = Range(-1e9, 1e9)
 POSE_DEG = Range(-360.0, 360.0, unit="deg")

@@ -21,7 +21,7 @@ from cmrt.errors import CmrtError
 from cmrt.library import library_curve, load_entries
 from cmrt.sequence import SequenceTask, SuperposedCmrt
 from cmrt.store import Run, Store
-from cmrt.task import Task, load_task
+from cmrt.task import Task, active_params, load_task
 
 IGNORED_PARAMS = ("stop_threshold",)  # do not change the physics of a clip
 
@@ -61,7 +61,7 @@ def _valid_knots(t: np.ndarray, clip_s: float) -> np.ndarray:
 
 
 def _physics(params: dict, skip: str) -> dict:
-    return {k: v for k, v in params.items() if k != skip and k not in IGNORED_PARAMS}
+    return {k: v for k, v in active_params(params).items() if k != skip and k not in IGNORED_PARAMS}
 
 
 def candidates(task: Task, param: str, source: str, store: Store | None = None) -> list[tuple[float, Cmrt, str]]:

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
-from cmrt.task import Task, load_task
+from cmrt.task import Task, active_params, load_task
 
 LIBRARY_PATH = Path(__file__).parent / "assets" / "library.json"
 SPEED_TOLERANCE = 1e-9
@@ -25,7 +25,7 @@ def load_entries(path: Path = LIBRARY_PATH) -> list[dict]:
 
 
 def _physics(params: dict) -> dict:
-    return {k: v for k, v in params.items() if k != "stop_threshold"}
+    return {k: v for k, v in active_params(params).items() if k != "stop_threshold"}
 
 
 def library_curve(task: Task, path: Path = LIBRARY_PATH, robust: bool = False) -> Cmrt:

@@ -98,6 +98,10 @@ class Evaluation:
     peak_contact_force_n: float | None = None
     contact_impulse_n_s: float | None = None
     ball_sag_m: float | None = None
+    # stepping (task parameter ``stepping``): how many steps the supervisor took before any fall, and when
+    # each lifted off
+    steps: int = 0
+    step_times_s: tuple[float, ...] = ()
 
 
 def _sample_index(task: Task, traj: Trajectory) -> np.ndarray:
@@ -223,6 +227,8 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
         task_success=traj.task_success,
         **contact,
         ball_sag_m=traj.prop_extras.get("ball_sag_m"),
+        steps=len(traj.step_times_s),
+        step_times_s=tuple(round(float(t), 4) for t in traj.step_times_s),
     )
 
 

@@ -29,6 +29,8 @@ from cmrt.task import Task
 CYAN = np.array([0.1, 0.8, 0.9, 1.0], dtype=np.float32)
 GREEN = np.array([0.1, 0.8, 0.2, 1.0], dtype=np.float32)
 RED = np.array([0.9, 0.1, 0.1, 1.0], dtype=np.float32)
+AMBER = np.array([0.95, 0.6, 0.1, 0.8], dtype=np.float32)
+FOOTPRINT_HALF_M = (0.12, 0.05, 0.002)  # half length (heel point to toe point / 2), half width, half height
 MARKER_Y_M = -0.35  # the camera looks along +y from the -y side
 OUT_SUFFIXES = (".png", ".mp4")
 VIDEO_CHUNK = 64  # video frames rendered at a time per clip: memory stays ~15 MB per clip however long the clip
@@ -66,6 +68,10 @@ def _frame(renderer, data, camera, traj: Trajectory, k: int) -> np.ndarray:
     cop = traj.cop_x_m[k]
     if np.isfinite(cop):
         _add_geom(scene, mujoco.mjtGeom.mjGEOM_CYLINDER, [0.03, 0.005, 0], [cop, y, 0.008], RED)
+    for _foot, landed_s, heel_x in traj.footprints:  # where each step of a stepping task landed
+        if landed_s <= traj.time_s[k]:
+            _add_geom(scene, mujoco.mjtGeom.mjGEOM_BOX, FOOTPRINT_HALF_M,
+                      [heel_x + FOOTPRINT_HALF_M[0], y, FOOTPRINT_HALF_M[2]], AMBER)
     return renderer.render().copy()
 
 

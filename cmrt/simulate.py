@@ -40,6 +40,7 @@ from cmrt.character import FOOT_POINT_RADIUS_M, character
 from cmrt.control import ControllerConfig, MomentumBalanceController
 from cmrt.control.planar import PlanarKinematics
 from cmrt.control.references import MotionCom, Targets, YuReference, motion_com
+from cmrt.control.stepping import StepCommand, StepConfig, StepSupervisor
 from cmrt.curve import Cmrt
 from cmrt.ensemble import NOMINAL, Perturbation
 from cmrt.props import CONTACT_FORCE_N, model_values, prop_class
@@ -97,6 +98,8 @@ class Trajectory:
     final_qpos: np.ndarray  # the humanoid's at the end of the tail, or at the fall
     final_com_speed_m_s: float  # |CoM velocity| at the end of the tail, or at the fall
     task_success: bool | None = None  # goal reached (ball caught and held, slab toppled, pad struck)
+    step_times_s: tuple[float, ...] = ()  # lift-off of every step the supervisor took (stepping tasks)
+    footprints: tuple[tuple[int, float, float], ...] = ()  # (foot 0 right / 1 left, touchdown s, heel x m)
     prop_extras: dict[str, float] = field(default_factory=dict)  # e.g. grip_s, ball_sag_m for a ball
 
     @property
@@ -114,6 +117,8 @@ class Trajectory:
         out["fall_reason"] = np.array("" if self.fall_reason is None else self.fall_reason.value)
         out["task_success"] = np.array(np.nan if self.task_success is None else float(self.task_success))
         out.update({k: np.array(v) for k, v in self.prop_extras.items()})
+        out["step_times_s"] = np.array(self.step_times_s, float)
+        out["footprints"] = np.array(self.footprints, float).reshape(-1, 3)
         return out
 
 
@@ -220,18 +225,26 @@ def _judge_prop(prop, b, rows, force, times, windows, goal, extras) -> None:
         extras.setdefault(key, np.full(goal.size, np.nan))[rows] = values
 
 
-def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass):
+def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass, step: StepCommand | None = None):
     """Torques for the given rows; a row whose plan is singular or non-finite gets zeros and bad=True."""
+    if step is not None:
+        com_ref, com_ref_vel = step.com_targets(com_ref, com_ref_vel)
+
+    def swing(rows):
+        return {} if step is None else {"swing_foot": step.swing_foot[rows], "swing_target": step.swing_target[rows]}
+
     with np.errstate(all="ignore"):
         try:
-            ctrl = controller.torques(f, *refs, com_ref, com_ref_vel, cop_ref, contact, mass).torque_nm
+            ctrl = controller.torques(f, *refs, com_ref, com_ref_vel, cop_ref, contact, mass,
+                                      **swing(slice(None))).torque_nm
         except np.linalg.LinAlgError:  # find the culprits one by one; the others are unaffected
             ctrl = np.full((com_ref.size, controller.limits.size), np.nan)
             for i in range(com_ref.size):
                 fi = {name: v[i : i + 1] for name, v in f.items()}
                 try:
                     ctrl[i] = controller.torques(fi, *refs, com_ref[i : i + 1], com_ref_vel[i : i + 1],
-                                                 cop_ref[i : i + 1], contact[i : i + 1], mass[i : i + 1]).torque_nm[0]
+                                                 cop_ref[i : i + 1], contact[i : i + 1], mass[i : i + 1],
+                                                 **swing(slice(i, i + 1))).torque_nm[0]
                 except np.linalg.LinAlgError:
                     pass
     bad = ~np.all(np.isfinite(ctrl), axis=1)
@@ -370,14 +383,17 @@ def _targets(yu: YuReference | None, b: dict, sel, ids: np.ndarray, drive: _Driv
 
 def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarray, fallen: np.ndarray,
              drive: _Drive, k: int, targets: Targets, contact: np.ndarray, mass: np.ndarray,
-             hold: np.ndarray, act: np.ndarray, nu: int) -> tuple[np.ndarray, np.ndarray]:
+             hold: np.ndarray, act: np.ndarray, nu: int, step: StepCommand | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
     """Torques of simulations ``ids`` (batch rows ``sel``): the controller for those standing, protective
-    mode for those that fell. ``bad``: the controller's plan was singular or non-finite."""
+    mode for those that fell. ``bad``: the controller's plan was singular or non-finite. ``targets``: the
+    reference CoM/CoP of rows ``ids`` (``_targets``); ``step``: the stepping supervisor's command for rows
+    ``ids`` (None: feet planted)."""
     t = targets
     if not fallen.any():  # everyone under control: the bound arrays themselves, no copies
         f = {name: b[name][sel] for name in CONTROL_FIELDS}
         return _control(controller, f, drive.refs_at(k, ids), t.com_x_m, t.com_vel_x_m_s, t.cop_x_m, contact,
-                        mass[sel])
+                        mass[sel], step)
     ctrl = np.zeros((ids.size, nu))
     bad = np.zeros(ids.size, bool)
     if not fallen.all():
@@ -385,7 +401,7 @@ def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarra
         rows = ids[up]
         f = {name: b[name][rows] for name in CONTROL_FIELDS}
         ctrl[up], bad[up] = _control(controller, f, drive.refs_at(k, rows), t.com_x_m[up], t.com_vel_x_m_s[up],
-                                     t.cop_x_m[up], contact[up], mass[rows])
+                                     t.cop_x_m[up], contact[up], mass[rows], None if step is None else step.rows(up))
     rows = ids[fallen]
     ctrl[fallen] = _protective_torques(b["qpos"][rows][:, act], b["qvel"][rows][:, act], hold[rows],
                                        controller.limits)
@@ -444,6 +460,8 @@ def simulate_batch(
     settled_z = b["geom_xpos"][0, geo.points, 2].copy()
 
     rec = _Recorder(n, n_steps, m.nq, m.nv, m.nu)
+    stepper = _stepper(task, n)
+    step = None
     falls = _Falls(n, act.size, nq, run_steps)
     next_end = run_steps
     last = np.full(n, n_steps)
@@ -478,6 +496,11 @@ def simulate_batch(
             geom_xpos = b["geom_xpos"][sel]
             point_x = geom_xpos[:, geo.points, 0]  # heel/toe x at the state the step starts from
             lo, hi = point_x.min(axis=1), point_x.max(axis=1)
+            if stepper is not None:  # the support of the moment: the stance foot while the other swings
+                if control:
+                    step = _step_command(stepper, kin, b, sel, ids, times[k], ch.mass_kg + prop.carried_kg[ids],
+                                         _in_contact(geom_xpos, geo.points), point_x)
+                lo, hi = stepper.support(ids, point_x, lo, hi)
             center = 0.5 * (lo + hi)
             rec["sc"][sel, k], rec["lo"][sel, k], rec["hi"][sel, k] = center, lo, hi
             qpos = b["qpos"][sel]
@@ -502,12 +525,15 @@ def simulate_batch(
             com_ref_now[ids], cop_ref_now[ids] = targets.com_x_m, targets.cop_x_m
             rec["cref"][sel, k] = targets.com_x_m
             ctrl, bad = _torques(controller, b, sel, ids, falls.code[ids] > 0, drive, k, targets, contact, mass,
-                                 falls.hold, act, m.nu)
+                                 falls.hold, act, m.nu, step)
             ctrl_all[ids] = ctrl
             b["ctrl"][sel] = ctrl
 
             # the balance monitor
             grounded, c_lo, c_hi = _ground_support(contact, point_x)
+            if stepper is not None:  # a swing foot is not a rolled foot; where it lands is support
+                c_lo, c_hi = stepper.landing_span(ids, c_lo, c_hi)
+                roll = np.where(stepper.swinging(ids), 0.0, roll)
             if has_contact_force and k > 0:  # leaning on a prop: the pendulum's capture point does not apply
                 leaning = rec["prop_force"][ids, k - 1] > CONTACT_FORCE_N
                 c_lo, c_hi = np.where(leaning, -np.inf, c_lo), np.where(leaning, np.inf, c_hi)
@@ -557,12 +583,32 @@ def simulate_batch(
     standing = np.flatnonzero(~fallen)  # the others were judged when they fell
     _judge_prop(prop, b, standing, rec["prop_force"][standing, :run_steps], times[:run_steps], drive.windows_s, goal,
                 extras)
-    return _trajectories(task, rec, times, last, falls, disp, extras, goal, final_qpos, final_speed)
+    return _trajectories(task, rec, times, last, falls, disp, extras, goal, final_qpos, final_speed, stepper)
+
+
+def _stepper(task: Task, n: int) -> StepSupervisor | None:
+    """The stepping supervisor a task asks for (``stepping`` parameter; None: feet stay planted)."""
+    config = StepConfig.from_task(task.params)
+    if config is None:
+        return None
+    ch = character()
+    heel, toe = (ch.model.geom_pos[g, 0] for g in ch.foot_point_geoms[:2])
+    return StepSupervisor(n, config, heel_to_center_m=0.5 * (toe - heel), foot_length_m=toe - heel)
+
+
+def _step_command(stepper: StepSupervisor, kin: PlanarKinematics, b: dict, sel, ids: np.ndarray, time_s: float,
+                  mass: np.ndarray, contact: np.ndarray, point_x: np.ndarray) -> StepCommand:
+    """Advance the supervisor of simulations ``ids`` by one control step from their bound state."""
+    nb = kin.model.nbody
+    momentum = kin.momentum(b["cinert"][sel, :nb], b["cvel"][sel, :nb])  # (k, 3): H_y, L_x, L_z
+    com = b["subtree_com"][sel, 1]
+    return stepper.update(ids, time_s, com[:, 0], com[:, 2], momentum[:, 1], momentum[:, 0], mass, contact,
+                          point_x)
 
 
 def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarray, falls: _Falls, disp: np.ndarray,
                   extras: dict[str, np.ndarray], goal: np.ndarray, final_qpos: np.ndarray,
-                  final_speed: np.ndarray) -> list[Trajectory]:
+                  final_speed: np.ndarray, stepper: StepSupervisor | None = None) -> list[Trajectory]:
     """One Trajectory per simulation, cut where it stopped."""
     out = []
     for i in range(last.size):
@@ -584,6 +630,10 @@ def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarra
             diverged=reason is FallReason.DIVERGED, final_qpos=final_qpos[i],
             final_com_speed_m_s=float(final_speed[i]),
             task_success=None if np.isnan(goal[i]) else bool(goal[i]),
+            step_times_s=() if stepper is None else tuple(t for t in stepper.step_times[i]
+                                                          if not code or t <= times[falls.step[i]]),
+            footprints=() if stepper is None else tuple(f for f in stepper.footprints[i]
+                                                        if not code or f[1] <= times[falls.step[i]]),
         ))
     return out
 

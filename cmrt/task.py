@@ -45,7 +45,27 @@ DEFAULT_PARAMS: dict[str, float] = {
     # this fraction of T late (RMS over the actuated joints; 0.1 of T: ~0.1 rad on the bend)
     "max_tracking_lag": 0.1,
     "tail_s": 0.5,  # standing after the clip (end pose held, no CMRT): must settle; not in the CoP objective
+    # stepping (cmrt.control.stepping, docs/stepping.md): 0 feet planted (the paper's setting), 1 the momentum
+    # supervisor (Wu-Zordan eq. 5), 2 its capture-point variant
+    "stepping": 0.0,
+    "step_time_s": 0.4,  # lift-off to touchdown
+    "step_height_m": 0.05,  # how high the swing foot's heel rises
 }
+#: Parameters that change nothing while ``stepping`` is 0: left out of the content hash then, so the hashes
+#: of planted-feet tasks (and the stored runs keyed by them) are those of before stepping existed.
+STEPPING_PARAMS = ("stepping", "step_time_s", "step_height_m")
+
+
+def active_params(params: dict) -> dict:
+    """``params`` without those that change nothing - the stepping ones while ``stepping`` is 0 (or absent, as
+    in runs and library entries made before stepping existed): what hashes and matches compare."""
+    if params.get("stepping"):
+        return dict(params)
+    return {k: v for k, v in params.items() if k not in STEPPING_PARAMS}
+
+
+#: Further thorax pushes a task file may declare, each as ``<prefix>_force_n``, ``_start_s``, ``_duration_s``.
+EXTRA_PUSHES = ("push2", "push3")
 
 
 @dataclass(frozen=True)
@@ -124,6 +144,21 @@ class Task:
         return self.params["tail_s"]
 
     @property
+    def stepping(self) -> int:
+        """0: feet planted; 1: the momentum supervisor steps; 2: the capture-point supervisor does."""
+        return int(self.params["stepping"])
+
+    @property
+    def step_time_s(self) -> float:
+        """A step's duration, lift-off to touchdown (s; used when stepping)."""
+        return self.params["step_time_s"]
+
+    @property
+    def step_height_m(self) -> float:
+        """How high the swing foot's heel rises mid-step (m; used when stepping)."""
+        return self.params["step_height_m"]
+
+    @property
     def speed(self) -> float | None:
         """The value of the task's speed parameter (None if it has none)."""
         return self.params[self.speed_param] if self.speed_param else None
@@ -199,6 +234,12 @@ class Task:
             raise CmrtError(f"tail_s must be >= {MIN_TAIL_S:g} s (the character must be seen standing still)")
         if p["push_duration_s"] < 0:
             raise CmrtError("push_duration_s must be >= 0")
+        for prefix in EXTRA_PUSHES:
+            keys = [f"{prefix}_{k}" for k in ("force_n", "start_s", "duration_s")]
+            if any(k in p for k in keys) and not all(k in p for k in keys):
+                raise CmrtError(f"a second push needs all of {', '.join(keys)}")
+        if p["stepping"] not in (0, 1, 2):
+            raise CmrtError("stepping must be 0 (feet planted), 1 (momentum supervisor) or 2 (capture point)")
 
     # --- model -------------------------------------------------------------------
     def model(self):
@@ -236,9 +277,16 @@ class Task:
         return ref.joint_windows(self)
 
     def push_at(self, t_s: float) -> float:
-        """Horizontal push on the thorax at time t_s (N)."""
+        """Horizontal push on the thorax at time t_s (N): the task's push plus, if its file declares them,
+        a second and third (``push2_*``, ``push3_*``: several pushes in one clip)."""
         start = self.params["push_start_s"]
-        return self.params["push_force_n"] if start <= t_s < start + self.params["push_duration_s"] else 0.0
+        force = self.params["push_force_n"] if start <= t_s < start + self.params["push_duration_s"] else 0.0
+        for prefix in EXTRA_PUSHES:
+            if f"{prefix}_force_n" in self.params:
+                start = self.params[f"{prefix}_start_s"]
+                if start <= t_s < start + self.params[f"{prefix}_duration_s"]:
+                    force += self.params[f"{prefix}_force_n"]
+        return force
 
     def to_dict(self) -> dict:
         """The task as a task-file dict (``task_from_dict`` round-trips it): stored with runs."""
@@ -270,6 +318,7 @@ class Task:
         ensemble only when robust scoring is on: a robust objective is another problem's)."""
         skip = ("name", "summary") if self.robust.enabled else ("name", "summary", "robust")
         body = {k: v for k, v in self.to_dict().items() if k not in skip}
+        body["params"] = active_params(body["params"])
         return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()[:16]
 
     def task_window_s(self) -> tuple[float, float]:

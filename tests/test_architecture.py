@@ -14,7 +14,8 @@ PACKAGE = Path(__file__).resolve().parent.parent / "cmrt"
 
 LAYERS: list[tuple[str, set[str]]] = [
     ("foundation", {"errors", "inputs", "balance", "character", "curve", "ensemble", "control", "control.controller",
-                    "control.kernel", "control.momentum", "control.planar", "control.references"}),
+                    "control.kernel", "control.momentum", "control.planar", "control.references",
+                    "control.stepping"}),
     ("physics", {"props", "reference", "task", "sequence", "library", "simulate", "objective", "validate",
                  "render"}),
     ("optimizer", {"checkpoint", "optimize", "parallel", "bench"}),

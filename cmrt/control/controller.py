@@ -78,6 +78,10 @@ class ControllerConfig:
     roll_weight: float = 1.0  # w_r: cost of a rolling foot's pitch acceleration away from its return-to-flat target
     roll_k: float = 100.0  # 1/s^2, return-to-flat stiffness of a rolling foot
     roll_d: float = 20.0  # 1/s, its damping
+    swing_weight: float = 10.0  # weight of the swing foot's task-space objective (docs/stepping.md)
+    swing_k: float = 400.0  # 1/s^2, swing foot stiffness about its planned path
+    swing_d: float = 40.0  # 1/s, its damping (critical for swing_k)
+    swing_leg_tracking: float = 0.01  # factor on the swing leg's joint-tracking weight while it swings
 
     def tracking_weights(self, ch: Character) -> np.ndarray:
         """Per-dof weight of joint tracking in the QP (root translation untracked: momentum sets it)."""
@@ -128,7 +132,9 @@ class MomentumBalanceController:
                              (kernel.P_MU, c.friction_coef), (kernel.P_FMIN, c.min_point_force_n),
                              (kernel.P_DAMP, c.support_damping), (kernel.P_RW, c.roll_weight), (kernel.P_RK, c.roll_k),
                              (kernel.P_RD, c.roll_d), (kernel.P_RADIUS, FOOT_POINT_RADIUS_M),
-                             (kernel.P_DUALREG, DUAL_REGULARIZATION)):
+                             (kernel.P_DUALREG, DUAL_REGULARIZATION), (kernel.P_SW, c.swing_weight),
+                             (kernel.P_SK, c.swing_k), (kernel.P_SD, c.swing_d),
+                             (kernel.P_SWT, c.swing_leg_tracking)):
             params[index] = value
         self.params = params
 
@@ -139,12 +145,16 @@ class MomentumBalanceController:
         return np.select([heel & toe, heel, toe], [FLAT, HEEL, TOE], AIR)
 
     def torques(self, f: dict[str, np.ndarray], q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x,
-                in_contact: np.ndarray, mass_kg: np.ndarray | None = None) -> ControlOutput:
+                in_contact: np.ndarray, mass_kg: np.ndarray | None = None, swing_foot: np.ndarray | None = None,
+                swing_target: np.ndarray | None = None) -> ControlOutput:
         """Torques for n simulations. ``f`` holds (n, ...) arrays of the MuJoCo fields at the current state:
         qpos, qvel, cdof, cdof_dot, cvel, cinert, M, qfrc_bias, qfrc_passive, subtree_com, geom_xpos.
         References are (nv,) (shared) or (n, nv) (one per simulation); CoM/CoP targets are (n,);
         ``in_contact`` (n, 4) says which heel/toe points touch the ground; ``mass_kg`` (n,) the character's
-        mass with what it carries (default: its own)."""
+        mass with what it carries (default: its own). ``swing_foot`` (n,): -1, or the foot (0 right, 1 left)
+        that swings toward ``swing_target`` (n, 10): heel point x, z, foot pitch, their rates and accelerations,
+        the stance knee's extra bend
+        (``cmrt.control.stepping``); default: no foot swings."""
         n = f["qvel"].shape[0]
         tau = np.empty((n, self.actuated.size))
         info = np.empty((n, kernel.N_INFO))
@@ -164,7 +174,9 @@ class MomentumBalanceController:
             self.limits, self.w2, self.params,
             *(as_f(np.broadcast_to(r, (n, r.shape[-1]))) for r in (q_ref, qd_ref, qdd_ref)),
             as_f(com_ref_x), as_f(com_ref_vel_x), as_f(cop_des_x),
-            as_f(in_contact, bool), as_f(np.full(n, self.mass) if mass_kg is None else mass_kg), tau, info,
+            as_f(in_contact, bool), as_f(np.full(n, self.mass) if mass_kg is None else mass_kg),
+            as_f(np.full(n, -1.0) if swing_foot is None else swing_foot),
+            as_f(np.zeros((n, kernel.N_SWING)) if swing_target is None else swing_target), tau, info,
         )
         return ControlOutput(torque_nm=tau, ground_force_n=info[:, :2], cop_x_m=info[:, 2],
                              foot_state=info[:, 3:5].astype(int), saturated=info[:, 5] > 0)

@@ -29,12 +29,22 @@ from numba import njit
 FLAT, HEEL, TOE, AIR = 0, 1, 2, 3
 # Indices into the parameter vector (built by controller.MomentumBalanceController).
 (P_KL, P_DL, P_KT, P_DT, P_BL, P_BH, P_BT, P_EPS, P_G, P_MU, P_FMIN, P_DAMP, P_RW, P_RK, P_RD,
- P_RADIUS, P_DUALREG) = range(17)
-N_PARAMS = 17
+ P_RADIUS, P_DUALREG, P_SW, P_SK, P_SD, P_SWT) = range(21)
+N_PARAMS = 21
+# The swing foot's task-space target (cmrt.control.stepping): heel point x, z, foot pitch; their rates
+# and accelerations; then the bend added to the stance knee's reference while the foot swings (rad).
+# ``swing_foot`` per simulation: -1 (both feet support), 0 (right swings), 1 (left).
+N_SWING = 10
+S_CROUCH = 9
 N_INFO = 6  # planned F_x, F_z, CoP x, right foot state, left foot state, torque saturated
 N_INEQ = 5  # F_z >= n f_min, two friction rows, two CoP rows
 MAX_PASSES = 8
 TOL = 1e-9
+# Feet farther apart than this (heel to heel, m) stand in a split stance - only a step gets them there: the
+# plan's load is then split with every point's share bounded below (``bounded_shares``). Side by side the
+# linear split is kept: the CoP rows already keep it above f_min there, and planted-feet results stay as
+# they were, bit for bit.
+SPLIT_STANCE_M = 0.05
 
 
 @njit(cache=True)
@@ -89,6 +99,48 @@ def point_frame(cdof, cdof_dot, cvel, qvel, chain_row, body, point, com):
     bias[1] = alpha[2] - alpha[0] * rx - w * vpx
     bias[2] = alpha[0]
     return J, bias
+
+
+@njit(cache=True)
+def bounded_shares(x, carries, cop, lower):
+    """Fractions of the vertical load per heel/toe point (x: their x) that sum to 1 with first moment ``cop``,
+    closest to equal shares with every carrying point at least ``lower``: an active set on the linear split.
+
+    With the feet apart the linear split asks the far end's point to pull on the floor whenever the CoP
+    nears the other foot (CoP 0.52 m on a [-0.06, 0.62] m stance: -7 % on the rear heel, measured), and
+    torques computed for that pull lift the heel. The CoP rows keep a distribution with every point at
+    f_min feasible; this finds one."""
+    share = np.zeros(4)
+    pinned = np.zeros(4, np.bool_)
+    for _ in range(4):
+        rem, rem_m, count, mean = 1.0, cop, 0, 0.0
+        for p in range(4):
+            if carries[p] and pinned[p]:
+                rem -= lower
+                rem_m -= lower * x[p]
+            elif carries[p]:
+                count += 1
+                mean += x[p]
+        if count == 0:
+            break
+        mean /= count
+        spread = 0.0
+        for p in range(4):
+            if carries[p] and not pinned[p]:
+                spread += (x[p] - mean) ** 2
+        worst, low = -1, lower - 1e-12
+        for p in range(4):
+            if carries[p] and not pinned[p]:
+                share[p] = rem / count
+                if spread > 1e-12:
+                    share[p] += (x[p] - mean) * (rem_m - rem * mean) / spread
+                if share[p] < low:
+                    worst, low = p, share[p]
+        if worst < 0:
+            break
+        pinned[worst] = True
+        share[worst] = lower
+    return share
 
 
 @njit(cache=True)
@@ -152,13 +204,16 @@ def solve_qp(Q, g, E, e, C, c, c_on, dual_reg):
 @njit(cache=True)
 def control_step(cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, qfrc_passive, com_all, geom_xpos,
                  chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, limits, w2, params,
-                 q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, contact, mass_all, tau_out, info_out):
+                 q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, contact, mass_all, swing_foot,
+                 swing_target, tau_out, info_out):
     """Torques (tau_out, (n, nu)) for n simulations; info_out (n, N_INFO) gets the plan's summary.
 
     Arrays are the batch's bound MuJoCo fields (n, ...) - only the humanoid's leading slices are
     read - and per-simulation targets (references (n, nv): an ensemble's members may play the motion at
     different speeds); ``mass_all`` (n,) is each character's mass with what it
-    carries (a caught ball's mass moves into the forearms); see controller.py for the formulation."""
+    carries (a caught ball's mass moves into the forearms); see controller.py for the formulation.
+    A swinging foot (``swing_foot[i]`` >= 0) has no support rows and carries no load; its heel point and
+    pitch track ``swing_target[i]`` as a weighted objective, and its leg's joint tracking is weakened."""
     n = qvel.shape[0]
     nb, nv = chain.shape
     grav = params[P_G]
@@ -181,9 +236,12 @@ def control_step(cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, 
             Jp[p], bp[p] = point_frame(cdof[i], cdof_dot[i], cvel[i], qd, chain[point_bodies[p]], point_bodies[p],
                                        pts[p], com)
         state = np.empty(2, np.int64)
+        swing = int(swing_foot[i])
         for foot in range(2):
             heel, toe = contact[i, 2 * foot], contact[i, 2 * foot + 1]
             state[foot] = FLAT if heel and toe else (HEEL if heel else (TOE if toe else AIR))
+            if foot == swing:  # lifted by the plan, whatever it touches now: no support, no load
+                state[foot] = AIR
 
         # objective
         L_x = A[0] @ qd
@@ -192,9 +250,18 @@ def control_step(cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, 
         Q = params[P_BL] * np.outer(A[0], A[0]) + params[P_BH] * np.outer(A[2], A[2])
         g = params[P_BL] * (ldot_x - a[0]) * A[0] + params[P_BH] * (hdot - a[2]) * A[2]
         for j in range(nv):
-            Q[j, j] += params[P_BT] * w2[j] + params[P_EPS]
-            g[j] += params[P_BT] * w2[j] * (params[P_KT] * (q_ref[i, j] - q[j])
-                                            + params[P_DT] * (qd_ref[i, j] - qd[j]) + qdd_ref[i, j])
+            wj = w2[j]
+            qr = q_ref[i, j]
+            if swing >= 0:
+                if j == leg_dofs[swing, 0] or j == leg_dofs[swing, 1] or j == leg_dofs[swing, 2]:
+                    wj *= params[P_SWT]  # the swing leg follows its foot's target, not the standing pose
+                elif j == leg_dofs[1 - swing, 1]:  # the stance knee bends (hip and ankle share the angle: the
+                    qr += swing_target[i, S_CROUCH]  # foot stays flat, the trunk upright): a straight stance leg cannot
+                elif j == leg_dofs[1 - swing, 0] or j == leg_dofs[1 - swing, 2]:  # lower the hip, and a swing
+                    qr -= 0.5 * swing_target[i, S_CROUCH]  # foot a hip too high cannot reach the floor
+            Q[j, j] += params[P_BT] * wj + params[P_EPS]
+            g[j] += params[P_BT] * wj * (params[P_KT] * (qr - q[j])
+                                         + params[P_DT] * (qd_ref[i, j] - qd[j]) + qdd_ref[i, j])
 
         # support rows; a foot that is not flat gets a soft return-to-flat pitch target
         E = np.empty((9, nv))
@@ -220,7 +287,16 @@ def control_step(cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, 
                     E[ne] = Jp[anchor, r]
                     e[ne] = -bp[anchor, r] - params[P_DAMP] * (Jp[anchor, r] @ qd)
                     ne += 1
-            if s != FLAT:
+            if foot == swing:  # task-space objective: heel point (x, z) and foot pitch toward the swing plan
+                pitch = q[2] + q[leg_dofs[foot, 0]] + q[leg_dofs[foot, 1]] + q[leg_dofs[foot, 2]]
+                for r in range(3):
+                    jr = Jp[heel, r]
+                    pos = pts[heel, 0] if r == 0 else (pts[heel, 2] if r == 1 else pitch)
+                    target = (swing_target[i, 6 + r] + params[P_SK] * (swing_target[i, r] - pos)
+                              + params[P_SD] * (swing_target[i, 3 + r] - jr @ qd) - bp[heel, r])
+                    Q += params[P_SW] * np.outer(jr, jr)
+                    g += params[P_SW] * target * jr
+            elif s != FLAT:
                 jp = Jp[heel, 2]
                 pitch = q[2] + q[leg_dofs[foot, 0]] + q[leg_dofs[foot, 1]] + q[leg_dofs[foot, 2]]
                 target = -params[P_RK] * pitch - params[P_RD] * (jp @ qd) - bp[heel, 2]
@@ -285,11 +361,18 @@ def control_step(cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, 
         gen = M @ qdd
         for j in range(nv):
             gen[j] += qfrc_bias[i, j] - qfrc_passive[i, j]
+        split = ((carries[0] or carries[1]) and (carries[2] or carries[3])
+                 and abs(pts[0, 0] - pts[2, 0]) > SPLIT_STANCE_M and fz > 1e-9)
+        if split:
+            shares = bounded_shares(pts[:, 0], carries, cop, min(fmin / fz, 1.0 / count))
         for p in range(4):
             if carries[p]:
-                share = 1.0 / count
-                if spread > 1e-12:
-                    share += (pts[p, 0] - mean) * (cop - mean) / spread
+                if split:
+                    share = shares[p]
+                else:
+                    share = 1.0 / count
+                    if spread > 1e-12:
+                        share += (pts[p, 0] - mean) * (cop - mean) / spread
                 gen -= Jp[p, 0] * (share * fx) + Jp[p, 1] * (share * fz)
         saturated = 0.0
         for u in range(actuated.size):

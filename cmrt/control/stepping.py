@@ -1,0 +1,280 @@
+"""When and where to step, and the step itself (Wu and Zordan 2010, sections 4.1-4.2 and 5), for n
+simulations at once.
+
+The supervisor reads the character's momenta every control step. With L_x the horizontal linear
+momentum, H_y the pitch angular momentum about the CoM and f_z = m g, damping both momenta at rates
+d_l and d_h needs the centre of pressure
+
+    p_des = c_x + (d_l L_x c_z + d_h H_y) / f_z                    (their eq. 5, sagittal plane)
+
+When p_des (d_l = 4, d_h = 6) leaves the support, the feet cannot stop the body where it stands: it
+steps. The foot lands centred on a more conservative p_des (d_l = 9, d_h = 18), the point from which
+it can push the remaining momentum away. The capture-point variant is the same formula with d_h = 0
+and d_l = sqrt(g / c_z): p_des is then the capture point c_x + v_x sqrt(c_z / g) (their eq. 7-8).
+
+A step lasts ``step_time_s``. The swing foot's heel point travels a straight line from where it
+lifted off to the target with a bell-shaped speed (the Gaussian exp(-(s - 1/2)^2 / 0.08) of the
+step's phase s, scaled to cover the distance), rises and falls by a second such bell of height
+``lift_m`` and stays flat; the controller tracks that path as a task-space objective and gives the swing foot no
+support rows and no load. The CoM target follows a quadratic Bezier through the CoM at lift-off,
+the stance foot's centre and the midpoint between the stance foot and the target. The swing foot
+touching the floor after half the step ends it (double support again); the supervisor then keeps
+watching, so several steps can follow.
+
+Planar adaptation (documented in docs/stepping.md): in the sagittal plane both feet lie on the line
+of the push, so the paper's "foot nearest to p_des" is ambiguous at the first step (the feet are
+side by side: the right foot steps) and, after a step, would lift the foot the body is falling
+onto. The foot that steps is the one farther from p_des: it swings past the other, which becomes
+the pivot - a walking step, as people take it after a hard push.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import erf
+
+GRAVITY_M_S2 = 9.81
+MOMENTUM, CAPTURE_POINT = 1, 2  # the task parameter ``stepping``: 0 off, 1 momentum supervisor, 2 capture point
+RULES = {MOMENTUM: "momentum", CAPTURE_POINT: "capture point"}
+NO_SWING = -1
+
+
+@dataclass(frozen=True)
+class StepConfig:
+    """The supervisor's gains and the step's shape. Values and why: docs/stepping.md."""
+
+    rule: int = MOMENTUM  # MOMENTUM (eq. 5) or CAPTURE_POINT (d_h = 0, d_l = sqrt(g / c_z))
+    trigger_d_l: float = 4.0  # 1/s, momentum damping of the "must I step?" test (paper: 4)
+    trigger_d_h: float = 6.0  # 1/s, angular momentum damping of that test (paper: 6)
+    place_d_l: float = 9.0  # 1/s, conservative damping for where the foot lands (paper: 9)
+    place_d_h: float = 18.0  # 1/s (paper: 18)
+    step_time_s: float = 0.4  # lift-off to touchdown
+    lift_m: float = 0.05  # peak height of the heel point above the floor
+    width: float = 0.08  # the speed and lift bells are exp(-(s - 1/2)^2 / width), s = t / step time (paper's
+    # 0.08; read as sigma = 0.08 of the step time instead, the foot is asked for 5.6 m/s and 100 m/s^2 on a
+    # 0.45 m step of 0.4 s and cannot follow: docs/stepping.md)
+    min_step_m: float = 0.10  # the foot's centre lands at least this far from the pivot foot's centre
+    max_step_m: float = 0.45  # and at most this far forward (0.86 m hip to ankle)
+    max_back_step_m: float = 0.30  # and backward: the swing leg's reach behind a hip the push left over the
+    # stance ankle (a 0.45 m backward step needed 0.88-0.90 m of leg: the foot hovered; docs/stepping.md)
+    knee_bend_rad: float = 0.5  # added to the stance knee's reference during a forward step (hip and ankle
+    # take -half each: the stance foot stays flat, the trunk upright): a straight stance leg cannot lower the hip
+    back_knee_bend_rad: float = 0.8  # the same, stepping backward: the hip must come down 7 cm, not 3.5, for
+    # the swing ankle to reach the floor behind it
+    retarget_until: float = 0.3  # the target follows the momenta until this fraction of the step (the foot
+    # has covered 0.6 % of its path): a push still going on at lift-off makes the step longer
+    touchdown_after: float = 0.5  # contact of the swing foot counts as touchdown after this fraction
+    min_double_support_s: float = 0.05  # after a touchdown, the next step waits at least this long
+
+    @staticmethod
+    def from_task(params: dict[str, float]) -> StepConfig | None:
+        """The config a task's ``stepping``/``step_time_s``/``step_height_m`` parameters ask for (None: off)."""
+        rule = int(round(params.get("stepping", 0.0)))
+        if rule == 0:
+            return None
+        return StepConfig(rule=rule, step_time_s=params.get("step_time_s", StepConfig.step_time_s),
+                          lift_m=params.get("step_height_m", StepConfig.lift_m))
+
+
+def desired_cop_x(com_x, com_z, momentum_x, ang_momentum_y, mass_kg, d_l, d_h):
+    """Eq. 5: the CoP that damps L_x at rate d_l and H_y at rate d_h (f_z = m g; heights above the floor)."""
+    return com_x + (d_l * momentum_x * com_z + d_h * ang_momentum_y) / (mass_kg * GRAVITY_M_S2)
+
+
+def swing_profile(s: np.ndarray, width: float) -> tuple[np.ndarray, ...]:
+    """Progress along the path (0 -> 1) and lift shape (0 -> 1 -> 0) at phase ``s`` in [0, 1], with their
+    first and second derivatives in s: (phi, phi', phi'', h, h', h'').
+
+    Both are built on the bell exp(-(s - 1/2)^2 / width): the speed is that bell scaled so the path is
+    covered exactly at s = 1; the lift is the bell shifted and scaled to be 0 at both ends and 1 mid-step."""
+    sigma = math.sqrt(width / 2.0)
+    u = (s - 0.5) / sigma
+    edge = erf(0.5 / (sigma * math.sqrt(2.0)))  # Phi(0.5 / sigma) - Phi(-0.5 / sigma)
+    phi = 0.5 * (erf(u / math.sqrt(2.0)) + edge) / edge
+    bell = np.exp(-0.5 * u * u)
+    dphi = bell / (sigma * math.sqrt(2.0 * math.pi) * edge)
+    ddphi = -u / sigma * dphi
+    floor = math.exp(-0.125 / sigma**2)  # the bell at s = 0 and 1
+    scale = 1.0 / (1.0 - floor)
+    return (phi, dphi, ddphi, (bell - floor) * scale, -u / sigma * bell * scale,
+            (u * u - 1.0) / sigma**2 * bell * scale)
+
+
+def bezier(s: np.ndarray, p0, p1, p2) -> tuple[np.ndarray, np.ndarray]:
+    """Quadratic Bezier through control points p0, p1, p2 at s in [0, 1], and its derivative in s."""
+    return (1 - s) ** 2 * p0 + 2 * s * (1 - s) * p1 + s**2 * p2, 2 * (1 - s) * (p1 - p0) + 2 * s * (p2 - p1)
+
+
+@dataclass(frozen=True)
+class StepCommand:
+    """What the supervisor asks of the controller this control step, for the rows it was given."""
+
+    swing_foot: np.ndarray  # (k,) float: -1, 0 (right) or 1 (left)
+    swing_target: np.ndarray  # (k, 10): heel point x, z, foot pitch; rates; accelerations; stance knee bend
+    com_ref_x_m: np.ndarray  # (k,) CoM target on the Bezier (NaN: not stepping, the task's own target)
+    com_ref_vel_x_m_s: np.ndarray  # (k,)
+
+    def com_targets(self, com_ref: np.ndarray, com_ref_vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The task's CoM target where no foot swings, the step's Bezier where one does."""
+        stepping = self.swing_foot >= 0
+        return np.where(stepping, self.com_ref_x_m, com_ref), np.where(stepping, self.com_ref_vel_x_m_s, com_ref_vel)
+
+    def rows(self, idx: np.ndarray) -> StepCommand:
+        """The command of a subset of its rows."""
+        return StepCommand(self.swing_foot[idx], self.swing_target[idx], self.com_ref_x_m[idx],
+                           self.com_ref_vel_x_m_s[idx])
+
+
+class StepSupervisor:
+    """Per-simulation stepping state of a batch of n clips, advanced every control step by ``update``."""
+
+    def __init__(self, n: int, config: StepConfig, heel_to_center_m: float, foot_length_m: float):
+        self.config = config
+        self.heel_to_center_m = heel_to_center_m  # heel point to the middle of heel and toe points
+        self.foot_length_m = foot_length_m  # heel point to toe point
+        self.swing = np.full(n, NO_SWING)
+        self.t0 = np.zeros(n)
+        self.start_heel_x = np.zeros(n)
+        self.target_heel_x = np.zeros(n)
+        self.com0_x = np.zeros(n)
+        self.pivot_x = np.zeros(n)
+        self.direction = np.zeros(n)
+        self.last_touchdown_s = np.full(n, -np.inf)
+        self.step_times: list[list[float]] = [[] for _ in range(n)]  # lift-off times
+        self.footprints: list[list[tuple[int, float, float]]] = [[] for _ in range(n)]  # (foot, time, heel x)
+
+    def _gains(self, com_z: np.ndarray, place: bool) -> tuple[np.ndarray, np.ndarray]:
+        c = self.config
+        if c.rule == CAPTURE_POINT:
+            return np.sqrt(GRAVITY_M_S2 / np.maximum(com_z, 1e-3)), np.zeros_like(com_z)
+        return (np.full_like(com_z, c.place_d_l if place else c.trigger_d_l),
+                np.full_like(com_z, c.place_d_h if place else c.trigger_d_h))
+
+    def _target_heel(self, rows, pivot_center, p_place, direction):
+        c = self.config
+        longest = np.where(direction > 0, c.max_step_m, c.max_back_step_m)
+        reach = np.clip((p_place - pivot_center) * direction, c.min_step_m, longest)
+        return pivot_center + direction * reach - self.heel_to_center_m
+
+    def update(self, ids: np.ndarray, time_s: float, com_x: np.ndarray, com_z: np.ndarray, momentum_x: np.ndarray,
+               ang_momentum_y: np.ndarray, mass_kg: np.ndarray, contact: np.ndarray, point_x: np.ndarray
+               ) -> StepCommand:
+        """Advance simulations ``ids`` to ``time_s`` (a control step) and return what the controller should do.
+
+        ``contact`` (k, 4) and ``point_x`` (k, 4): heel_r, toe_r, heel_l, toe_l on the floor / their x."""
+        c = self.config
+        swing = self.swing[ids]
+        phase = (time_s - self.t0[ids]) / c.step_time_s
+        # touchdown: the swing foot on the floor in the second half of its step
+        rows = np.flatnonzero(swing >= 0)
+        if rows.size:
+            foot = swing[rows]
+            down = (contact[rows, 2 * foot] | contact[rows, 2 * foot + 1]) & (phase[rows] >= c.touchdown_after)
+            for r in rows[down]:
+                sim = ids[r]
+                self.footprints[sim].append((int(swing[r]), time_s, float(point_x[r, 2 * swing[r]])))
+            self.swing[ids[rows[down]]] = NO_SWING
+            self.last_touchdown_s[ids[rows[down]]] = time_s
+            swing = self.swing[ids]
+
+        d_l, d_h = self._gains(com_z, place=False)
+        p_test = desired_cop_x(com_x, com_z, momentum_x, ang_momentum_y, mass_kg, d_l, d_h)
+        d_l, d_h = self._gains(com_z, place=True)
+        p_place = desired_cop_x(com_x, com_z, momentum_x, ang_momentum_y, mass_kg, d_l, d_h)
+        foot_down = contact[:, 0::2] | contact[:, 1::2]  # (k, 2)
+        on = np.repeat(foot_down, 2, axis=1)
+        with np.errstate(invalid="ignore"):
+            lo = np.where(on, point_x, np.inf).min(axis=1)
+            hi = np.where(on, point_x, -np.inf).max(axis=1)
+            outside = foot_down.all(axis=1) & ((p_test < lo) | (p_test > hi))
+        ready = (swing < 0) & (time_s - self.last_touchdown_s[ids] >= c.min_double_support_s)
+        start = np.flatnonzero(outside & ready)
+        if start.size:
+            heel_x, toe_x = point_x[start][:, 0::2], point_x[start][:, 1::2]  # (k, 2) per foot
+            centers = 0.5 * (heel_x + toe_x)
+            # the trailing foot steps (ties: the right foot); the other is the pivot
+            dist = np.abs(centers - p_test[start, None])
+            foot = np.where(dist[:, 1] > dist[:, 0] + 1e-3, 1, 0)
+            pivot = centers[np.arange(start.size), 1 - foot]
+            direction = np.sign(p_test[start] - pivot)
+            direction[direction == 0] = 1.0
+            sims = ids[start]
+            self.swing[sims] = foot
+            self.t0[sims] = time_s
+            self.start_heel_x[sims] = heel_x[np.arange(start.size), foot]
+            self.com0_x[sims] = com_x[start]
+            self.pivot_x[sims] = pivot
+            self.direction[sims] = direction
+            self.target_heel_x[sims] = self._target_heel(start, pivot, p_place[start], direction)
+            for s in sims:
+                self.step_times[s].append(time_s)
+            swing = self.swing[ids]
+            phase = (time_s - self.t0[ids]) / c.step_time_s
+
+        # retarget while the foot has hardly moved: momentum a push is still adding lengthens the step
+        early = np.flatnonzero((swing >= 0) & (phase <= c.retarget_until))
+        if early.size:
+            sims = ids[early]
+            pivot = self.pivot_x[sims]
+            self.target_heel_x[sims] = self._target_heel(early, pivot, p_place[early], self.direction[sims])
+
+        return self._command(ids, np.clip(phase, 0.0, 1.0), phase)
+
+    def _command(self, ids: np.ndarray, s: np.ndarray, phase: np.ndarray) -> StepCommand:
+        c = self.config
+        k = ids.size
+        swing = self.swing[ids]
+        target = np.zeros((k, 10))
+        com_ref = np.full(k, np.nan)
+        com_vel = np.full(k, np.nan)
+        rows = np.flatnonzero(swing >= 0)
+        if rows.size:
+            sims = ids[rows]
+            T = c.step_time_s
+            sr = s[rows]
+            phi, dphi, ddphi, h, dh, ddh = swing_profile(sr, c.width)
+            dist = self.target_heel_x[sims] - self.start_heel_x[sims]
+            target[rows, 0] = self.start_heel_x[sims] + dist * phi
+            target[rows, 3] = dist * dphi / T
+            target[rows, 6] = dist * ddphi / T**2
+            late = phase[rows] > 1.0  # not down yet: aim a few millimetres into the floor, gently
+            target[rows, 1] = np.where(late, -0.005, c.lift_m * h)
+            target[rows, 4] = np.where(late, 0.0, c.lift_m * dh / T)
+            target[rows, 7] = np.where(late, 0.0, c.lift_m * ddh / T**2)
+            target[rows, 9] = np.where(self.direction[sims] > 0, c.knee_bend_rad, c.back_knee_bend_rad)
+            pivot = self.pivot_x[sims]
+            mid = 0.5 * (pivot + self.target_heel_x[sims] + self.heel_to_center_m)
+            b, db = bezier(sr, self.com0_x[sims], pivot, mid)
+            com_ref[rows] = b
+            com_vel[rows] = np.where(late, 0.0, db / T)
+        return StepCommand(swing.astype(float), target, com_ref, com_vel)
+
+    def support(self, ids: np.ndarray, point_x: np.ndarray, lo: np.ndarray, hi: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """The support of the moment: the stance foot's [heel, toe] while the other swings (``lo``/``hi``
+        elsewhere)."""
+        swing = self.swing[ids]
+        rows = np.flatnonzero(swing >= 0)
+        lo, hi = lo.copy(), hi.copy()
+        if rows.size:
+            stance = 1 - swing[rows]
+            lo[rows] = point_x[rows, 2 * stance]
+            hi[rows] = point_x[rows, 2 * stance + 1]
+        return lo, hi
+
+    def landing_span(self, ids: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For the balance monitor: a capture point over the footprint a swing foot is heading for is not a
+        fall, so the support of a stepping clip includes that footprint."""
+        swing = self.swing[ids]
+        heel = self.target_heel_x[ids]
+        stepping = swing >= 0
+        return (np.where(stepping, np.fmin(lo, heel), lo),
+                np.where(stepping, np.fmax(hi, heel + self.foot_length_m), hi))
+
+    def swinging(self, ids: np.ndarray) -> np.ndarray:
+        """(k, 2) bool: which foot of each simulation swings now."""
+        swing = self.swing[ids]
+        return np.stack([swing == 0, swing == 1], axis=1)
