@@ -143,4 +143,17 @@ def feet_flat_qpos(angles_rad: dict[str, float], balance_joint: str | None = "an
         place(offset)
     else:
         place(0.0)
+    _check_joint_ranges(m, d.qpos)
     return d.qpos.copy()
+
+
+def _check_joint_ranges(m: mujoco.MjModel, qpos: np.ndarray) -> None:
+    """CmrtError naming the first joint of a pose outside its range in the MJCF (the balance joint's solved angle
+    included): a pose the body cannot take is bad input, not a motion to simulate."""
+    for j in range(m.njnt):
+        if m.jnt_limited[j]:
+            lo, hi = m.jnt_range[j]
+            angle = qpos[m.jnt_qposadr[j]]
+            if not lo - 1e-9 <= angle <= hi + 1e-9:
+                raise CmrtError(f"{m.joint(j).name} = {np.degrees(angle):.1f} deg is outside the joint's range "
+                                f"[{np.degrees(lo):.1f}, {np.degrees(hi):.1f}] deg")
