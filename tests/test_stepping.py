@@ -2,6 +2,7 @@
 parameters, and (slow) push recovery on the physics."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -183,3 +184,33 @@ def test_a_backward_step_saves_a_backward_push_standing_cannot():
     assert np.abs(traj.foot_roll_rad[k - 5:k + 5, foot]).max() < 0.05  # lands flat, not on its toe
     assert ev.peak_normal_force_bw < 3.0 and ev.max_joint_speed_rad_s < 15.0 and ev.airborne_s <= 0.01
     assert traj.point_contact[-1].astype(bool).all()  # both feet flat at the end
+
+
+BRACE_CMRT = Path(__file__).resolve().parent / "data" / "cmrt_step_brace_back_450n.json"
+
+
+@pytest.mark.slow
+def test_a_known_push_neither_a_cmrt_nor_a_step_saves_alone_is_saved_by_both():
+    """Item 4: -450 N x 0.1 s. Stepping alone (zero CMRT) steps back after the push and falls; the CMRT
+    (optimized with stepping on, tests/data) alone leans back out of the heels and falls; together the
+    CMRT's lean triggers a backward step *before* the push, and the wide stance takes it (docs/stepping.md)."""
+    from cmrt.curve import Cmrt
+    from cmrt.objective import evaluate
+    from cmrt.simulate import simulate
+
+    curve = Cmrt.load(BRACE_CMRT)
+    task = load_task("push-recovery").with_params(push_force_n=-450.0, push_duration_s=0.1)
+    stepping_alone = evaluate(task.with_params(stepping=1), simulate(task.with_params(stepping=1), None, record=False))
+    assert stepping_alone.fell and stepping_alone.steps >= 1
+    cmrt_alone = evaluate(task.with_params(stepping=0), simulate(task.with_params(stepping=0), curve, record=False))
+    assert cmrt_alone.fell
+    traj = simulate(task.with_params(stepping=1), curve, record=True)
+    both = evaluate(task.with_params(stepping=1), traj)
+    assert both.success and both.steps == 1 and both.final_com_speed_m_s < 0.05
+    push_start_s = task.params["push_start_s"]
+    foot, landed_s, heel_x = traj.footprints[0]
+    assert landed_s < push_start_s and heel_x < -0.25  # a step back, landed before the push arrives
+    k = int(np.searchsorted(traj.time_s, landed_s))
+    assert np.abs(traj.foot_roll_rad[k - 5:k + 5, foot]).max() < 0.05  # lands flat
+    assert both.peak_normal_force_bw < 3.0 and both.max_joint_speed_rad_s < 10.0 and both.airborne_s <= 0.01
+    assert traj.point_contact[-1].astype(bool).all()  # standing still on both flat feet
