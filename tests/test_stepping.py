@@ -148,10 +148,12 @@ def test_a_step_saves_a_push_standing_cannot(force_n):
     lift = traj.point_lift_m[:, 2 * foot]
     assert 0.02 < np.nanmax(lift) < 0.10 and heel_x > 0.2
     assert ev.peak_normal_force_bw < 3.0 and ev.max_joint_speed_rad_s < 15.0 and ev.airborne_s <= 0.01
-    # standing still afterwards on both feet (the rear one may stand on its toe, heel raised as in a lunge:
-    # docs/stepping.md), the front one flat where it landed
-    end = traj.point_contact[-1].astype(bool)
-    assert end[2 * foot] and end[2 * foot + 1] and end[2 * (1 - foot) + 1] and traj.final_com_speed_m_s < 0.05
+    # standing still afterwards on both flat feet: the front knee bends after touchdown so the rear heel comes
+    # down too (was a lunge on the rear toe, heel 3.7 cm up: docs/stepping.md)
+    assert traj.point_contact[-1].astype(bool).all() and traj.final_com_speed_m_s < 0.05
+    k = int(np.searchsorted(traj.time_s, landed_s))
+    assert np.abs(traj.foot_roll_rad[k + 100:]).max() < 0.01  # flat 0.2 s after touchdown
+    assert traj.normal_force_n[k + 50:].max() < 2.0 * 9.81 * 70  # the rear heel's landing is soft (1.56 bw, 2 ms)
 
 
 @pytest.mark.slow
