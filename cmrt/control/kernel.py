@@ -259,6 +259,12 @@ def control_step(cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, 
                     qr += swing_target[i, S_CROUCH]  # foot stays flat, the trunk upright): a straight stance leg cannot
                 elif j == leg_dofs[1 - swing, 0] or j == leg_dofs[1 - swing, 2]:  # lower the hip, and a swing
                     qr -= 0.5 * swing_target[i, S_CROUCH]  # foot a hip too high cannot reach the floor
+            elif swing_target[i, S_CROUCH] != 0.0:  # both feet down after a forward step: the front knee bends,
+                front = 0 if pts[0, 0] > pts[2, 0] else 1  # so the rear leg can reach the floor with its heel too
+                if j == leg_dofs[front, 1]:
+                    qr += swing_target[i, S_CROUCH]
+                elif j == leg_dofs[front, 0] or j == leg_dofs[front, 2]:
+                    qr -= 0.5 * swing_target[i, S_CROUCH]
             Q[j, j] += params[P_BT] * wj + params[P_EPS]
             g[j] += params[P_BT] * wj * (params[P_KT] * (qr - q[j])
                                          + params[P_DT] * (qd_ref[i, j] - qd[j]) + qdd_ref[i, j])

@@ -64,6 +64,8 @@ class StepConfig:
     # take -half each: the stance foot stays flat, the trunk upright): a straight stance leg cannot lower the hip
     back_knee_bend_rad: float = 0.8  # the same, stepping backward: the hip must come down 7 cm, not 3.5, for
     # the swing ankle to reach the floor behind it
+    settle_knee_bend_rad: float = 0.8  # after a forward step, the front knee keeps this bend: the rear leg
+    # reaches the floor flat only from a hip ~3 cm lower than standing height (0.41 m split; docs/stepping.md)
     retarget_until: float = 0.3  # the target follows the momenta until this fraction of the step (the foot
     # has covered 0.6 % of its path): a push still going on at lift-off makes the step longer
     touchdown_after: float = 0.5  # contact of the swing foot counts as touchdown after this fraction
@@ -250,6 +252,8 @@ class StepSupervisor:
             b, db = bezier(sr, self.com0_x[sims], pivot, mid)
             com_ref[rows] = b
             com_vel[rows] = np.where(late, 0.0, db / T)
+        settled = np.flatnonzero((swing < 0) & np.isfinite(self.last_touchdown_s[ids]) & (self.direction[ids] > 0))
+        target[settled, 9] = c.settle_knee_bend_rad  # double support after a forward step: the front knee bends
         return StepCommand(swing.astype(float), target, com_ref, com_vel)
 
     def support(self, ids: np.ndarray, point_x: np.ndarray, lo: np.ndarray, hi: np.ndarray
