@@ -542,7 +542,7 @@ def simulate_batch(
     n_points = geo.points.size
     diverged_code = 1 + REASONS.index(FallReason.DIVERGED)
     sel, ids, step_ids = slice(None), active, None
-    rec_fz = rec["fz"]
+    rec_fz, rec_com = rec["fz"], rec["com"]
     has_contact_force = prop.contact_force(b, slice(None)) is not None
     for k in range(n_steps):
         if k >= next_end:  # the end of the tail, a fall (scoring: after its step), or the topple played out
@@ -577,7 +577,7 @@ def simulate_batch(
             rec["sc"][sel, k], rec["lo"][sel, k], rec["hi"][sel, k] = center, lo, hi
             rec["qpos"][sel, k] = qpos
             com = b["subtree_com"][sel, 1]
-            rec["com"][sel, k] = com[:, [0, 2]]
+            rec_com[sel, k, 0], rec_com[sel, k, 1] = com[:, 0], com[:, 2]  # x, z without a fancy-indexed copy
         if control or record:
             if not control:
                 contact = _in_contact(geom_xpos, geo.points)
