@@ -9,7 +9,7 @@
 (e) the same N candidates scored robustly: each on the task's ensemble (``cmrt.ensemble``),
     all N x members clips in one lockstep batch - the cost per member against a plain clip's;
 (f) optionally a whole optimization (the caller's ``optimize``: ``cmrt bench`` runs ``cmrt optimize
-    TASK --seed 1`` into a throwaway store) against its evaluations x the floor per clip (the floor is
+    TASK --seed 1 --init none`` into a throwaway store) against its evaluations x the floor per clip (the floor is
     already measured on all cores' threads, so that product is evaluations x floor / cores).
 
 (a)-(c) and (e) run in ``repeat`` alternating rounds and each round's batched/floor ratio is
