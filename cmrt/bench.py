@@ -7,7 +7,10 @@
 (c) per-candidate serial evaluation (one clip after another, one thread);
 (d) one full generation of N candidates with each optimizer backend;
 (e) the same N candidates scored robustly: each on the task's ensemble (``cmrt.ensemble``),
-    all N x members clips in one lockstep batch - the cost per member against a plain clip's.
+    all N x members clips in one lockstep batch - the cost per member against a plain clip's;
+(f) optionally a whole optimization (the caller's ``optimize``: ``cmrt bench`` runs ``cmrt optimize
+    TASK --seed 1 --init none`` into a throwaway store) against its evaluations x the floor per clip (the floor is
+    already measured on all cores' threads, so that product is evaluations x floor / cores).
 
 (a)-(c) and (e) run in ``repeat`` alternating rounds and each round's batched/floor ratio is
 taken within the round: these machines are noisy, so the figures are the median (and
@@ -20,6 +23,7 @@ from __future__ import annotations
 import os
 import platform
 import time
+from collections.abc import Callable
 
 import mujoco
 import mujoco.batch
@@ -36,6 +40,10 @@ from cmrt.props import prop_class
 from cmrt.simulate import settled_state, simulate_batch
 from cmrt.task import Task
 
+# (evaluations, wall seconds) of one full optimization of a task: supplied by the caller (the CLI runs
+# ``jobs.optimize_now``; this module sits below the store and the service)
+OptimizeFn = Callable[[Task], tuple[int, float]]
+
 
 def _candidates(task: Task, n: int) -> list[np.ndarray]:
     """Small perturbations of the library optimum (most clips run to the end), or of the flat start."""
@@ -47,9 +55,11 @@ def _candidates(task: Task, n: int) -> list[np.ndarray]:
     return [base + rng.normal(0.0, 0.02, base.size) for _ in range(n)]
 
 
-def run_bench(task: Task, population: int = 16, repeat: int = 3, backends=BACKENDS, workers: int = 2) -> dict:
+def run_bench(task: Task, population: int = 16, repeat: int = 5, backends=BACKENDS, workers: int = 2,
+              optimize: OptimizeFn | None = None) -> dict:
     """Time the physics floor, the batched and serial evaluators and a generation on each backend, in
-    alternating rounds (ratios within a round: this VM's speed drifts); what ``cmrt bench`` prints."""
+    alternating rounds (ratios within a round: this VM's speed drifts); what ``cmrt bench`` prints.
+    ``optimize``: also time one full optimization of ``task`` against its evaluations x floor."""
     m = character().model
     n_steps = int(round((task.clip_s + task.tail_s) / m.opt.timestep))  # what an evaluation simulates
     threads = os.cpu_count() or 1
@@ -111,4 +121,9 @@ def run_bench(task: Task, population: int = 16, repeat: int = 3, backends=BACKEN
         "machine": f"{platform.machine()}, {threads} cores, mujoco {mujoco.__version__}",
         "repeat": repeat,
     }
+    if optimize is not None:
+        evaluations, wall_s = optimize(task)
+        floor_s = evaluations * out["physics_only_s_per_clip"]
+        out.update({"optimize_evaluations": evaluations, "optimize_wall_s": wall_s, "optimize_floor_s": floor_s,
+                    "ratio_optimize_to_floor": wall_s / floor_s if floor_s > 0 else float("nan")})
     return out

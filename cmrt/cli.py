@@ -22,6 +22,7 @@ import signal
 import sqlite3
 import stat
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
@@ -754,6 +755,8 @@ class Bench(Command):
         p.add_argument("--repeat", type=inputs.arg(inputs.REPEAT), default=5)
         p.add_argument("--backends", help=f"comma-separated subset of {','.join(BACKENDS)}")
         p.add_argument("--workers", type=inputs.arg(inputs.WORKERS), default=os.cpu_count() or 1)
+        p.add_argument("--no-optimize", action="store_true",
+                       help="skip timing a full 'cmrt optimize TASK --seed 1 --init none' (throwaway store)")
 
     def run(self, args):
         backends = tuple(args.backends.split(",")) if args.backends else BACKENDS
@@ -762,7 +765,8 @@ class Bench(Command):
             raise CmrtError(f"--backends must be a comma-separated subset of {', '.join(BACKENDS)}, got "
                             f"{shown(args.backends)}")
         task = resolve_task(args.task, args.speed, args.set, args.reference)
-        return Output(run_bench(task, args.population, args.repeat, backends, args.workers), self._text)
+        return Output(run_bench(task, args.population, args.repeat, backends, args.workers,
+                                None if args.no_optimize else _timed_optimization), self._text)
 
     @staticmethod
     def _text(r: dict) -> str:
@@ -781,7 +785,21 @@ class Bench(Command):
             + [f"  batched / floor within each round: median {r['ratio_batched_to_physics']:.2f} "
                f"(min {r['ratio_batched_to_physics_min']:.2f}, max {r['ratio_batched_to_physics_max']:.2f})",
                f"  robust ensemble member / plain clip within each round: median "
-               f"{r['ratio_robust_member_to_plain']:.2f}"])
+               f"{r['ratio_robust_member_to_plain']:.2f}"]
+            + ([f"  full optimization (seed 1, cold): {r['optimize_evaluations']} evaluations in "
+                f"{r['optimize_wall_s']:.1f} s; evaluations x floor = {r['optimize_floor_s']:.1f} s "
+                f"(x{r['ratio_optimize_to_floor']:.2f})"] if "optimize_wall_s" in r else []))
+
+
+def _timed_optimization(task: Task) -> tuple[int, float]:
+    """``cmrt optimize TASK --seed 1 --init none`` (otherwise default settings, batched backend) into a
+    throwaway store: (evaluations, wall seconds). Cold, because a warm start from the shipped library
+    curve ends the fast bend after one generation - that would time start-up, not the optimization -
+    and the user's store is neither read nor written."""
+    with tempfile.TemporaryDirectory() as tmp, open_store(Path(tmp) / "bench.db") as store:
+        t0 = time.perf_counter()
+        run = jobs.optimize_now(store, task, seed=1, init="none")
+        return run.evaluations, time.perf_counter() - t0
 
 
 class Demo(Command):

@@ -62,3 +62,36 @@ def test_vectorised_over_simulations():
                          airborne_for_s=np.zeros(n), foot_roll_rad=np.zeros((n, 2)),
                          support_lo_x=np.full(n, -0.06), support_hi_x=np.full(n, 0.18))
     assert [REASONS[c - 1] if c else None for c in code] == [None, FallReason.BODY_ON_FLOOR, FallReason.CAPTURE_POINT]
+
+
+def _numpy_check_balance(limits, *, finite, lowest_body_z, com_x, com_z, com_vel_x, airborne_for_s, foot_roll_rad,
+                         support_lo_x, support_hi_x):
+    """The numpy version check_balance had before it was compiled (issue 17): the reference it must equal."""
+    xi = capture_point_x(com_x, com_z, com_vel_x)
+    failed = np.empty((len(REASONS) + 1,) + finite.shape, bool)
+    failed[0] = False
+    failed[1] = ~finite
+    failed[2] = lowest_body_z < 0.0
+    failed[3] = com_z < limits.com_height_m
+    failed[4] = airborne_for_s >= limits.airborne_s
+    failed[5] = (np.abs(foot_roll_rad) > limits.roll_rad).any(axis=-1)
+    with np.errstate(invalid="ignore"):
+        failed[6] = (xi < support_lo_x - limits.capture_margin_m) | (xi > support_hi_x + limits.capture_margin_m)
+    return failed.argmax(axis=0)
+
+
+def test_compiled_check_equals_the_numpy_one_on_random_states_with_nans():
+    rng = np.random.default_rng(5)
+    n = 4000
+    state = dict(finite=rng.random(n) > 0.05, lowest_body_z=rng.normal(0.3, 0.2, n), com_x=rng.normal(0.06, 0.1, n),
+                 com_z=rng.normal(0.8, 0.25, n), com_vel_x=rng.normal(0.0, 0.5, n),
+                 airborne_for_s=rng.choice([0.0, 0.01, 0.03, 0.05], n), foot_roll_rad=rng.normal(0.0, 0.15, (n, 2)),
+                 support_lo_x=rng.normal(-0.06, 0.05, n), support_hi_x=rng.normal(0.18, 0.05, n))
+    for key in ("lowest_body_z", "com_x", "com_z", "com_vel_x", "support_lo_x", "support_hi_x"):
+        state[key][rng.random(n) < 0.03] = np.nan  # diverged rows, feet off the floor (NaN support)
+    state["foot_roll_rad"][rng.random(n) < 0.03, 1] = np.nan
+    state["com_z"][:20] = rng.normal(0.0, 1e-3, 20)  # the 1e-3 floor on the pendulum's height
+    got = check_balance(LIMITS, **state)
+    want = _numpy_check_balance(LIMITS, **state)
+    assert np.array_equal(got, want)
+    assert set(np.unique(want)) == set(range(len(REASONS) + 1))  # every verdict was exercised

@@ -17,6 +17,10 @@ def test_bench_json_reports_every_figure():
     assert out["ratio_batched_to_physics_min"] <= out["ratio_batched_to_physics"] <= out["ratio_batched_to_physics_max"]
     assert out["steps_per_clip"] == round((2.6 + 0.5) / 0.002)  # the clip and its standing tail
     assert out["robust_members"] == 7 and out["robust_s_per_member"] > 0 and out["ratio_robust_member_to_plain"] > 0
+    # the full optimization against evaluations x floor (a throwaway store: the user's is not touched)
+    assert out["optimize_evaluations"] > 0 and out["optimize_wall_s"] > 0
+    assert out["optimize_floor_s"] == pytest.approx(out["optimize_evaluations"] * out["physics_only_s_per_clip"])
+    assert out["ratio_optimize_to_floor"] == pytest.approx(out["optimize_wall_s"] / out["optimize_floor_s"])
 
 
 @pytest.mark.slow  # a cmrt process

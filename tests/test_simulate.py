@@ -142,3 +142,32 @@ def test_a_trace_covers_the_clip_and_its_standing_tail():
     assert traj.time_s.size == round((task.clip_s + task.tail_s) / 0.002)
     assert np.all(np.isfinite(traj.qpos)) and np.all(np.isfinite(traj.foot_roll_rad))
     assert np.all(traj.cmrt_displacement_m[traj.time_s > task.clip_s] == 0.0)
+
+
+def test_compiled_control_step_geometry_equals_the_numpy_it_replaced():
+    """``_Geometry.at_control`` (one compiled pass per control step) against the numpy expressions the
+    loop used before, bit for bit, on random states with NaNs (a diverged row) and feet off the floor."""
+    from cmrt.character import character
+    from cmrt.simulate import _Geometry, _ground_support, _in_contact
+
+    geo, m = _Geometry(), character().model
+    act = np.array(character().actuated_dofs)
+    rng = np.random.default_rng(3)
+    n = 40
+    geom_xpos = rng.normal(0.0, 0.3, (n, m.ngeom, 3))
+    geom_xpos[:, geo.points, 2] = rng.choice([0.0, 0.01, 0.05], (n, geo.points.size))  # some touch, some do not
+    geom_xmat = rng.normal(0.0, 1.0, (n, m.ngeom, 9))
+    qpos, qvel = rng.normal(0.0, 1.0, (n, m.nq)), rng.normal(0.0, 5.0, (n, m.nv))
+    geom_xpos[3, geo.points[1], 0] = geom_xpos[5, geo.body_geoms[2], 2] = np.nan
+    qvel[7, act[3]] = qpos[9, geo.leg_dofs[1, 1]] = np.nan
+    geom_xpos[11, geo.points, 2] = 1.0  # airborne
+    point_x, lo, hi, contact, roll, jspeed, lowest, grounded, c_lo, c_hi = geo.at_control(
+        geom_xpos, geom_xmat, qpos, qvel, act)
+    want_x = geom_xpos[:, geo.points, 0]
+    want_contact = _in_contact(geom_xpos, geo.points)
+    want_grounded, want_lo, want_hi = _ground_support(want_contact, want_x)
+    for got, want in ((point_x, want_x), (lo, want_x.min(axis=1)), (hi, want_x.max(axis=1)),
+                      (contact, want_contact), (roll, geo.foot_roll(qpos)),
+                      (jspeed, np.abs(qvel[:, act]).max(axis=1)), (lowest, geo.lowest_body_z(geom_xpos, geom_xmat)),
+                      (grounded, want_grounded), (c_lo, want_lo), (c_hi, want_hi)):
+        assert np.array_equal(got, want, equal_nan=got.dtype.kind == "f")

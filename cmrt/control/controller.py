@@ -94,6 +94,35 @@ class ControllerConfig:
         return w
 
 
+_FIELDS = ("cdof", "cdof_dot", "cvel", "cinert", "qpos", "qvel", "M", "qfrc_bias", "qfrc_passive", "subtree_com",
+           "geom_xpos")
+
+
+def _read_only(x: np.ndarray) -> np.ndarray:
+    x = x.view()
+    x.flags.writeable = False
+    return x
+
+
+def _as_kernel(x, dtype=np.float64) -> np.ndarray:
+    """C-contiguous and read-only, like MuJoCo's bound batch fields: numba compiles one signature
+    (a writable copy and a read-only view are different types to it: 30 s of compiling each).
+    A bound field passes straight through."""
+    if x.__class__ is np.ndarray and not x.flags.writeable and x.flags.c_contiguous and x.dtype == dtype:
+        return x
+    x = np.ascontiguousarray(x, dtype=dtype)
+    return _read_only(x) if x.flags.writeable else x
+
+
+def _shared_rows(r: np.ndarray, buf: np.ndarray, view: np.ndarray) -> np.ndarray:
+    """A reference for every row: (nv,) shared ones are copied into ``buf`` (read through ``view``),
+    (n, nv) per-row ones pass as they are."""
+    if r.ndim == 1 and r.shape == buf.shape[1:]:
+        buf[:] = r
+        return view
+    return _as_kernel(np.broadcast_to(r, (buf.shape[0], r.shape[-1])))
+
+
 @dataclass(frozen=True)
 class ControlOutput:
     """One control step for n simulations."""
@@ -137,6 +166,19 @@ class MomentumBalanceController:
                              (kernel.P_SWT, c.swing_leg_tracking)):
             params[index] = value
         self.params = params
+        self._per_n: dict[int, dict] = {}
+
+    def _constants(self, n: int) -> dict:
+        """Per batch size: the defaults and the buffers shared references are spread into, made once
+        (a control step runs ~400 times per clip; allocating them each time was measurable)."""
+        c = self._per_n.get(n)
+        if c is None:
+            bufs = [np.empty((n, self.nv)) for _ in range(3)]
+            c = self._per_n[n] = {
+                "refs": [(buf, _read_only(buf)) for buf in bufs],
+                "mass": _read_only(np.full(n, self.mass)), "no_swing": _read_only(np.full(n, -1.0)),
+                "no_target": _read_only(np.zeros((n, kernel.N_SWING)))}
+        return c
 
     @staticmethod
     def foot_states(in_contact: np.ndarray) -> np.ndarray:
@@ -156,27 +198,18 @@ class MomentumBalanceController:
         the stance knee's extra bend
         (``cmrt.control.stepping``); default: no foot swings."""
         n = f["qvel"].shape[0]
+        c = self._constants(n)
         tau = np.empty((n, self.actuated.size))
         info = np.empty((n, kernel.N_INFO))
-        def as_f(x, dtype=float):
-            """C-contiguous and read-only, like MuJoCo's bound batch fields: numba compiles one signature
-            (a writable copy and a read-only view are different types to it: 30 s of compiling each)."""
-            x = np.ascontiguousarray(x, dtype=dtype)
-            if x.flags.writeable:
-                x = x.view()
-                x.flags.writeable = False
-            return x
-
         kernel.control_step(
-            *(as_f(f[k]) for k in ("cdof", "cdof_dot", "cvel", "cinert", "qpos", "qvel", "M", "qfrc_bias",
-                                   "qfrc_passive", "subtree_com", "geom_xpos")),
+            *(_as_kernel(f[k]) for k in _FIELDS),
             self.chain, self.m_rows, self.m_cols, self.points, self.point_bodies, self.leg_dofs, self.actuated,
             self.limits, self.w2, self.params,
-            *(as_f(np.broadcast_to(r, (n, r.shape[-1]))) for r in (q_ref, qd_ref, qdd_ref)),
-            as_f(com_ref_x), as_f(com_ref_vel_x), as_f(cop_des_x),
-            as_f(in_contact, bool), as_f(np.full(n, self.mass) if mass_kg is None else mass_kg),
-            as_f(np.full(n, -1.0) if swing_foot is None else swing_foot),
-            as_f(np.zeros((n, kernel.N_SWING)) if swing_target is None else swing_target), tau, info,
+            *(_shared_rows(r, buf, view) for r, (buf, view) in zip((q_ref, qd_ref, qdd_ref), c["refs"], strict=True)),
+            _as_kernel(com_ref_x), _as_kernel(com_ref_vel_x), _as_kernel(cop_des_x),
+            _as_kernel(in_contact, np.bool_), c["mass"] if mass_kg is None else _as_kernel(mass_kg),
+            c["no_swing"] if swing_foot is None else _as_kernel(swing_foot),
+            c["no_target"] if swing_target is None else _as_kernel(swing_target), tau, info,
         )
         return ControlOutput(torque_nm=tau, ground_force_n=info[:, :2], cop_x_m=info[:, 2],
                              foot_state=info[:, 3:5].astype(int), saturated=info[:, 5] > 0)

@@ -61,4 +61,7 @@ class PlanarKinematics:
         """(n, 2) linear momentum (L_x, L_z): the rows of ``momentum`` the balance monitor needs, cheaply."""
         w, vx, vz = cvel[..., 1], cvel[..., 3], cvel[..., 5]
         m, mrx, mrz = cinert[..., 9], cinert[..., 6], cinert[..., 8]
-        return np.stack([(mrz * w + m * vx).sum(axis=1), (m * vz - mrx * w).sum(axis=1)], axis=1)
+        out = np.empty((cinert.shape[0], 2))
+        out[:, 0] = (mrz * w + m * vx).sum(axis=1)
+        out[:, 1] = (m * vz - mrx * w).sum(axis=1)
+        return out
