@@ -131,9 +131,9 @@ def test_quiet_standing_is_unchanged_by_a_supervisor_that_never_steps():
     assert b.step_times_s == () and np.array_equal(a.qpos, b.qpos, equal_nan=True)
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("force_n", [250.0])
-def test_a_step_saves_a_push_standing_cannot(force_n):
+def _recovered_by_a_step(force_n: float):
+    """A 0.1 s push of ``force_n`` on push-recovery: planted feet fall, stepping=1 succeeds with at least one
+    step and stands still; returns the stepping clip's recorded trajectory and its evaluation."""
     from cmrt.objective import evaluate
     from cmrt.simulate import simulate
 
@@ -143,6 +143,13 @@ def test_a_step_saves_a_push_standing_cannot(force_n):
     traj = simulate(task.with_params(stepping=1), None, record=True)
     ev = evaluate(task.with_params(stepping=1), traj)
     assert ev.success and ev.steps >= 1 and ev.final_com_speed_m_s < 0.05
+    return traj, ev
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("force_n", [250.0])
+def test_a_step_saves_a_push_standing_cannot(force_n):
+    traj, ev = _recovered_by_a_step(force_n)
     # a step that looks like one: the foot lifts a few cm and lands ahead; plausible forces and speeds
     foot, landed_s, heel_x = traj.footprints[0]
     lift = traj.point_lift_m[:, 2 * foot]
@@ -169,15 +176,7 @@ def test_a_real_topple_is_still_a_fall_with_stepping():
 def test_a_backward_step_saves_a_backward_push_standing_cannot():
     """-250 N x 0.1 s: the foot steps back within the leg's reach (0.30 m), lands flat and the character stands
     still on both flat feet; planted feet fall."""
-    from cmrt.objective import evaluate
-    from cmrt.simulate import simulate
-
-    task = load_task("push-recovery").with_params(push_force_n=-250.0, push_duration_s=0.1)
-    planted = evaluate(task.with_params(stepping=0), simulate(task.with_params(stepping=0), None, record=False))
-    assert not planted.success and planted.fell
-    traj = simulate(task.with_params(stepping=1), None, record=True)
-    ev = evaluate(task.with_params(stepping=1), traj)
-    assert ev.success and ev.steps >= 1 and ev.final_com_speed_m_s < 0.05
+    traj, ev = _recovered_by_a_step(-250.0)
     foot, landed_s, heel_x = traj.footprints[0]
     assert heel_x < -0.25 and landed_s < traj.step_times_s[0] + 0.5  # behind the other foot, on time
     lift = traj.point_lift_m[:, 2 * foot]
