@@ -99,7 +99,7 @@ def check_balance(
                          limits.capture_margin_m)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _first_failed(finite, lowest_body_z, com_x, com_z, com_vel_x, airborne_for_s, roll, lo, hi, com_height_m,
                   airborne_s, roll_rad, margin):
     """``check_balance`` per row: the checks in REASONS order. The capture point is ``capture_point_x``'s

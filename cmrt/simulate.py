@@ -29,16 +29,17 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import mujoco
 import mujoco.batch
 import numpy as np
-from numba import njit
 
 from cmrt.balance import REASONS, BalanceLimits, FallReason, capture_point_x, check_balance
 from cmrt.character import FOOT_POINT_RADIUS_M, character
 from cmrt.control import ControllerConfig, MomentumBalanceController
+from cmrt.control.controller import _read_only
 from cmrt.control.planar import PlanarKinematics
 from cmrt.control.references import MotionCom, Targets, YuReference, motion_com
 from cmrt.control.stepping import StepCommand, StepConfig, StepSupervisor
@@ -46,6 +47,7 @@ from cmrt.curve import Cmrt
 from cmrt.ensemble import NOMINAL, Perturbation
 from cmrt.props import CONTACT_FORCE_N, model_values, prop_class
 from cmrt.task import Task
+from cmrt.tick import control_tick, geometry
 
 SETTLE_S = 1.5
 POST_FALL_S = 1.0  # a recorded clip runs at least this long past a fall, so the topple is seen
@@ -146,71 +148,18 @@ class _Geometry:
         return z.min(axis=1)
 
     def at_control(self, geom_xpos, geom_xmat, qpos, qvel, act) -> tuple[np.ndarray, ...]:
-        """``_tick_geometry`` of these rows: point_x, lo, hi, contact, roll, jspeed, lowest, grounded, c_lo,
+        """``cmrt.tick.geometry`` of these rows: point_x, lo, hi, contact, roll, jspeed, lowest, grounded, c_lo,
         c_hi (fresh arrays: the stepping supervisor and the records may keep them)."""
         n = qpos.shape[0]
         out = (np.empty((n, self.points.size)), np.empty(n), np.empty(n), np.empty((n, self.points.size), bool),
                np.empty((n, 2)), np.empty(n), np.empty(n), np.empty(n, bool), np.empty(n), np.empty(n))
-        _tick_geometry(geom_xpos, geom_xmat, qpos, qvel, self.points, self.body_geoms, self.half, self.radius,
+        geometry(geom_xpos, geom_xmat, qpos, qvel, self.points, self.body_geoms, self.half, self.radius,
                        self.leg_dofs, self.root_pitch, act, FOOT_POINT_RADIUS_M, CONTACT_HEIGHT_M, *out)
         return out
 
     def foot_roll(self, qpos: np.ndarray) -> np.ndarray:
         """(n, 2) foot pitch: root pitch plus the leg's hip, knee and ankle angles."""
         return qpos[:, self.root_pitch, None] + qpos[:, self.leg_dofs].sum(axis=2)
-
-
-@njit(cache=True)
-def _tick_geometry(geom_xpos, geom_xmat, qpos, qvel, points, body_geoms, half, radius, leg_dofs, root_pitch, act,
-                   point_radius, contact_height, point_x, lo, hi, contact, roll, jspeed, lowest, grounded, c_lo, c_hi):
-    """What a control step reads of the batch's geometry, for every row, in one compiled pass instead of
-    ~30 numpy calls (each a few microseconds, ~400 times per clip): heel/toe x and their span, which points
-    touch the floor, foot pitch, the fastest actuated joint, the lowest body point and the span of the feet
-    on the ground. The same IEEE operations in the same order as the numpy code it replaces
-    (``_Geometry``, ``_in_contact``, ``_ground_support``), NaNs propagated as numpy's min/max do, so
-    results are bit for bit those of before."""
-    n = point_x.shape[0]
-    npt = points.shape[0]
-    for i in range(n):
-        for p in range(npt):
-            point_x[i, p] = geom_xpos[i, points[p], 0]
-            contact[i, p] = geom_xpos[i, points[p], 2] - point_radius < contact_height
-        a, b = point_x[i, 0], point_x[i, 0]
-        for p in range(1, npt):
-            x = point_x[i, p]
-            if a == a:
-                a = x if (x != x or x < a) else a
-            if b == b:
-                b = x if (x != x or x > b) else b
-        lo[i], hi[i] = a, b
-        for f in range(2):
-            roll[i, f] = qpos[i, root_pitch] + ((qpos[i, leg_dofs[f, 0]] + qpos[i, leg_dofs[f, 1]])
-                                                + qpos[i, leg_dofs[f, 2]])
-        m = abs(qvel[i, act[0]])
-        for j in range(1, act.shape[0]):
-            v = abs(qvel[i, act[j]])
-            if m == m:
-                m = v if (v != v or v > m) else m
-        jspeed[i] = m
-        z = geom_xpos[i, body_geoms[0], 2] - abs(geom_xmat[i, body_geoms[0], 8]) * half[0] - radius[0]
-        for g in range(1, body_geoms.shape[0]):
-            v = geom_xpos[i, body_geoms[g], 2] - abs(geom_xmat[i, body_geoms[g], 8]) * half[g] - radius[g]
-            if z == z:
-                z = v if (v != v or v < z) else z
-        lowest[i] = z
-        down = False
-        a, b = np.inf, -np.inf
-        for p in range(npt):
-            foot = p // 2
-            if contact[i, 2 * foot] or contact[i, 2 * foot + 1]:
-                down = True
-                x = point_x[i, p]
-                if a == a:
-                    a = x if (x != x or x < a) else a
-                if b == b:
-                    b = x if (x != x or x > b) else b
-        grounded[i] = down
-        c_lo[i], c_hi[i] = (a, b) if down else (np.nan, np.nan)
 
 
 _SETTLED: dict = {}
@@ -475,6 +424,48 @@ def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarra
     return ctrl, bad
 
 
+class _CompiledTick:
+    """The control step of a scoring run in the center mode with feet planted, as one compiled call
+    (``cmrt.tick.control_tick``): everything that does not change during the run is bound here once."""
+
+    FIELDS = ("geom_xpos", "geom_xmat", "qpos", "qvel", "cdof", "cdof_dot", "cvel", "cinert", "M", "qfrc_bias",
+              "qfrc_passive", "subtree_com", "time")
+
+    def __init__(self, b: dict, geo: _Geometry, controller: MomentumBalanceController, limits: BalanceLimits,
+                 drive: _Drive, rec: _Recorder, falls: _Falls, act: np.ndarray, n: int, nb: int, mass_kg: float,
+                 dt: float, control_dt: float, lean_check: bool):
+        c = controller
+        variants = drive.variant_of is not None
+        self.all_fields = tuple(_read_only(b[name]) for name in self.FIELDS)  # one numba signature for views and copies
+        self.b, self.ctrl, self.dt, self.control_dt, self.nb, self.mass_kg = b, b["ctrl"], dt, control_dt, nb, mass_kg
+        self.geometry = (geo.points, geo.body_geoms, geo.half, geo.radius, geo.leg_dofs, geo.root_pitch, act,
+                         FOOT_POINT_RADIUS_M, CONTACT_HEIGHT_M, limits.com_height_m, limits.airborne_s,
+                         limits.roll_rad, limits.capture_margin_m)
+        self.controller = (c.chain, c.m_rows, c.m_cols, c.point_bodies, c.actuated, c.limits, c.w2, c.params)
+        self.drive = (drive.q_ref if variants else drive.q_ref[None], drive.qd_ref if variants else drive.qd_ref[None],
+                      drive.qdd_ref if variants else drive.qdd_ref[None],
+                      drive.variant_of.astype(np.int64) if variants else np.zeros(n, np.int64),
+                      drive.disp_m, drive.disp_vel_m_s)
+        self.lean = (lean_check, rec["prop_force"], CONTACT_FORCE_N)
+        self.state = (falls.airborne_for_s, falls.code, rec["sc"], rec["lo"], rec["hi"], rec["qpos"], rec["com"],
+                      rec["jspeed"], rec["cref"])
+
+    def __call__(self, k: int, sel, ids: np.ndarray, carried_kg: np.ndarray, com_ref_now: np.ndarray,
+                 cop_ref_now: np.ndarray, ctrl_all: np.ndarray):
+        """Control step ``k`` of rows ``ids`` (batch rows ``sel``): (point_x, new falls, momentum), or None
+        when the Python path must do it (a fallen row, or a singular plan it finds row by row)."""
+        fields = self.all_fields if isinstance(sel, slice) else tuple(_read_only(f[sel]) for f in self.all_fields)
+        n = ids.size
+        point_x, momentum, new = np.empty((n, self.geometry[0].size)), np.empty((n, 2)), np.empty(n, bool)
+        try:
+            done = control_tick(k, ids, self.dt, self.control_dt, self.nb, self.mass_kg, *fields, self.ctrl,
+                                *self.geometry, *self.controller, *self.drive, carried_kg, *self.lean, *self.state,
+                                com_ref_now, cop_ref_now, ctrl_all, point_x, momentum, new)
+        except np.linalg.LinAlgError:
+            return None
+        return (point_x, new, momentum) if done else None
+
+
 def simulate_batch(
     task: Task,
     curves: list[Cmrt | None],
@@ -487,9 +478,33 @@ def simulate_batch(
     """Simulate one clip (plus standing tail) of ``task`` per CMRT (None: zero CMRT), in lockstep.
 
     ``record`` fills every array at every step and plays falls out in protective mode;
-    scores do not depend on it. ``threads``: MuJoCo batch threads (default: all cores,
+    scores do not depend on it. ``threads``: how many cores to use (default: all cores,
     or $CMRT_THREADS). ``perturbations``: one per CMRT (an ensemble member: an extra push,
     the prop's mass scaled, the motion's timing scaled; default: the nominal clip).
+
+    With t threads the clips are split into t contiguous groups, each stepped in lockstep by its own
+    Python thread on a one-thread ``Batch``: MuJoCo and the compiled controller release the GIL, so
+    one group's control step (Python and kernel) runs while the other groups' physics runs. One batch
+    on t MuJoCo threads would leave the cores idle through every control step (docs/performance.md).
+    A clip's result does not depend on its group (each row is simulated independently; tested)."""
+    n = len(curves)
+    members = list(perturbations) if perturbations is not None else [NOMINAL] * n
+    if len(members) != n:
+        raise ValueError("one perturbation per CMRT")
+    groups = min(n, threads or _threads(n))
+    if groups <= 1:
+        return _simulate_group(task, curves, config, record, limits, members)
+    settled_state(task, config)  # cached once, before the threads share it
+    bounds = np.linspace(0, n, groups + 1).round().astype(int)
+    parts = [(curves[a:b], members[a:b]) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    with ThreadPoolExecutor(max_workers=groups) as pool:
+        done = list(pool.map(lambda part: _simulate_group(task, part[0], config, record, limits, part[1]), parts))
+    return [tr for part in done for tr in part]
+
+
+def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerConfig, record: bool,
+                    limits: BalanceLimits, members: list[Perturbation]) -> list[Trajectory]:
+    """``simulate_batch`` for one group of clips on a one-thread ``Batch``, in the calling thread.
 
     The loop below only steps and records; what drives each row is :class:`_Drive`, the torques
     :func:`_torques`, the balance monitor :class:`_Falls`, the results :func:`_trajectories`."""
@@ -502,9 +517,6 @@ def simulate_batch(
     post_fall = int(round(POST_FALL_S / dt))
     n_steps = run_steps + (post_fall if record else 0)
     times = np.arange(n_steps) * dt
-    members = list(perturbations) if perturbations is not None else [NOMINAL] * n
-    if len(members) != n:
-        raise ValueError("one perturbation per CMRT")
     drive = _drive(task, [c or Cmrt.zero(task.clip_s) for c in curves], members, times)
     disp = drive.disp_m
     geo = _Geometry()
@@ -515,7 +527,7 @@ def simulate_batch(
     nq, nb = ch.model.nq, ch.model.nbody  # the humanoid's: a prop's coordinates follow
     act = np.array(ch.actuated_dofs)
 
-    batch = mujoco.batch.Batch(m, nsim=n, nthread=threads or _threads(n), persistent=True)
+    batch = mujoco.batch.Batch(m, nsim=n, nthread=1, persistent=True)
     prop = prop_class(task.prop)(m, task.params)
     names = set(CONTROL_FIELDS) | set(STATE_FIELDS) | {"ctrl", "xfrc_applied", "sensordata", "geom_xmat", "time"}
     b = {k: batch.bind(k) for k in names | prop.fields()}
@@ -544,6 +556,19 @@ def simulate_batch(
     sel, ids, step_ids = slice(None), active, None
     rec_fz, rec_com = rec["fz"], rec["com"]
     has_contact_force = prop.contact_force(b, slice(None)) is not None
+    compiled = (_CompiledTick(b, geo, controller, limits, drive, rec, falls, act, n, nb, ch.mass_kg, dt, control_dt,
+                              has_contact_force) if yu is None and stepper is None and not record else None)
+
+    def fell_now(new: np.ndarray, qpos: np.ndarray, momentum: np.ndarray) -> int:
+        """Rows ``new`` (of ``ids``) fell at step ``k``; returns the next step at which a row stops."""
+        sims = ids[new]
+        # scoring: stop after this step; recording: play the topple out (not a blow-up: nothing to show)
+        falls.fell(sims, k, qpos[new], act,
+                   np.hypot(momentum[new, 0], momentum[new, 1]) / (ch.mass_kg + prop.carried_kg[sims]),
+                   np.where(record & (falls.code[sims] != diverged_code), np.maximum(run_steps, k + post_fall), k + 1))
+        _judge_prop(prop, b, sims, rec["prop_force"][sims, :k], times[:k], drive.windows_s, goal, extras)
+        return falls.end[ids].min()
+
     for k in range(n_steps):
         if k >= next_end:  # the end of the tail, a fall (scoring: after its step), or the topple played out
             done = falls.end[ids] <= k
@@ -559,7 +584,13 @@ def simulate_batch(
         sample = record or k % sample_every == 0
         if control or prop.every_step:
             prop.step(batch, b, ids, times[k])
-        if control or sample:
+        ticked = control and compiled is not None and (
+            out := compiled(k, sel, ids, prop.carried_kg, com_ref_now, cop_ref_now, ctrl_all)) is not None
+        if ticked:  # the compiled control step did it all (cmrt.tick); a new fall is handled here
+            point_x, new, momentum = out
+            if new.any():
+                next_end = fell_now(new, b["qpos"][sel], momentum)
+        elif control or sample:
             geom_xpos = b["geom_xpos"][sel]
             qpos = b["qpos"][sel]
             if control:  # heel/toe x at the state the step starts from, and the monitor's inputs: one pass
@@ -578,7 +609,7 @@ def simulate_batch(
             rec["qpos"][sel, k] = qpos
             com = b["subtree_com"][sel, 1]
             rec_com[sel, k, 0], rec_com[sel, k, 1] = com[:, 0], com[:, 2]  # x, z without a fancy-indexed copy
-        if control or record:
+        if not ticked and (control or record):
             if not control:
                 contact = _in_contact(geom_xpos, geo.points)
                 roll = geo.foot_roll(qpos)
@@ -590,7 +621,7 @@ def simulate_batch(
                 rec["lift"][sel, k] = geom_xpos[:, geo.points, 2] - settled_z
                 rec["contact"][sel, k] = contact
                 rec["roll"][sel, k] = roll
-        if control:
+        if control and not ticked:
             rec["jspeed"][sel, k] = jspeed
             mass = ch.mass_kg + prop.carried_kg  # what the controller knows it carries
             targets = _targets(yu, b, sel, ids, drive, k, center, lo, hi, com, vel_x, nb)
@@ -612,14 +643,7 @@ def simulate_batch(
                               support_hi_x=c_hi, lowest_body_z=lowest,
                               qpos=qpos, com=com, com_vel_x=vel_x, roll=roll, time_s=b["time"][sel])
             if new.any():
-                sims = ids[new]
-                # scoring: stop after this step; recording: play the topple out (not a blow-up: nothing to show)
-                falls.fell(sims, k, qpos[new], act,
-                           np.hypot(momentum[new, 0], momentum[new, 1]) / (ch.mass_kg + prop.carried_kg[sims]),
-                           np.where(record & (falls.code[sims] != diverged_code),
-                                    np.maximum(run_steps, k + post_fall), k + 1))
-                _judge_prop(prop, b, sims, rec["prop_force"][sims, :k], times[:k], drive.windows_s, goal, extras)
-                next_end = falls.end[ids].min()
+                next_end = fell_now(new, qpos, momentum)
         if record:
             rec["ctrl"][sel, k] = ctrl_all[sel]
             rec["cref"][sel, k] = com_ref_now[sel]

@@ -16,7 +16,7 @@ LAYERS: list[tuple[str, set[str]]] = [
     ("foundation", {"errors", "inputs", "balance", "character", "curve", "ensemble", "control", "control.controller",
                     "control.kernel", "control.momentum", "control.planar", "control.references",
                     "control.stepping"}),
-    ("physics", {"props", "reference", "task", "sequence", "library", "simulate", "objective", "validate",
+    ("physics", {"props", "reference", "task", "sequence", "library", "tick", "simulate", "objective", "validate",
                  "render"}),
     ("optimizer", {"checkpoint", "optimize", "parallel", "bench"}),
     ("store", {"store"}),

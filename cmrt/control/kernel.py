@@ -47,7 +47,7 @@ TOL = 1e-9
 SPLIT_STANCE_M = 0.05
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def centroidal(cdof, cdof_dot, cvel, cinert, qvel, chain):
     """A (3, nv) with rows [L_x, L_z, H_y] and its bias (3,), for one simulation."""
     nb, nv = chain.shape
@@ -75,7 +75,7 @@ def centroidal(cdof, cdof_dot, cvel, cinert, qvel, chain):
     return A, bias
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def point_frame(cdof, cdof_dot, cvel, qvel, chain_row, body, point, com):
     """Jacobian (3, nv) of (x, z, pitch) of a body's frame placed at ``point``, and its bias (3,)."""
     nv = chain_row.size
@@ -101,7 +101,7 @@ def point_frame(cdof, cdof_dot, cvel, qvel, chain_row, body, point, com):
     return J, bias
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def bounded_shares(x, carries, cop, lower):
     """Fractions of the vertical load per heel/toe point (x: their x) that sum to 1 with first moment ``cop``,
     closest to equal shares with every carrying point at least ``lower``: an active set on the linear split.
@@ -143,7 +143,7 @@ def bounded_shares(x, carries, cop, lower):
     return share
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def solve_qp(Q, g, E, e, C, c, c_on, dual_reg):
     """min 1/2 x'Qx - g'x  s.t.  E x = e,  C x + c >= 0 (rows with c_on), by a primal active set.
 
@@ -201,7 +201,7 @@ def solve_qp(Q, g, E, e, C, c, c_on, dual_reg):
     return x
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def control_step(cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, qfrc_passive, com_all, geom_xpos,
                  chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, limits, w2, params,
                  q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, contact, mass_all, swing_foot,
