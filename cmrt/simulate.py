@@ -47,7 +47,7 @@ from cmrt.curve import Cmrt
 from cmrt.ensemble import NOMINAL, Perturbation
 from cmrt.props import CONTACT_FORCE_N, model_values, prop_class
 from cmrt.task import Task
-from cmrt.tick import control_tick, geometry
+from cmrt.tick import after_step, control_tick, geometry, sample_support
 
 SETTLE_S = 1.5
 POST_FALL_S = 1.0  # a recorded clip runs at least this long past a fall, so the topple is seen
@@ -57,6 +57,9 @@ CONTACT_HEIGHT_M = 0.001  # a heel/toe point whose lowest point is below this he
 PROTECTIVE_STIFFNESS_PER_RAD = 0.5
 PROTECTIVE_DAMPING_PER_RAD_S = 0.05
 
+# Scoring runs in the center mode with feet planted do their control steps in one compiled call
+# (cmrt.tick); False runs them on the Python path, as traces do (tests compare the two bit for bit).
+COMPILED_TICK = True
 CONTROL_FIELDS = ("qpos", "qvel", "cdof", "cdof_dot", "cvel", "cinert", "M", "qfrc_bias", "qfrc_passive",
                   "subtree_com", "xpos", "geom_xpos")
 STATE_FIELDS = ("qpos", "qvel", "qacc_warmstart")
@@ -330,7 +333,7 @@ def _drive(task: Task, curves: list[Cmrt], members: list[Perturbation], times: n
         q_ref, qd_ref, qdd_ref = variant_refs[0]
     else:
         q_ref, qd_ref, qdd_ref = (np.stack([r[i] for r in variant_refs]) for i in range(3))
-    push = np.array([task.push_at(t) for t in times])[None, :] + np.stack([p.push_at(times) for p in members])
+    push = task.pushes_n(times)[None, :] + np.stack([p.push_at(times) for p in members])
     return _Drive(
         disp_m=np.stack([c.displacement_m(times) for c in curves]),  # zero after L
         disp_vel_m_s=np.stack([c.velocity_m_s(times) for c in curves]),
@@ -557,7 +560,8 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
     rec_fz, rec_com = rec["fz"], rec["com"]
     has_contact_force = prop.contact_force(b, slice(None)) is not None
     compiled = (_CompiledTick(b, geo, controller, limits, drive, rec, falls, act, n, nb, ch.mass_kg, dt, control_dt,
-                              has_contact_force) if yu is None and stepper is None and not record else None)
+                              has_contact_force)
+                if COMPILED_TICK and yu is None and stepper is None and not record else None)
 
     def fell_now(new: np.ndarray, qpos: np.ndarray, momentum: np.ndarray) -> int:
         """Rows ``new`` (of ``ids``) fell at step ``k``; returns the next step at which a row stops."""
@@ -590,6 +594,10 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
             point_x, new, momentum = out
             if new.any():
                 next_end = fell_now(new, b["qpos"][sel], momentum)
+        elif compiled is not None and sample and not control:  # a CoP sample step between control steps
+            point_x = np.empty((ids.size, n_points))
+            sample_support(k, ids, b["geom_xpos"], b["qpos"], b["subtree_com"], geo.points, rec["sc"], rec["lo"],
+                           rec["hi"], rec["qpos"], rec_com, point_x)
         elif control or sample:
             geom_xpos = b["geom_xpos"][sel]
             qpos = b["qpos"][sel]
@@ -655,6 +663,10 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
 
         if has_contact_force:
             rec["prop_force"][sel, k] = prop.contact_force(b, sel)
+        if compiled is not None:  # the ground force (and on sample steps the CoP), compiled
+            after_step(k, ids, sample, b["sensordata"], n_points, point_x, cop_ref_now, rec_fz, rec["cop"],
+                       rec["pref"], rec["ffz"])
+            continue
         touch = b["sensordata"][sel, :n_points]  # normal force at heel_r, toe_r, heel_l, toe_l
         if not sample:  # the steps in between: the ground force only (peak force, time airborne)
             if step_ids is None:  # all active: write straight into the buffer's column

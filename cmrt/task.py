@@ -288,6 +288,18 @@ class Task:
                     force += self.params[f"{prefix}_force_n"]
         return force
 
+    def pushes_n(self, t_s: np.ndarray) -> np.ndarray:
+        """``push_at`` at every time of ``t_s`` at once (the same sums in the same order)."""
+        t = np.asarray(t_s, dtype=float)
+        start = self.params["push_start_s"]
+        force = np.where((start <= t) & (t < start + self.params["push_duration_s"]), self.params["push_force_n"], 0.0)
+        for prefix in EXTRA_PUSHES:
+            if f"{prefix}_force_n" in self.params:
+                start = self.params[f"{prefix}_start_s"]
+                on = (start <= t) & (t < start + self.params[f"{prefix}_duration_s"])
+                force = np.where(on, force + self.params[f"{prefix}_force_n"], force)
+        return force
+
     def to_dict(self) -> dict:
         """The task as a task-file dict (``task_from_dict`` round-trips it): stored with runs."""
         out = {

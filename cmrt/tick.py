@@ -227,3 +227,49 @@ def control_tick(k, ids, dt, control_dt, nb, mass_kg,
         if new[r]:
             fall_code[s] = code[r]
     return True
+
+
+@njit(cache=True, nogil=True)
+def sample_support(k, ids, geom_xpos, qpos, subtree_com, points, rec_sc, rec_lo, rec_hi, rec_qpos, rec_com,
+                   point_x):
+    """A CoP sample step between control steps, rows ``ids`` (bound fields indexed by simulation): heel/toe
+    x into ``point_x`` and the support span, centre, joint angles and CoM into the records, as the Python
+    path does (``min``/``max`` of the four points propagate NaN as numpy's do)."""
+    npt = points.shape[0]
+    nq_rec = rec_qpos.shape[2]
+    for r in range(ids.shape[0]):
+        s = ids[r]
+        for p in range(npt):
+            point_x[r, p] = geom_xpos[s, points[p], 0]
+        a, b = point_x[r, 0], point_x[r, 0]
+        for p in range(1, npt):
+            x = point_x[r, p]
+            if a == a:
+                a = x if (x != x or x < a) else a
+            if b == b:
+                b = x if (x != x or x > b) else b
+        rec_sc[s, k], rec_lo[s, k], rec_hi[s, k] = 0.5 * (a + b), a, b
+        for j in range(nq_rec):
+            rec_qpos[s, k, j] = qpos[s, j]
+        rec_com[s, k, 0], rec_com[s, k, 1] = subtree_com[s, 1, 0], subtree_com[s, 1, 2]
+
+
+@njit(cache=True, nogil=True)
+def after_step(k, ids, sample, sensordata, n_points, point_x, cop_ref_now, rec_fz, rec_cop, rec_pref, rec_ffz):
+    """After physics step ``k``, rows ``ids``: the feet's total normal force (touch sensors: heel_r, toe_r,
+    heel_l, toe_l) and, on a CoP sample step, the CoP measured from the four forces at ``point_x``, the
+    reference CoP and each foot's force. Sums run from -0.0 term by term, as numpy sums fewer than 8."""
+    for r in range(ids.shape[0]):
+        s = ids[r]
+        fz = -0.0
+        for p in range(n_points):
+            fz += sensordata[s, p]
+        rec_fz[s, k] = fz
+        if sample:
+            moment = -0.0
+            for p in range(n_points):
+                moment += sensordata[s, p] * point_x[r, p]
+            rec_cop[s, k] = moment / fz if fz > 1e-9 else np.nan
+            rec_pref[s, k] = cop_ref_now[s]
+            rec_ffz[s, k, 0] = (-0.0 + sensordata[s, 0]) + sensordata[s, 1]
+            rec_ffz[s, k, 1] = (-0.0 + sensordata[s, 2]) + sensordata[s, 3]

@@ -119,6 +119,12 @@ def test_stepping_values_and_several_pushes():
         task.with_params(stepping=1.5)
     two = task.with_params(push_force_n=100, push2_force_n=-50, push2_start_s=2.0)
     assert two.push_at(1.05) == 100 and two.push_at(2.05) == -50 and two.push_at(1.5) == 0
+    overlap = two.with_params(push2_start_s=two.params["push_start_s"])  # the vectorised profile the
+    # simulation uses: the same sums
+    times = np.arange(2000) * 0.002
+    for t in (two, overlap):
+        np.testing.assert_array_equal(t.pushes_n(times), [t.push_at(x) for x in times])
+    assert overlap.pushes_n(np.array([1.05]))[0] == 50
 
 
 @pytest.mark.slow

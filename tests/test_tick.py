@@ -1,0 +1,79 @@
+"""The compiled control step (cmrt.tick) is the Python path's arithmetic: trajectories bit for bit."""
+
+import sys
+
+import numpy as np
+import pytest
+
+from cmrt import Cmrt, load_task
+from cmrt.control.planar import PlanarKinematics
+from cmrt.ensemble import training_members
+from cmrt.props import prop_class
+from cmrt.simulate import simulate_batch
+from cmrt.tick import linear_momentum
+
+simulate_module = sys.modules["cmrt.simulate"]  # the module (cmrt.simulate is also a function's name)
+
+
+def _fields(trajectory) -> dict:
+    return dict(trajectory.__dict__)
+
+
+def _assert_identical(a, b):
+    for name, x in _fields(a).items():
+        y = _fields(b)[name]
+        if isinstance(x, np.ndarray):
+            assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), name
+        elif isinstance(x, dict):  # the prop's figures (NaN: not reached)
+            assert x.keys() == y.keys() and np.array_equal(list(x.values()), list(y.values()), equal_nan=True), name
+        else:
+            assert x == y or (x != x and y != y), name
+
+
+def test_linear_momentum_sums_the_bodies_as_numpy_does():
+    """numpy sums a row's bodies pairwise (eight partial sums): the compiled sum must round the same way."""
+    rng = np.random.default_rng(0)
+    for nb in (1, 3, 7, 8, 9, 14, 17, 40):
+        cinert = rng.normal(0.0, 1.0, (6, nb, 10)) * 10.0 ** rng.integers(-4, 4, (6, nb, 1))
+        cvel = rng.normal(0.0, 3.0, (6, nb, 6))
+        got = np.empty((6, 2))
+        linear_momentum(cinert, cvel, nb, got)
+        assert np.array_equal(got, PlanarKinematics.linear_momentum(cinert, cvel))
+
+
+def _clips(task):
+    rng = np.random.default_rng(1)
+    curves = [Cmrt.from_params(rng.normal(0.0, s, 8), task.clip_s) for s in (0.0, 0.05, 0.6)]
+    return curves + [Cmrt(task.clip_s, (0.5, 1.0, 1.5, 2.0), (3.0, -3.0, 3.0, -3.0))]  # absurd: falls early
+
+
+@pytest.mark.parametrize("name", ["bend", "punch", "catch", "push"])
+def test_compiled_control_step_equals_the_python_path(name, monkeypatch):
+    """Scoring runs (falls included, props leaning or carried) give the same trajectories, every array bit
+    for bit, with the compiled control step and with the Python loop it stands for; and it is used."""
+    task = load_task(name)
+    task = task.with_speed(0.4) if name == "bend" else task
+    curves = _clips(task)
+    calls = []
+    tick = simulate_module.control_tick
+    monkeypatch.setattr(simulate_module, "control_tick", lambda *a: calls.append(1) or tick(*a))
+    compiled = simulate_batch(task, curves)
+    assert len(calls) > 100 and any(t.fell for t in compiled)
+    used = len(calls)
+    monkeypatch.setattr(simulate_module, "COMPILED_TICK", False)
+    python = simulate_batch(task, curves)
+    assert len(calls) == used
+    for a, b in zip(compiled, python, strict=True):
+        _assert_identical(a, b)
+
+
+def test_compiled_control_step_plays_ensemble_timings_as_the_python_path(monkeypatch):
+    """An ensemble's members play the motion at other speeds (a reference per timing variant)."""
+    task = load_task("bend").with_speed(0.4).with_robust()
+    members = training_members(task, task.robust, prop_class(task.prop).mass_body is not None)
+    assert len({m.time_scale for m in members}) > 1
+    curves = [Cmrt.from_params(np.zeros(8), task.clip_s)] * len(members)
+    compiled = simulate_batch(task, curves, perturbations=members)
+    monkeypatch.setattr(simulate_module, "COMPILED_TICK", False)
+    for a, b in zip(compiled, simulate_batch(task, curves, perturbations=members), strict=True):
+        _assert_identical(a, b)
