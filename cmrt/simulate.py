@@ -47,7 +47,7 @@ from cmrt.curve import Cmrt
 from cmrt.ensemble import NOMINAL, Perturbation
 from cmrt.props import CONTACT_FORCE_N, model_values, prop_class
 from cmrt.task import Task
-from cmrt.tick import after_step, control_tick, geometry, sample_support
+from cmrt.tick import control_tick, geometry, sample_support
 
 SETTLE_S = 1.5
 POST_FALL_S = 1.0  # a recorded clip runs at least this long past a fall, so the topple is seen
@@ -427,6 +427,21 @@ def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarra
     return ctrl, bad
 
 
+def _ground_records(rec: _Recorder, touch: np.ndarray, sample_x: np.ndarray, sample_every: int) -> None:
+    """The ground-force records of the steps a compiled scoring loop ran, from its per-step heel/toe forces
+    ``touch`` (n, k, 4; NaN where a row did not step) and heel/toe x at the sample steps: the same sums,
+    in the same order, as the Python loop makes step by step (numpy sums four terms one by one)."""
+    k = touch.shape[1]
+    fz = touch.sum(axis=2)
+    rec["fz"][:, :k] = fz
+    samples = np.arange(0, k, sample_every)
+    t, f = touch[:, samples], fz[:, samples]
+    with np.errstate(all="ignore"):
+        rec["cop"][:, samples] = np.where(f > 1e-9, (t * sample_x[:, samples]).sum(axis=2) / f, np.nan)
+    rec["ffz"][:, samples, 0] = t[:, :, :2].sum(axis=2)
+    rec["ffz"][:, samples, 1] = t[:, :, 2:].sum(axis=2)
+
+
 class _CompiledTick:
     """The control step of a scoring run in the center mode with feet planted, as one compiled call
     (``cmrt.tick.control_tick``): everything that does not change during the run is bound here once."""
@@ -455,18 +470,19 @@ class _CompiledTick:
 
     def __call__(self, k: int, sel, ids: np.ndarray, carried_kg: np.ndarray, com_ref_now: np.ndarray,
                  cop_ref_now: np.ndarray, ctrl_all: np.ndarray):
-        """Control step ``k`` of rows ``ids`` (batch rows ``sel``): (point_x, new falls, momentum), or None
-        when the Python path must do it (a fallen row, or a singular plan it finds row by row)."""
+        """Control step ``k`` of rows ``ids`` (batch rows ``sel``): (point_x, how many fell, the mask of those
+        that fell, momentum), or None when the Python path must do it (a fallen row, or a singular plan it
+        finds row by row)."""
         fields = self.all_fields if isinstance(sel, slice) else tuple(_read_only(f[sel]) for f in self.all_fields)
         n = ids.size
         point_x, momentum, new = np.empty((n, self.geometry[0].size)), np.empty((n, 2)), np.empty(n, bool)
         try:
-            done = control_tick(k, ids, self.dt, self.control_dt, self.nb, self.mass_kg, *fields, self.ctrl,
+            fell = control_tick(k, ids, self.dt, self.control_dt, self.nb, self.mass_kg, *fields, self.ctrl,
                                 *self.geometry, *self.controller, *self.drive, carried_kg, *self.lean, *self.state,
                                 com_ref_now, cop_ref_now, ctrl_all, point_x, momentum, new)
         except np.linalg.LinAlgError:
             return None
-        return (point_x, new, momentum) if done else None
+        return (point_x, fell, new, momentum) if fell >= 0 else None
 
 
 def simulate_batch(
@@ -563,7 +579,9 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
                               has_contact_force)
                 if COMPILED_TICK and yu is None and stepper is None and not record else None)
 
-    def fell_now(new: np.ndarray, qpos: np.ndarray, momentum: np.ndarray) -> int:
+    push_steps = set(np.flatnonzero(drive.push_changes).tolist())  # a set: cheaper per step than an array
+
+    def fell_now(k: int, new: np.ndarray, qpos: np.ndarray, momentum: np.ndarray) -> int:
         """Rows ``new`` (of ``ids``) fell at step ``k``; returns the next step at which a row stops."""
         sims = ids[new]
         # scoring: stop after this step; recording: play the topple out (not a blow-up: nothing to show)
@@ -573,11 +591,58 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
         _judge_prop(prop, b, sims, rec["prop_force"][sims, :k], times[:k], drive.windows_s, goal, extras)
         return falls.end[ids].min()
 
-    for k in range(n_steps):
+    def still_running(k: int) -> np.ndarray:
+        """At the end of the tail, a fall (scoring: after its step) or a played-out topple: the rows that go on."""
+        done = falls.end[ids] <= k
+        last[ids[done]] = k
+        return ids[~done]
+
+    k = 0
+    if compiled is not None:  # a scoring run: compiled control steps (cmrt.tick), ground forces summed at the end
+        touch = np.full((n, n_steps, n_points), np.nan)  # normal force at heel_r, toe_r, heel_l, toe_l, every step
+        sample_x = np.full((n, n_steps, n_points), np.nan)  # heel/toe x at the CoP sample steps
+        sensors = b["sensordata"][:, :n_points]
+        every, every_step, thorax = config.control_every, prop.every_step, ch.thorax_body
+        while k < n_steps:
+            if k >= next_end:
+                ids = still_running(k)
+                if ids.size == 0:
+                    break
+                sel = step_ids = ids
+                next_end = falls.end[ids].min()
+            control = k % every == 0
+            if control or every_step:
+                prop.step(batch, b, ids, times[k])
+            if control:
+                out = compiled(k, sel, ids, prop.carried_kg, com_ref_now, cop_ref_now, ctrl_all)
+                if out is None:  # a fallen row or a singular plan: the Python loop below goes on from here
+                    break
+                point_x, fell, new, momentum = out
+                if k % sample_every == 0:
+                    sample_x[ids, k] = point_x
+                    rec["pref"][ids, k] = cop_ref_now[ids]
+                if fell:
+                    next_end = fell_now(k, new, b["qpos"][sel], momentum)
+            elif k % sample_every == 0:
+                sample_support(k, ids, b["geom_xpos"], b["qpos"], b["subtree_com"], geo.points, cop_ref_now, rec["sc"],
+                               rec["lo"], rec["hi"], rec["qpos"], rec_com, rec["pref"], sample_x)
+            if k in push_steps:
+                b["xfrc_applied"][sel, thorax, 0] = drive.push_n[sel, k]
+            batch.step(ids=step_ids, stage=vel_stage)
+            if has_contact_force:
+                rec["prop_force"][sel, k] = prop.contact_force(b, sel)
+            if step_ids is None:
+                touch[:, k] = sensors
+            else:
+                touch[ids, k] = sensors[ids]
+            k += 1
+        _ground_records(rec, touch[:, :k], sample_x[:, :k], sample_every)
+        compiled = None
+
+    first = k  # where the compiled loop stopped (0 if it did not run); nothing left to do if no row is left
+    for k in range(first, n_steps if ids.size else first):  # the Python path: traces, yu, stepping
         if k >= next_end:  # the end of the tail, a fall (scoring: after its step), or the topple played out
-            done = falls.end[ids] <= k
-            last[ids[done]] = k
-            active = ids[~done]
+            active = still_running(k)
             if active.size == 0:
                 break
             sel = ids = step_ids = active
@@ -588,17 +653,7 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
         sample = record or k % sample_every == 0
         if control or prop.every_step:
             prop.step(batch, b, ids, times[k])
-        ticked = control and compiled is not None and (
-            out := compiled(k, sel, ids, prop.carried_kg, com_ref_now, cop_ref_now, ctrl_all)) is not None
-        if ticked:  # the compiled control step did it all (cmrt.tick); a new fall is handled here
-            point_x, new, momentum = out
-            if new.any():
-                next_end = fell_now(new, b["qpos"][sel], momentum)
-        elif compiled is not None and sample and not control:  # a CoP sample step between control steps
-            point_x = np.empty((ids.size, n_points))
-            sample_support(k, ids, b["geom_xpos"], b["qpos"], b["subtree_com"], geo.points, rec["sc"], rec["lo"],
-                           rec["hi"], rec["qpos"], rec_com, point_x)
-        elif control or sample:
+        if control or sample:
             geom_xpos = b["geom_xpos"][sel]
             qpos = b["qpos"][sel]
             if control:  # heel/toe x at the state the step starts from, and the monitor's inputs: one pass
@@ -617,7 +672,7 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
             rec["qpos"][sel, k] = qpos
             com = b["subtree_com"][sel, 1]
             rec_com[sel, k, 0], rec_com[sel, k, 1] = com[:, 0], com[:, 2]  # x, z without a fancy-indexed copy
-        if not ticked and (control or record):
+        if control or record:
             if not control:
                 contact = _in_contact(geom_xpos, geo.points)
                 roll = geo.foot_roll(qpos)
@@ -629,7 +684,7 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
                 rec["lift"][sel, k] = geom_xpos[:, geo.points, 2] - settled_z
                 rec["contact"][sel, k] = contact
                 rec["roll"][sel, k] = roll
-        if control and not ticked:
+        if control:
             rec["jspeed"][sel, k] = jspeed
             mass = ch.mass_kg + prop.carried_kg  # what the controller knows it carries
             targets = _targets(yu, b, sel, ids, drive, k, center, lo, hi, com, vel_x, nb)
@@ -651,22 +706,18 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
                               support_hi_x=c_hi, lowest_body_z=lowest,
                               qpos=qpos, com=com, com_vel_x=vel_x, roll=roll, time_s=b["time"][sel])
             if new.any():
-                next_end = fell_now(new, qpos, momentum)
+                next_end = fell_now(k, new, qpos, momentum)
         if record:
             rec["ctrl"][sel, k] = ctrl_all[sel]
             rec["cref"][sel, k] = com_ref_now[sel]
             rec["qvel"][sel, k] = b["qvel"][sel]
-        if drive.push_changes[k]:
+        if k in push_steps:
             b["xfrc_applied"][sel, ch.thorax_body, 0] = drive.push_n[sel, k]
 
         batch.step(ids=step_ids, stage=vel_stage)
 
         if has_contact_force:
             rec["prop_force"][sel, k] = prop.contact_force(b, sel)
-        if compiled is not None:  # the ground force (and on sample steps the CoP), compiled
-            after_step(k, ids, sample, b["sensordata"], n_points, point_x, cop_ref_now, rec_fz, rec["cop"],
-                       rec["pref"], rec["ffz"])
-            continue
         touch = b["sensordata"][sel, :n_points]  # normal force at heel_r, toe_r, heel_l, toe_l
         if not sample:  # the steps in between: the ground force only (peak force, time airborne)
             if step_ids is None:  # all active: write straight into the buffer's column

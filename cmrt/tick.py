@@ -148,12 +148,12 @@ def control_tick(k, ids, dt, control_dt, nb, mass_kg,
     ``ctrl_bound`` and ``ctrl_all``) and the balance monitor, in that order. ``new`` gets the rows that
     fell now, ``momentum`` the rows' (L_x, L_z), ``point_x`` their heel/toe x (the step's CoP sample needs
     them). A singular plan raises ``LinAlgError`` before the monitor has changed anything: the caller redoes
-    the step on the Python path, which finds the row. Returns False, having done nothing, if a row has
-    fallen (protective mode is the Python path's)."""
+    the step on the Python path, which finds the row. Returns how many rows fell now, or -1, having done
+    nothing, if a row had fallen before (protective mode is the Python path's)."""
     n = ids.shape[0]
     for r in range(n):
         if fall_code[ids[r]] != 0:
-            return False
+            return -1
     npt = points.shape[0]
     nu = actuated.shape[0]
     nv = chain.shape[1]
@@ -221,29 +221,31 @@ def control_tick(k, ids, dt, control_dt, nb, mass_kg,
         com_x[r], com_z[r] = subtree_com[r, 1, 0], subtree_com[r, 1, 2]
     code = _first_failed(finite, lowest, com_x, com_z, vel_x, air, roll, c_lo, c_hi, com_height_m, airborne_s,
                          roll_rad, capture_margin_m)
+    fell = 0
     for r in range(n):
         s = ids[r]
         new[r] = code[r] > 0 and fall_code[s] == 0
         if new[r]:
             fall_code[s] = code[r]
-    return True
+            fell += 1
+    return fell
 
 
 @njit(cache=True, nogil=True)
-def sample_support(k, ids, geom_xpos, qpos, subtree_com, points, rec_sc, rec_lo, rec_hi, rec_qpos, rec_com,
-                   point_x):
+def sample_support(k, ids, geom_xpos, qpos, subtree_com, points, cop_ref_now, rec_sc, rec_lo, rec_hi, rec_qpos,
+                   rec_com, rec_pref, sample_x):
     """A CoP sample step between control steps, rows ``ids`` (bound fields indexed by simulation): heel/toe
-    x into ``point_x`` and the support span, centre, joint angles and CoM into the records, as the Python
-    path does (``min``/``max`` of the four points propagate NaN as numpy's do)."""
+    x into ``sample_x`` and the support span, centre, joint angles, CoM and the held reference CoP into the
+    records, as the Python path does (``min``/``max`` of the four points propagate NaN as numpy's do)."""
     npt = points.shape[0]
     nq_rec = rec_qpos.shape[2]
     for r in range(ids.shape[0]):
         s = ids[r]
         for p in range(npt):
-            point_x[r, p] = geom_xpos[s, points[p], 0]
-        a, b = point_x[r, 0], point_x[r, 0]
+            sample_x[s, k, p] = geom_xpos[s, points[p], 0]
+        a, b = sample_x[s, k, 0], sample_x[s, k, 0]
         for p in range(1, npt):
-            x = point_x[r, p]
+            x = sample_x[s, k, p]
             if a == a:
                 a = x if (x != x or x < a) else a
             if b == b:
@@ -252,24 +254,4 @@ def sample_support(k, ids, geom_xpos, qpos, subtree_com, points, rec_sc, rec_lo,
         for j in range(nq_rec):
             rec_qpos[s, k, j] = qpos[s, j]
         rec_com[s, k, 0], rec_com[s, k, 1] = subtree_com[s, 1, 0], subtree_com[s, 1, 2]
-
-
-@njit(cache=True, nogil=True)
-def after_step(k, ids, sample, sensordata, n_points, point_x, cop_ref_now, rec_fz, rec_cop, rec_pref, rec_ffz):
-    """After physics step ``k``, rows ``ids``: the feet's total normal force (touch sensors: heel_r, toe_r,
-    heel_l, toe_l) and, on a CoP sample step, the CoP measured from the four forces at ``point_x``, the
-    reference CoP and each foot's force. Sums run from -0.0 term by term, as numpy sums fewer than 8."""
-    for r in range(ids.shape[0]):
-        s = ids[r]
-        fz = -0.0
-        for p in range(n_points):
-            fz += sensordata[s, p]
-        rec_fz[s, k] = fz
-        if sample:
-            moment = -0.0
-            for p in range(n_points):
-                moment += sensordata[s, p] * point_x[r, p]
-            rec_cop[s, k] = moment / fz if fz > 1e-9 else np.nan
-            rec_pref[s, k] = cop_ref_now[s]
-            rec_ffz[s, k, 0] = (-0.0 + sensordata[s, 0]) + sensordata[s, 1]
-            rec_ffz[s, k, 1] = (-0.0 + sensordata[s, 2]) + sensordata[s, 3]
+        rec_pref[s, k] = cop_ref_now[s]

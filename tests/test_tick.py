@@ -77,3 +77,25 @@ def test_compiled_control_step_plays_ensemble_timings_as_the_python_path(monkeyp
     monkeypatch.setattr(simulate_module, "COMPILED_TICK", False)
     for a, b in zip(compiled, simulate_batch(task, curves, perturbations=members), strict=True):
         _assert_identical(a, b)
+
+
+def test_a_step_the_compiled_path_cannot_do_hands_the_clip_to_the_python_path(monkeypatch):
+    """A singular plan (LinAlgError) mid-clip: the Python loop takes over from that step (it finds the row
+    by row), with the ground forces of the steps before summed; the trajectories are unchanged."""
+    task = load_task("bend").with_speed(0.4)
+    curves = _clips(task)
+    calls = []
+    tick = simulate_module.control_tick
+
+    def singular_at_the_100th(*a):
+        calls.append(1)
+        if len(calls) == 100:
+            raise np.linalg.LinAlgError("singular")
+        return tick(*a)
+
+    reference = simulate_batch(task, curves, threads=1)
+    monkeypatch.setattr(simulate_module, "control_tick", singular_at_the_100th)
+    handed_over = simulate_batch(task, curves, threads=1)
+    assert len(calls) == 100
+    for a, b in zip(reference, handed_over, strict=True):
+        _assert_identical(a, b)

@@ -1,10 +1,12 @@
-"""Split the batched evaluator's wall time into MuJoCo stepping, the controller kernel and the rest.
+"""Split the batched evaluator's wall time into MuJoCo stepping, the compiled control step and the rest.
 
-Alternates, in one process, the physics floor (``cmrt bench``'s: the same steps, zero control,
-all cores' threads) with ``simulate_batch`` of N candidates, timing ``Batch.step`` and
-``kernel.control_step`` inside the latter; "rest" is the evaluator's own Python (monitor,
-references, recording, the controller wrapper, per-clip setup). docs/performance.md has the
-figures. Timers wrap the two calls, so the split costs a few percent itself.
+Alternates, in one process, the physics floor (the same steps, zero control) with ``simulate_batch`` of N
+candidates, both on ONE thread (one ``Batch`` thread; one group of clips), timing ``Batch.step`` and
+``cmrt.tick.control_tick`` (the controller kernel, the monitor and the records of a control step) inside
+the latter; "rest" is the evaluator's own Python (the loop, CoP samples, setup). On one thread the parts
+add up to the wall time; the default evaluator runs one such group per core in parallel threads, and
+the last column is that: its wall time against the floor on all cores' threads (``cmrt bench``'s ratio).
+docs/performance.md has the figures. Timers wrap the calls, so the split costs a few percent itself.
 
     python tools/profile_evaluator.py [--task bend] [--speed 0.4] [--population 16] [--rounds 5]
 """
@@ -13,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 
 import mujoco
@@ -21,9 +24,10 @@ import numpy as np
 
 from cmrt import ControllerConfig, load_task
 from cmrt.bench import _candidates
-from cmrt.control import controller, kernel
 from cmrt.curve import Cmrt
 from cmrt.simulate import settled_state, simulate_batch
+
+simulate_module = sys.modules["cmrt.simulate"]  # the module: ``cmrt.simulate`` is also a function's name
 
 
 def main() -> None:
@@ -38,51 +42,58 @@ def main() -> None:
     n_steps = int(round((task.clip_s + task.tail_s) / m.opt.timestep))
     curves = [Cmrt.from_params(x, task.clip_s) for x in _candidates(task, n)]
     state = settled_state(task, ControllerConfig())
-    spent = {"step": 0.0, "kernel": 0.0}
-    step, control_step = mujoco.batch.Batch.step, kernel.control_step
+    spent = {"step": 0.0, "tick": 0.0}
+    step, control_tick = mujoco.batch.Batch.step, simulate_module.control_tick
 
     def timed_step(self, *a, **k):
         t0 = time.perf_counter()
         step(self, *a, **k)
         spent["step"] += time.perf_counter() - t0
 
-    def timed_kernel(*a):
+    def timed_tick(*a):
         t0 = time.perf_counter()
-        control_step(*a)
-        spent["kernel"] += time.perf_counter() - t0
+        out = control_tick(*a)
+        spent["tick"] += time.perf_counter() - t0
+        return out
 
-    def floor() -> None:
-        batch = mujoco.batch.Batch(m, nsim=n, nthread=os.cpu_count() or 1, persistent=True)
+    def floor(threads: int) -> float:
+        batch = mujoco.batch.Batch(m, nsim=n, nthread=threads, persistent=True)
         for k, v in state.items():
             batch.bind(k)[:] = v
         batch.forward()
+        t0 = time.perf_counter()
         for _ in range(n_steps):
             step(batch)
+        return time.perf_counter() - t0
 
-    mujoco.batch.Batch.step = timed_step
-    controller.kernel.control_step = timed_kernel  # the module object controller.py calls through
-    try:
-        simulate_batch(task, curves[:2])  # warm-up: compiled code, settled state
-        rows = []
-        for _ in range(args.rounds):
-            t0 = time.perf_counter()
-            floor()
-            f = time.perf_counter() - t0
-            spent.update(step=0.0, kernel=0.0)
-            t0 = time.perf_counter()
-            simulate_batch(task, curves)
-            w = time.perf_counter() - t0
-            rows.append((f, w, spent["step"], spent["kernel"], w - spent["step"] - spent["kernel"]))
-            ms = [1e3 * x / n for x in rows[-1]]
-            print(f"floor {ms[0]:.1f} | batched {ms[1]:.1f} = steps {ms[2]:.1f} + kernel {ms[3]:.1f} + rest "
-                  f"{ms[4]:.1f} ms/clip | ratio {w / f:.2f}")
-    finally:
-        mujoco.batch.Batch.step = step
-        controller.kernel.control_step = control_step
+    def wall(fn) -> float:
+        t0 = time.perf_counter()
+        fn()
+        return time.perf_counter() - t0
+
+    cores = os.cpu_count() or 1
+    simulate_batch(task, curves)  # warm-up: compiled code, settled state
+    rows = []
+    for _ in range(args.rounds):
+        f1 = floor(1)
+        mujoco.batch.Batch.step, simulate_module.control_tick = timed_step, timed_tick
+        spent.update(step=0.0, tick=0.0)
+        try:
+            w1 = wall(lambda: simulate_batch(task, curves, threads=1))
+        finally:
+            mujoco.batch.Batch.step, simulate_module.control_tick = step, control_tick
+        fc = floor(cores)
+        wc = wall(lambda: simulate_batch(task, curves))
+        rows.append((f1, w1, spent["step"], spent["tick"], w1 - spent["step"] - spent["tick"], fc, wc))
+        ms = [1e3 * x / n for x in rows[-1]]
+        print(f"one thread: floor {ms[0]:.1f} | evaluator {ms[1]:.1f} = steps {ms[2]:.1f} + control steps "
+              f"{ms[3]:.1f} + rest {ms[4]:.1f} ms/clip (x{w1 / f1:.2f}) | {cores} threads: floor {ms[5]:.1f}, "
+              f"evaluator {ms[6]:.1f} ms/clip (x{wc / fc:.2f})")
     a = np.array(rows)
-    share = np.median(a[:, 2:] / a[:, :1], axis=0)
-    print(f"median ratio {np.median(a[:, 1] / a[:, 0]):.2f}; per floor: steps {share[0]:.2f}, kernel {share[1]:.2f}, "
-          f"rest {share[2]:.2f} (load {os.getloadavg()[0]:.2f})")
+    share = np.median(a[:, 2:5] / a[:, :1], axis=0)
+    print(f"median, one thread: x{np.median(a[:, 1] / a[:, 0]):.2f} = steps {share[0]:.2f} + control steps "
+          f"{share[1]:.2f} + rest {share[2]:.2f} of the floor; {cores} threads: x{np.median(a[:, 6] / a[:, 5]):.2f} "
+          f"(load {os.getloadavg()[0]:.2f})")
 
 
 if __name__ == "__main__":
