@@ -1,9 +1,10 @@
 """Clips -> trajectories (CoM, CoP, support, contacts, balance loss), many at once.
 
 ``simulate_batch`` steps n clips of one task that differ only in their CMRT in lockstep
-on a ``mujoco.batch.Batch`` (C thread pool) with one vectorised controller; ``simulate``
-is the case n = 1. MuJoCo's batch is bit-identical to stepping each simulation alone,
-and the controller's arithmetic is row-wise, so a candidate's objective does not
+on ``mujoco.batch.Batch`` with one vectorised controller - one group of clips per core, each
+group in its own thread (docs/performance.md) - and, for a scoring run, one compiled call per
+control step (``cmrt.tick``); ``simulate`` is the case n = 1. MuJoCo's batch is bit-identical
+to stepping each simulation alone, and the controller's arithmetic is row-wise, so a candidate's objective does not
 depend on what else is in its batch (tested).
 
 A simulated clip is the task's clip (preparation P + task T + decay D = L) followed by
