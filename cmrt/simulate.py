@@ -158,7 +158,7 @@ class _Geometry:
         out = (np.empty((n, self.points.size)), np.empty(n), np.empty(n), np.empty((n, self.points.size), bool),
                np.empty((n, 2)), np.empty(n), np.empty(n), np.empty(n, bool), np.empty(n), np.empty(n))
         geometry(geom_xpos, geom_xmat, qpos, qvel, self.points, self.body_geoms, self.half, self.radius,
-                       self.leg_dofs, self.root_pitch, act, FOOT_POINT_RADIUS_M, CONTACT_HEIGHT_M, *out)
+                 self.leg_dofs, self.root_pitch, act, FOOT_POINT_RADIUS_M, CONTACT_HEIGHT_M, *out)
         return out
 
     def foot_roll(self, qpos: np.ndarray) -> np.ndarray:
@@ -456,7 +456,7 @@ class _CompiledTick:
         c = controller
         variants = drive.variant_of is not None
         self.all_fields = tuple(_read_only(b[name]) for name in self.FIELDS)  # one numba signature for views and copies
-        self.b, self.ctrl, self.dt, self.control_dt, self.nb, self.mass_kg = b, b["ctrl"], dt, control_dt, nb, mass_kg
+        self.ctrl, self.dt, self.control_dt, self.nb, self.mass_kg = b["ctrl"], dt, control_dt, nb, mass_kg
         self.geometry = (geo.points, geo.body_geoms, geo.half, geo.radius, geo.leg_dofs, geo.root_pitch, act,
                          FOOT_POINT_RADIUS_M, CONTACT_HEIGHT_M, limits.com_height_m, limits.airborne_s,
                          limits.roll_rad, limits.capture_margin_m)
@@ -598,7 +598,7 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
         last[ids[done]] = k
         return ids[~done]
 
-    k = 0
+    k, prop_stepped = 0, -1  # prop_stepped: the step whose prop.step the compiled loop made before handing over
     if compiled is not None:  # a scoring run: compiled control steps (cmrt.tick), ground forces summed at the end
         touch = np.full((n, n_steps, n_points), np.nan)  # normal force at heel_r, toe_r, heel_l, toe_l, every step
         sample_x = np.full((n, n_steps, n_points), np.nan)  # heel/toe x at the CoP sample steps
@@ -617,6 +617,7 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
             if control:
                 out = compiled(k, sel, ids, prop.carried_kg, com_ref_now, cop_ref_now, ctrl_all)
                 if out is None:  # a fallen row or a singular plan: the Python loop below goes on from here
+                    prop_stepped = k
                     break
                 point_x, fell, new, momentum = out
                 if k % sample_every == 0:
@@ -638,7 +639,6 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
                 touch[ids, k] = sensors[ids]
             k += 1
         _ground_records(rec, touch[:, :k], sample_x[:, :k], sample_every)
-        compiled = None
 
     first = k  # where the compiled loop stopped (0 if it did not run); nothing left to do if no row is left
     for k in range(first, n_steps if ids.size else first):  # the Python path: traces, yu, stepping
@@ -652,7 +652,7 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
         # recording a trace; in between, the batch just steps and the ground force is read (the cost floor).
         control = k % config.control_every == 0
         sample = record or k % sample_every == 0
-        if control or prop.every_step:
+        if (control or prop.every_step) and k != prop_stepped:
             prop.step(batch, b, ids, times[k])
         if control or sample:
             geom_xpos = b["geom_xpos"][sel]

@@ -79,10 +79,13 @@ def test_compiled_control_step_plays_ensemble_timings_as_the_python_path(monkeyp
         _assert_identical(a, b)
 
 
-def test_a_step_the_compiled_path_cannot_do_hands_the_clip_to_the_python_path(monkeypatch):
+@pytest.mark.parametrize("name", ["bend", "catch"])
+def test_a_step_the_compiled_path_cannot_do_hands_the_clip_to_the_python_path(name, monkeypatch):
     """A singular plan (LinAlgError) mid-clip: the Python loop takes over from that step (it finds the row
-    by row), with the ground forces of the steps before summed; the trajectories are unchanged."""
-    task = load_task("bend").with_speed(0.4)
+    by row), with the ground forces of the steps before summed and the prop stepped once; the trajectories
+    are unchanged."""
+    task = load_task(name)
+    task = task.with_speed(0.4) if name == "bend" else task
     curves = _clips(task)
     calls = []
     tick = simulate_module.control_tick
