@@ -455,14 +455,17 @@ class _CompiledTick:
                  dt: float, control_dt: float, lean_check: bool):
         c = controller
         variants = drive.variant_of is not None
-        self.all_fields = tuple(_read_only(b[name]) for name in self.FIELDS)  # one numba signature for views and copies
+        # read-only and C-contiguous, as the copies of a subset of rows are: one numba signature (each costs
+        # ~40 s to compile). Some batches pad their rows (qpos/qvel with a prop's coordinates): those fields
+        # are copied per call instead.
+        self.all_fields = tuple(_read_only(b[name]) for name in self.FIELDS)
+        self.padded = {i for i, f in enumerate(self.all_fields) if not f.flags.c_contiguous}
         self.ctrl, self.dt, self.control_dt, self.nb, self.mass_kg = b["ctrl"], dt, control_dt, nb, mass_kg
         self.geometry = (geo.points, geo.body_geoms, geo.half, geo.radius, geo.leg_dofs, geo.root_pitch, act,
                          FOOT_POINT_RADIUS_M, CONTACT_HEIGHT_M, limits.com_height_m, limits.airborne_s,
                          limits.roll_rad, limits.capture_margin_m)
         self.controller = (c.chain, c.m_rows, c.m_cols, c.point_bodies, c.actuated, c.limits, c.w2, c.params)
-        self.drive = (drive.q_ref if variants else drive.q_ref[None], drive.qd_ref if variants else drive.qd_ref[None],
-                      drive.qdd_ref if variants else drive.qdd_ref[None],
+        self.drive = (*(_read_only(r if variants else r[None]) for r in (drive.q_ref, drive.qd_ref, drive.qdd_ref)),
                       drive.variant_of.astype(np.int64) if variants else np.zeros(n, np.int64),
                       drive.disp_m, drive.disp_vel_m_s)
         self.lean = (lean_check, rec["prop_force"], CONTACT_FORCE_N)
@@ -474,16 +477,25 @@ class _CompiledTick:
         """Control step ``k`` of rows ``ids`` (batch rows ``sel``): (point_x, how many fell, the mask of those
         that fell, momentum), or None when the Python path must do it (a fallen row, or a singular plan it
         finds row by row)."""
-        fields = self.all_fields if isinstance(sel, slice) else tuple(_read_only(f[sel]) for f in self.all_fields)
+        if not isinstance(sel, slice):
+            fields = tuple(_read_only(f[sel]) for f in self.all_fields)
+        elif self.padded:
+            fields = tuple(_read_only(np.ascontiguousarray(f)) if i in self.padded else f
+                           for i, f in enumerate(self.all_fields))
+        else:
+            fields = self.all_fields
         n = ids.size
         point_x, momentum, new = np.empty((n, self.geometry[0].size)), np.empty((n, 2)), np.empty(n, bool)
         try:
-            fell = control_tick(k, ids, self.dt, self.control_dt, self.nb, self.mass_kg, *fields, self.ctrl,
-                                *self.geometry, *self.controller, *self.drive, carried_kg, *self.lean, *self.state,
+            fell = control_tick(k, ids, self.dt, self.control_dt, self.nb, self.mass_kg, *fields, *self.geometry,
+                                *self.controller, *self.drive, carried_kg, *self.lean, *self.state,
                                 com_ref_now, cop_ref_now, ctrl_all, point_x, momentum, new)
         except np.linalg.LinAlgError:
             return None
-        return (point_x, fell, new, momentum) if fell >= 0 else None
+        if fell < 0:
+            return None
+        self.ctrl[sel] = ctrl_all[sel]
+        return point_x, fell, new, momentum
 
 
 def simulate_batch(

@@ -129,7 +129,7 @@ def linear_momentum(cinert, cvel, nb, out):
 def control_tick(k, ids, dt, control_dt, nb, mass_kg,
                  # the batch's bound fields, rows ``ids`` (views when every simulation is active)
                  geom_xpos, geom_xmat, qpos, qvel, cdof, cdof_dot, cvel, cinert, M, qfrc_bias, qfrc_passive,
-                 subtree_com, time_s, ctrl_bound,
+                 subtree_com, time_s,
                  # geometry and monitor constants
                  points, body_geoms, half, radius, leg_dofs, root_pitch, act, point_radius, contact_height,
                  com_height_m, airborne_s, roll_rad, capture_margin_m,
@@ -143,13 +143,15 @@ def control_tick(k, ids, dt, control_dt, nb, mass_kg,
                  com_ref_now, cop_ref_now, ctrl_all,
                  # out, rows ``ids``
                  point_x, momentum, new):
-    """Control step ``k`` of a scoring run, rows ``ids`` (center reference, feet planted, nobody fallen):
-    the loop's geometry, records, CoM velocity, targets ``c_r = s + d(t)``, ``p_r = s``, torques (into
-    ``ctrl_bound`` and ``ctrl_all``) and the balance monitor, in that order. ``new`` gets the rows that
-    fell now, ``momentum`` the rows' (L_x, L_z), ``point_x`` their heel/toe x (the step's CoP sample needs
-    them). A singular plan raises ``LinAlgError`` before the monitor has changed anything: the caller redoes
-    the step on the Python path, which finds the row. Returns how many rows fell now, or -1, having done
-    nothing, if a row had fallen before (protective mode is the Python path's)."""
+    """Control step ``k`` of a scoring run, rows ``ids`` (center reference, feet planted, nobody fallen),
+    in the Python loop's order: geometry, records, CoM velocity, targets ``c_r = s + d(t)``, ``p_r = s``,
+    torques (into ``ctrl_all``; the caller copies them into the batch) and the balance monitor.
+
+    ``new`` gets the rows that fell now, ``momentum`` the rows' (L_x, L_z), ``point_x`` their heel/toe x
+    (the step's CoP sample needs them). Returns how many rows fell now, or -1, having done nothing, if a
+    row had fallen before (protective mode is the Python path's). A singular plan raises ``LinAlgError``
+    before the monitor has changed anything: the caller redoes the step on the Python path, which finds
+    the row."""
     n = ids.shape[0]
     for r in range(n):
         if fall_code[ids[r]] != 0:
@@ -207,7 +209,6 @@ def control_tick(k, ids, dt, control_dt, nb, mass_kg,
         for u in range(nu):
             t = tau[r, u] if ok else 0.0
             ctrl_all[s, u] = t
-            ctrl_bound[s, u] = t
         airborne_for_s[s] = 0.0 if grounded[r] else airborne_for_s[s] + control_dt
         air[r] = airborne_for_s[s]
         for j in range(qpos.shape[1]):
