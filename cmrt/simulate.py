@@ -157,7 +157,7 @@ class _Geometry:
         n = qpos.shape[0]
         out = (np.empty((n, self.points.size)), np.empty(n), np.empty(n), np.empty((n, self.points.size), bool),
                np.empty((n, 2)), np.empty(n), np.empty(n), np.empty(n, bool), np.empty(n), np.empty(n))
-        geometry(geom_xpos, geom_xmat, qpos, qvel, self.points, self.body_geoms, self.half, self.radius,
+        geometry(np.arange(n), geom_xpos, geom_xmat, qpos, qvel, self.points, self.body_geoms, self.half, self.radius,
                  self.leg_dofs, self.root_pitch, act, FOOT_POINT_RADIUS_M, CONTACT_HEIGHT_M, *out)
         return out
 
@@ -430,8 +430,9 @@ def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarra
 
 def _ground_records(rec: _Recorder, touch: np.ndarray, sample_x: np.ndarray, sample_every: int) -> None:
     """The ground-force records of the steps a compiled scoring loop ran, from its per-step heel/toe forces
-    ``touch`` (n, k, 4; NaN where a row did not step) and heel/toe x at the sample steps: the same sums,
-    in the same order, as the Python loop makes step by step (numpy sums four terms one by one)."""
+    ``touch`` (n, k, 4; a row's readings past its last step are cut off later) and heel/toe x at the sample
+    steps: the same sums, in the same order, as the Python loop makes step by step (numpy sums four terms
+    one by one)."""
     k = touch.shape[1]
     fz = touch.sum(axis=2)
     rec["fz"][:, :k] = fz
@@ -455,11 +456,14 @@ class _CompiledTick:
                  dt: float, control_dt: float, lean_check: bool):
         c = controller
         variants = drive.variant_of is not None
-        # read-only and C-contiguous, as the copies of a subset of rows are: one numba signature (each costs
-        # ~40 s to compile). Some batches pad their rows (qpos/qvel with a prop's coordinates): those fields
-        # are copied per call instead.
-        self.all_fields = tuple(_read_only(b[name]) for name in self.FIELDS)
-        self.padded = {i for i, f in enumerate(self.all_fields) if not f.flags.c_contiguous}
+        # Every row of the batch's fields, read-only and C-contiguous: one numba signature (each costs ~40 s
+        # to compile); the kernel reads the active rows, so rows that stop (falls) cost no copies. qpos, qvel
+        # and time lie in each simulation's state row (strided): they are copied into C-contiguous buffers
+        # per call (``strided``: (bound field, buffer)).
+        bound = [b[name] for name in self.FIELDS]
+        self.strided = [(f, np.empty(f.shape)) for f in bound if not f.flags.c_contiguous]
+        buffers = {id(f): buf for f, buf in self.strided}
+        self.fields = tuple(_read_only(buffers.get(id(f), f)) for f in bound)
         self.ctrl, self.dt, self.control_dt, self.nb, self.mass_kg = b["ctrl"], dt, control_dt, nb, mass_kg
         self.geometry = (geo.points, geo.body_geoms, geo.half, geo.radius, geo.leg_dofs, geo.root_pitch, act,
                          FOOT_POINT_RADIUS_M, CONTACT_HEIGHT_M, limits.com_height_m, limits.airborne_s,
@@ -472,29 +476,24 @@ class _CompiledTick:
         self.state = (falls.airborne_for_s, falls.code, rec["sc"], rec["lo"], rec["hi"], rec["qpos"], rec["com"],
                       rec["jspeed"], rec["cref"])
 
-    def __call__(self, k: int, sel, ids: np.ndarray, carried_kg: np.ndarray, com_ref_now: np.ndarray,
+    def __call__(self, k: int, ids: np.ndarray, carried_kg: np.ndarray, com_ref_now: np.ndarray,
                  cop_ref_now: np.ndarray, ctrl_all: np.ndarray):
-        """Control step ``k`` of rows ``ids`` (batch rows ``sel``): (point_x, how many fell, the mask of those
+        """Control step ``k`` of rows ``ids``: (point_x, how many fell, the mask of those
         that fell, momentum), or None when the Python path must do it (a fallen row, or a singular plan it
         finds row by row)."""
-        if not isinstance(sel, slice):
-            fields = tuple(_read_only(f[sel]) for f in self.all_fields)
-        elif self.padded:
-            fields = tuple(_read_only(np.ascontiguousarray(f)) if i in self.padded else f
-                           for i, f in enumerate(self.all_fields))
-        else:
-            fields = self.all_fields
+        for bound, buffer in self.strided:
+            np.copyto(buffer, bound)
         n = ids.size
         point_x, momentum, new = np.empty((n, self.geometry[0].size)), np.empty((n, 2)), np.empty(n, bool)
         try:
-            fell = control_tick(k, ids, self.dt, self.control_dt, self.nb, self.mass_kg, *fields, *self.geometry,
+            fell = control_tick(k, ids, self.dt, self.control_dt, self.nb, self.mass_kg, *self.fields, *self.geometry,
                                 *self.controller, *self.drive, carried_kg, *self.lean, *self.state,
                                 com_ref_now, cop_ref_now, ctrl_all, point_x, momentum, new)
         except np.linalg.LinAlgError:
             return None
         if fell < 0:
             return None
-        self.ctrl[sel] = ctrl_all[sel]
+        np.copyto(self.ctrl, ctrl_all)  # rows that stopped are not stepped again: their torques do not matter
         return point_x, fell, new, momentum
 
 
@@ -627,7 +626,7 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
             if control or every_step:
                 prop.step(batch, b, ids, times[k])
             if control:
-                out = compiled(k, sel, ids, prop.carried_kg, com_ref_now, cop_ref_now, ctrl_all)
+                out = compiled(k, ids, prop.carried_kg, com_ref_now, cop_ref_now, ctrl_all)
                 if out is None:  # a fallen row or a singular plan: the Python loop below goes on from here
                     prop_stepped = k
                     break
@@ -645,10 +644,7 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
             batch.step(ids=step_ids, stage=vel_stage)
             if has_contact_force:
                 rec["prop_force"][sel, k] = prop.contact_force(b, sel)
-            if step_ids is None:
-                touch[:, k] = sensors
-            else:
-                touch[ids, k] = sensors[ids]
+            touch[:, k] = sensors  # rows that stopped repeat their last reading: cut off at ``last``
             k += 1
         _ground_records(rec, touch[:, :k], sample_x[:, :k], sample_every)
 

@@ -30,20 +30,21 @@ from cmrt.control.kernel import N_INFO, N_SWING, control_step
 
 
 @njit(cache=True, nogil=True)
-def geometry(geom_xpos, geom_xmat, qpos, qvel, points, body_geoms, half, radius, leg_dofs, root_pitch, act,
+def geometry(rows, geom_xpos, geom_xmat, qpos, qvel, points, body_geoms, half, radius, leg_dofs, root_pitch, act,
              point_radius, contact_height, point_x, lo, hi, contact, roll, jspeed, lowest, grounded, c_lo, c_hi):
     """What a control step reads of the batch's geometry, for every row, in one compiled pass instead of
     ~30 numpy calls (each a few microseconds, ~400 times per clip): heel/toe x and their span, which points
     touch the floor, foot pitch, the fastest actuated joint, the lowest body point and the span of the feet
     on the ground. The same IEEE operations in the same order as the numpy code it replaces
     (``_Geometry``, ``_in_contact``, ``_ground_support``), NaNs propagated as numpy's min/max do, so
-    results are bit for bit those of before."""
+    results are bit for bit those of before. Output row ``i`` is batch row ``rows[i]``."""
     n = point_x.shape[0]
     npt = points.shape[0]
     for i in range(n):
+        row = rows[i]
         for p in range(npt):
-            point_x[i, p] = geom_xpos[i, points[p], 0]
-            contact[i, p] = geom_xpos[i, points[p], 2] - point_radius < contact_height
+            point_x[i, p] = geom_xpos[row, points[p], 0]
+            contact[i, p] = geom_xpos[row, points[p], 2] - point_radius < contact_height
         a, b = point_x[i, 0], point_x[i, 0]
         for p in range(1, npt):
             x = point_x[i, p]
@@ -53,17 +54,17 @@ def geometry(geom_xpos, geom_xmat, qpos, qvel, points, body_geoms, half, radius,
                 b = x if (x != x or x > b) else b
         lo[i], hi[i] = a, b
         for f in range(2):
-            roll[i, f] = qpos[i, root_pitch] + ((qpos[i, leg_dofs[f, 0]] + qpos[i, leg_dofs[f, 1]])
-                                                + qpos[i, leg_dofs[f, 2]])
-        m = abs(qvel[i, act[0]])
+            roll[i, f] = qpos[row, root_pitch] + ((qpos[row, leg_dofs[f, 0]] + qpos[row, leg_dofs[f, 1]])
+                                                + qpos[row, leg_dofs[f, 2]])
+        m = abs(qvel[row, act[0]])
         for j in range(1, act.shape[0]):
-            v = abs(qvel[i, act[j]])
+            v = abs(qvel[row, act[j]])
             if m == m:
                 m = v if (v != v or v > m) else m
         jspeed[i] = m
-        z = geom_xpos[i, body_geoms[0], 2] - abs(geom_xmat[i, body_geoms[0], 8]) * half[0] - radius[0]
+        z = geom_xpos[row, body_geoms[0], 2] - abs(geom_xmat[row, body_geoms[0], 8]) * half[0] - radius[0]
         for g in range(1, body_geoms.shape[0]):
-            v = geom_xpos[i, body_geoms[g], 2] - abs(geom_xmat[i, body_geoms[g], 8]) * half[g] - radius[g]
+            v = geom_xpos[row, body_geoms[g], 2] - abs(geom_xmat[row, body_geoms[g], 8]) * half[g] - radius[g]
             if z == z:
                 z = v if (v != v or v < z) else z
         lowest[i] = z
@@ -111,23 +112,24 @@ def _pairwise_sum(x):
 
 
 @njit(cache=True, nogil=True)
-def linear_momentum(cinert, cvel, nb, out):
-    """``PlanarKinematics.linear_momentum`` of every row into ``out`` (n, 2): L_x, L_z over the first ``nb``
-    bodies, summed as numpy sums them."""
-    n = cinert.shape[0]
+def linear_momentum(rows, cinert, cvel, nb, out):
+    """``PlanarKinematics.linear_momentum`` of batch rows ``rows`` into ``out`` (n, 2): L_x, L_z over the
+    first ``nb`` bodies, summed as numpy sums them."""
+    n = rows.shape[0]
     terms = np.empty(nb)
     for i in range(n):
+        row = rows[i]
         for b in range(nb):
-            terms[b] = cinert[i, b, 8] * cvel[i, b, 1] + cinert[i, b, 9] * cvel[i, b, 3]
+            terms[b] = cinert[row, b, 8] * cvel[row, b, 1] + cinert[row, b, 9] * cvel[row, b, 3]
         out[i, 0] = _pairwise_sum(terms)
         for b in range(nb):
-            terms[b] = cinert[i, b, 9] * cvel[i, b, 5] - cinert[i, b, 6] * cvel[i, b, 1]
+            terms[b] = cinert[row, b, 9] * cvel[row, b, 5] - cinert[row, b, 6] * cvel[row, b, 1]
         out[i, 1] = _pairwise_sum(terms)
 
 
 @njit(cache=True, nogil=True)
 def control_tick(k, ids, dt, control_dt, nb, mass_kg,
-                 # the batch's bound fields, rows ``ids`` (views when every simulation is active)
+                 # the batch's bound fields, every row (simulation ``s`` is batch row ``s``)
                  geom_xpos, geom_xmat, qpos, qvel, cdof, cdof_dot, cvel, cinert, M, qfrc_bias, qfrc_passive,
                  subtree_com, time_s,
                  # geometry and monitor constants
@@ -164,9 +166,9 @@ def control_tick(k, ids, dt, control_dt, nb, mass_kg,
     contact = np.empty((n, npt), np.bool_)
     grounded = np.empty(n, np.bool_)
     roll = np.empty((n, 2))
-    geometry(geom_xpos, geom_xmat, qpos, qvel, points, body_geoms, half, radius, leg_dofs, root_pitch, act,
+    geometry(ids, geom_xpos, geom_xmat, qpos, qvel, points, body_geoms, half, radius, leg_dofs, root_pitch, act,
              point_radius, contact_height, point_x, lo, hi, contact, roll, jspeed, lowest, grounded, c_lo, c_hi)
-    linear_momentum(cinert, cvel, nb, momentum)
+    linear_momentum(ids, cinert, cvel, nb, momentum)
     vel_x = np.empty(n)
     mass = np.empty(n)
     com_ref, com_ref_vel, cop_ref = np.empty(n), np.empty(n), np.empty(n)
@@ -177,8 +179,8 @@ def control_tick(k, ids, dt, control_dt, nb, mass_kg,
         center = 0.5 * (lo[r] + hi[r])
         rec_sc[s, k], rec_lo[s, k], rec_hi[s, k] = center, lo[r], hi[r]
         for j in range(nq_rec):
-            rec_qpos[s, k, j] = qpos[r, j]
-        rec_com[s, k, 0], rec_com[s, k, 1] = subtree_com[r, 1, 0], subtree_com[r, 1, 2]
+            rec_qpos[s, k, j] = qpos[s, j]
+        rec_com[s, k, 0], rec_com[s, k, 1] = subtree_com[s, 1, 0], subtree_com[s, 1, 2]
         mass[r] = mass_kg + carried_kg[s]
         vel_x[r] = momentum[r, 0] / mass[r]
         rec_jspeed[s, k] = jspeed[r]
@@ -193,7 +195,7 @@ def control_tick(k, ids, dt, control_dt, nb, mass_kg,
 
     tau = np.empty((n, nu))
     info = np.empty((n, N_INFO))
-    control_step(cdof, cdof_dot, cvel, cinert, qpos, qvel, M, qfrc_bias, qfrc_passive, subtree_com, geom_xpos,
+    control_step(ids, cdof, cdof_dot, cvel, cinert, qpos, qvel, M, qfrc_bias, qfrc_passive, subtree_com, geom_xpos,
                  chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, torque_limits, w2, params,
                  qr, qdr, qddr, com_ref, com_ref_vel, cop_ref, contact, mass, np.full(n, -1.0),
                  np.zeros((n, N_SWING)), tau, info)
@@ -212,14 +214,14 @@ def control_tick(k, ids, dt, control_dt, nb, mass_kg,
         airborne_for_s[s] = 0.0 if grounded[r] else airborne_for_s[s] + control_dt
         air[r] = airborne_for_s[s]
         for j in range(qpos.shape[1]):
-            if not np.isfinite(qpos[r, j]):
+            if not np.isfinite(qpos[s, j]):
                 ok = False
-        finite[r] = ok and abs(time_s[r] - k * dt) < 1e-9
+        finite[r] = ok and abs(time_s[s] - k * dt) < 1e-9
         if lean_check and k > 0 and prop_force[s, k - 1] > leaning_n:  # leaning on a prop
             c_lo[r], c_hi[r] = -np.inf, np.inf
     com_x, com_z = np.empty(n), np.empty(n)
     for r in range(n):
-        com_x[r], com_z[r] = subtree_com[r, 1, 0], subtree_com[r, 1, 2]
+        com_x[r], com_z[r] = subtree_com[ids[r], 1, 0], subtree_com[ids[r], 1, 2]
     code = _first_failed(finite, lowest, com_x, com_z, vel_x, air, roll, c_lo, c_hi, com_height_m, airborne_s,
                          roll_rad, capture_margin_m)
     fell = 0

@@ -37,8 +37,11 @@ def test_linear_momentum_sums_the_bodies_as_numpy_does():
         cinert = rng.normal(0.0, 1.0, (6, nb, 10)) * 10.0 ** rng.integers(-4, 4, (6, nb, 1))
         cvel = rng.normal(0.0, 3.0, (6, nb, 6))
         got = np.empty((6, 2))
-        linear_momentum(cinert, cvel, nb, got)
+        linear_momentum(np.arange(got.shape[0]), cinert, cvel, nb, got)
         assert np.array_equal(got, PlanarKinematics.linear_momentum(cinert, cvel))
+        rows = np.array([1, 4])  # a subset of the batch's rows, read in place
+        linear_momentum(rows, cinert, cvel, nb, got[:2])
+        assert np.array_equal(got[:2], PlanarKinematics.linear_momentum(cinert[rows], cvel[rows]))
 
 
 def _clips(task):

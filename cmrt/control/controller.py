@@ -175,6 +175,7 @@ class MomentumBalanceController:
         if c is None:
             bufs = [np.empty((n, self.nv)) for _ in range(3)]
             c = self._per_n[n] = {
+                "rows": np.arange(n),  # simulation i reads row i (writable int64, as the compiled loop's rows)
                 "refs": [(buf, _read_only(buf)) for buf in bufs],
                 "mass": _read_only(np.full(n, self.mass)), "no_swing": _read_only(np.full(n, -1.0)),
                 "no_target": _read_only(np.zeros((n, kernel.N_SWING)))}
@@ -202,7 +203,7 @@ class MomentumBalanceController:
         tau = np.empty((n, self.actuated.size))
         info = np.empty((n, kernel.N_INFO))
         kernel.control_step(
-            *(_as_kernel(f[k]) for k in _FIELDS),
+            c["rows"], *(_as_kernel(f[k]) for k in _FIELDS),
             self.chain, self.m_rows, self.m_cols, self.points, self.point_bodies, self.leg_dofs, self.actuated,
             self.limits, self.w2, self.params,
             *(_shared_rows(r, buf, view) for r, (buf, view) in zip((q_ref, qd_ref, qdd_ref), c["refs"], strict=True)),

@@ -202,38 +202,40 @@ def solve_qp(Q, g, E, e, C, c, c_on, dual_reg):
 
 
 @njit(cache=True, nogil=True)
-def control_step(cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, qfrc_passive, com_all, geom_xpos,
+def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, qfrc_passive, com_all, geom_xpos,
                  chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, limits, w2, params,
                  q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, contact, mass_all, swing_foot,
                  swing_target, tau_out, info_out):
     """Torques (tau_out, (n, nu)) for n simulations; info_out (n, N_INFO) gets the plan's summary.
 
-    Arrays are the batch's bound MuJoCo fields (n, ...) - only the humanoid's leading slices are
-    read - and per-simulation targets (references (n, nv): an ensemble's members may play the motion at
-    different speeds); ``mass_all`` (n,) is each character's mass with what it
+    Arrays are the batch's bound MuJoCo fields, of which simulation ``i`` reads row ``rows[i]`` (the
+    compiled scoring loop passes the whole batch and its active rows: no copies when rows drop out) - only
+    the humanoid's leading slices are read - and per-simulation targets (references (n, nv): an
+    ensemble's members may play the motion at different speeds); ``mass_all`` (n,) is each character's mass with what it
     carries (a caught ball's mass moves into the forearms); see controller.py for the formulation.
     A swinging foot (``swing_foot[i]`` >= 0) has no support rows and carries no load; its heel point and
     pitch track ``swing_target[i]`` as a weighted objective, and its leg's joint tracking is weakened."""
-    n = qvel.shape[0]
+    n = rows.shape[0]
     nb, nv = chain.shape
     grav = params[P_G]
     radius = params[P_RADIUS]
     for i in range(n):
+        row = rows[i]
         mass = mass_all[i]
         mg = mass * grav
-        qd = qvel[i, :nv].copy()
-        q = qpos[i, :nv]
-        com = com_all[i, 1]
-        A, a = centroidal(cdof[i], cdof_dot[i], cvel[i], cinert[i], qd, chain)
+        qd = qvel[row, :nv].copy()
+        q = qpos[row, :nv]
+        com = com_all[row, 1]
+        A, a = centroidal(cdof[row], cdof_dot[row], cvel[row], cinert[row], qd, chain)
 
         # contact points (sphere bottoms) and their foot frames
         pts = np.empty((4, 3))
         Jp = np.empty((4, 3, nv))
         bp = np.empty((4, 3))
         for p in range(4):
-            pts[p] = geom_xpos[i, points[p]]
+            pts[p] = geom_xpos[row, points[p]]
             pts[p, 2] -= radius
-            Jp[p], bp[p] = point_frame(cdof[i], cdof_dot[i], cvel[i], qd, chain[point_bodies[p]], point_bodies[p],
+            Jp[p], bp[p] = point_frame(cdof[row], cdof_dot[row], cvel[row], qd, chain[point_bodies[p]], point_bodies[p],
                                        pts[p], com)
         state = np.empty(2, np.int64)
         swing = int(swing_foot[i])
@@ -362,11 +364,11 @@ def control_step(cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, 
                 spread += (pts[p, 0] - mean) ** 2
         M = np.zeros((nv, nv))
         for k in range(m_rows.size):
-            M[m_rows[k], m_cols[k]] = M_sparse[i, k]
-            M[m_cols[k], m_rows[k]] = M_sparse[i, k]
+            M[m_rows[k], m_cols[k]] = M_sparse[row, k]
+            M[m_cols[k], m_rows[k]] = M_sparse[row, k]
         gen = M @ qdd
         for j in range(nv):
-            gen[j] += qfrc_bias[i, j] - qfrc_passive[i, j]
+            gen[j] += qfrc_bias[row, j] - qfrc_passive[row, j]
         split = ((carries[0] or carries[1]) and (carries[2] or carries[3])
                  and abs(pts[0, 0] - pts[2, 0]) > SPLIT_STANCE_M and fz > 1e-9)
         if split:
