@@ -62,27 +62,48 @@ import functools
 import inspect
 import json
 import math
+import sys
 import warnings
 import zlib
 from typing import Any
 
 import numpy as np
 
-with warnings.catch_warnings():
-    warnings.simplefilter("ignore")  # pycma warns when matplotlib is missing
-    import cma
-    import cma.boundary_handler
-    import cma.evolution_strategy
-    import cma.logger
-    import cma.optimization_tools
-    import cma.options_parameters
-    import cma.recombination_weights
-    import cma.sampler
-    import cma.sigma_adaptation
-    import cma.transformations
-    import cma.utilities.utils
-
 from cmrt.errors import CmrtError
+
+
+def import_cma():
+    """pycma, without the 1.5 s its package import spends loading matplotlib (for ``cma.s``'s plotting) and
+    scipy.stats (for the surrogate models' Kendall tau): pycma guards both imports and falls back when they
+    fail, and the optimizer uses neither. Marking the two packages absent in ``sys.modules`` for the length
+    of the import makes them fail; the marks are removed after, so a later ``import matplotlib`` (cmrt.plot,
+    a user's script) works as usual, as does ``cma.plot``, which imports pyplot when called. A package
+    already imported is left alone. tests/test_checkpoint.py checks both."""
+    absent = [name for name in ("matplotlib", "scipy.stats") if name not in sys.modules]
+    for name in absent:
+        sys.modules[name] = None  # the documented way to make an import raise ImportError
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # pycma warns that matplotlib is missing
+            import cma
+            import cma.boundary_handler  # the modules whose classes a checkpoint may name (below)
+            import cma.evolution_strategy
+            import cma.logger
+            import cma.optimization_tools
+            import cma.options_parameters
+            import cma.recombination_weights
+            import cma.sampler
+            import cma.sigma_adaptation
+            import cma.transformations
+            import cma.utilities.utils
+    finally:
+        for name in absent:
+            if name in sys.modules and sys.modules[name] is None:
+                del sys.modules[name]
+    return cma
+
+
+cma = import_cma()
 
 MAGIC = b"CMRT-CKPT-1\n"
 FORMAT = 1

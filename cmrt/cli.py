@@ -27,28 +27,25 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from cmrt import inputs, jobs, query
-from cmrt.bench import run_bench
-from cmrt.control.references import REFERENCE_MODES
-from cmrt.curve import Cmrt
+from cmrt import inputs
 from cmrt.errors import CmrtError, Terminated, TransientFault
-from cmrt.inputs import escape, shown
-from cmrt.interpolate import interpolate, superpose, to_json
-from cmrt.library import library_curve
-from cmrt.objective import Evaluation, evaluate
-from cmrt.optimize import OptimizeSettings
-from cmrt.parallel import BACKENDS, Evaluator
-from cmrt.sequence import load_sequence
-from cmrt.simulate import simulate
+from cmrt.inputs import BACKENDS, REFERENCE_MODES, escape, shown
 from cmrt.store import DEFAULT_STORE, RUN_STATUSES, Run, Store, open_store, resolve_path
-from cmrt.task import Task, available_tasks, load_task
+
+# Start-up: a verb imports what it uses (MuJoCo, numba, scipy, pycma, dask: ~4 s in all) when it runs, so
+# that `cmrt --help`, `cmrt runs` or `cmrt show` answer at once. Building the parser imports none of them:
+# the optimizer's defaults are filled in after parsing (``_opt_defaults``).
+if TYPE_CHECKING:
+    import numpy as np
+
+    from cmrt.curve import Cmrt
+    from cmrt.objective import Evaluation
+    from cmrt.task import Task
 
 EXIT_BAD_INPUT = 2
 EXIT_TEMPFAIL = 75  # sysexits EX_TEMPFAIL: a fault of the machine; the run is back in the queue
-_DEFAULTS = OptimizeSettings()
 
 
 class _Parser(argparse.ArgumentParser):
@@ -220,6 +217,8 @@ def _parse_sets(items: list[str] | None) -> dict[str, str]:
 
 def resolve_task(name: str, speed: float | None, sets: list[str] | None, reference: str | None = None) -> Task:
     """A task by name or path, with ``--set`` overrides, ``--speed`` and ``--reference`` applied (validated)."""
+    from cmrt.task import load_task
+
     task = load_task(name).with_reference(reference)
     overrides = _parse_sets(sets)
     if overrides:
@@ -235,6 +234,10 @@ def resolve_task(name: str, speed: float | None, sets: list[str] | None, referen
 
 def resolve_curve(spec: str, task: Task, store_path: str | None = None, flag: str = "--curve") -> tuple[Cmrt, str]:
     """zero | library | library-robust | RUN (a stored run id) | FILE.json -> (curve, description)."""
+    from cmrt import query
+    from cmrt.curve import Cmrt
+    from cmrt.library import library_curve
+
     if spec == "zero":
         return Cmrt.zero(task.clip_s), "zero"
     if spec in ("library", "library-robust"):
@@ -290,18 +293,25 @@ def _init_arg(value: str) -> str | int:
 
 def _dof_names(task: Task) -> np.ndarray:
     """Names of the trace's qvel columns: the humanoid's dofs, then the prop's."""
+    import numpy as np
+
     m = task.model()
     return np.array([m.joint(int(m.dof_jntid[i])).name for i in range(m.nv)])
 
 
 def _save_npz(path: str, arrays: dict, flag: str = "--trace") -> None:
     """Write atomically (``cmrt.inputs.atomic_output``): a failed write never leaves a half-written file."""
+    import numpy as np
+
     with inputs.atomic_output(path, flag) as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(fh, **arrays)
 
 
 def simulate_report(task, curve, curve_name: str, trace: str | None = None) -> dict:
     """Simulate one clip and score it: what ``cmrt simulate`` prints (optionally saving the trace)."""
+    from cmrt.objective import evaluate
+    from cmrt.simulate import simulate
+
     if trace is not None:  # --trace '' is a bad path, not "no trace"
         inputs.check_output(trace, "--trace")  # before the simulation, not after it
     t0 = time.perf_counter()
@@ -336,18 +346,20 @@ def _reference_arg(p: argparse.ArgumentParser) -> None:
                    "yu (GRF-weighted feet and Winter's CoP, reactive); default: the task file's, else center")
 
 
+_OPT_ARGS = ("seed", "max_evals", "min_evals", "popsize", "stall_generations", "sigma0")
+
+
 def _opt_args(p: argparse.ArgumentParser) -> None:
-    """The optimizer's options; their defaults are OptimizeSettings' (the only place they are written)."""
-    p.add_argument("--seed", type=inputs.arg(inputs.SEED), default=_DEFAULTS.seed)
-    p.add_argument("--max-evals", type=inputs.arg(inputs.MAX_EVALS), default=_DEFAULTS.max_evals)
-    p.add_argument("--min-evals", type=inputs.arg(inputs.MIN_EVALS), default=_DEFAULTS.min_evals,
-                   help="no slow-convergence stop before this")
-    p.add_argument("--popsize", type=inputs.arg(inputs.POPSIZE), default=_DEFAULTS.popsize)
+    """The optimizer's options; their defaults are OptimizeSettings' (the only place they are written), filled
+    in by ``_opt_defaults`` after parsing."""
+    p.add_argument("--seed", type=inputs.arg(inputs.SEED))
+    p.add_argument("--max-evals", type=inputs.arg(inputs.MAX_EVALS))
+    p.add_argument("--min-evals", type=inputs.arg(inputs.MIN_EVALS), help="no slow-convergence stop before this")
+    p.add_argument("--popsize", type=inputs.arg(inputs.POPSIZE))
     p.add_argument("--stall-generations", type=inputs.arg(inputs.STALL_GENERATIONS),
-                   default=_DEFAULTS.stall_generations,
                    help="a search whose best improved < 0.1%% over this many generations has stalled: it "
                    "restarts with a doubled population (IPOP) unless it already succeeded past --min-evals")
-    p.add_argument("--sigma0", type=inputs.arg(inputs.SIGMA0), default=_DEFAULTS.sigma0)
+    p.add_argument("--sigma0", type=inputs.arg(inputs.SIGMA0))
     p.add_argument("--robust", action="store_true",
                    help="score every candidate on the task's ensemble of perturbed clips ([robust] table)")
     p.add_argument("--init", type=_init_arg, default="auto", metavar="auto|none|RUN",
@@ -362,6 +374,16 @@ def _backend_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scheduler", metavar="ADDRESS", help="dask scheduler (default: a LocalCluster)")
 
 
+def _opt_defaults(args) -> None:
+    """The optimizer options not given on the command line: OptimizeSettings' defaults."""
+    from cmrt.optimize import OptimizeSettings
+
+    defaults = OptimizeSettings()
+    for name in _OPT_ARGS:
+        if getattr(args, name) is None:
+            setattr(args, name, getattr(defaults, name))
+
+
 def _submit_kwargs(args) -> dict:
     return dict(seed=args.seed, max_evals=args.max_evals, popsize=args.popsize, sigma0=args.sigma0,
                 min_evals=args.min_evals, init=args.init, stall_generations=args.stall_generations)
@@ -370,6 +392,7 @@ def _submit_kwargs(args) -> dict:
 def _opt_task(args, speed: float | None) -> Task:
     """The task an optimization runs: with ``--robust``, scored on its ensemble. A run id as ``--init`` must
     exist before a store is created or written."""
+    _opt_defaults(args)
     task = resolve_task(args.task, speed, args.set, args.reference)
     if isinstance(args.init, int):
         with _store(args.store, readonly=True) as store:
@@ -396,6 +419,8 @@ class Tasks(Command):
     name, help = "tasks", "list the shipped tasks"
 
     def run(self, args):
+        from cmrt.task import available_tasks, load_task
+
         rows = []
         for name in available_tasks():
             t = load_task(name)
@@ -434,6 +459,8 @@ class Submit(Command):
 
     def run(self, args):
         task = _opt_task(args, args.speed)
+        from cmrt import jobs
+
         with _store(args.store) as store:
             run_id = jobs.submit(store, task, **_submit_kwargs(args))
         speed = f" --speed {task.speed:g}" if task.speed is not None else ""
@@ -456,6 +483,9 @@ class Optimize(Command):
     def run(self, args):
         if args.speeds:
             return self._family(args)
+        from cmrt import jobs
+        from cmrt.parallel import Evaluator
+
         task = _opt_task(args, args.speed)
         evaluator = Evaluator(args.backend, args.workers, args.scheduler)  # fails before the store is touched
         try:
@@ -472,6 +502,9 @@ class Optimize(Command):
     @staticmethod
     def _family(args) -> Output:
         """--speeds a,b,c: ``jobs.optimize_family``; each member's result is printed as it finishes."""
+        from cmrt import jobs
+        from cmrt.parallel import Evaluator
+
         items = args.speeds.split(",")
         if len(items) > inputs.MAX_SPEEDS:
             raise CmrtError(f"--speeds takes at most {inputs.MAX_SPEEDS} speeds, got {len(items)}")
@@ -506,12 +539,17 @@ class Worker(Command):
     def add_arguments(self, p):
         p.add_argument("--until-idle", action="store_true", help="exit when the queue is empty")
         p.add_argument("--once", action="store_true", help="run at most one job")
-        p.add_argument("--stale-after", type=inputs.arg(inputs.STALE_AFTER_S), default=jobs.DEFAULT_STALE_AFTER_S,
-                       metavar="SECONDS",
-                       help="resume a running job whose heartbeat is older than this")
+        p.add_argument("--stale-after", type=inputs.arg(inputs.STALE_AFTER_S), metavar="SECONDS",
+                       help="resume a running job whose heartbeat is older than this (default 120)")
         _backend_args(p)
 
     def run(self, args):
+        from cmrt import jobs
+        from cmrt.parallel import Evaluator
+
+        if args.stale_after is None:
+            args.stale_after = jobs.DEFAULT_STALE_AFTER_S
+
         def on_claim(c):
             if not args.json:
                 print(f"worker {jobs.worker_id()}: run {c.run_id} (attempt {c.attempt})", flush=True)
@@ -566,6 +604,8 @@ class Runs(Command):
         p.add_argument("--reference", choices=REFERENCE_MODES, help="only runs with this reference mode")
 
     def run(self, args):
+        from cmrt import query
+
         with _store(args.store, readonly=True) as store:
             rows = [query.run_summary(r) for r in store.runs(task=args.task, reference=args.reference)]
         return Output(rows, _table(rows, self.COLUMNS))
@@ -578,6 +618,8 @@ class Show(Command):
         p.add_argument("run", type=inputs.run_id_arg)
 
     def run(self, args):
+        from cmrt import query
+
         with _store(args.store, readonly=True) as store:
             d = query.run_details(store, args.run)
 
@@ -595,6 +637,8 @@ class Best(Command):
         _task_args(p)
 
     def run(self, args):
+        from cmrt import query
+
         task = resolve_task(args.task, args.speed, args.set, args.reference)
         with _store(args.store, readonly=True) as store:
             return Output(_result(query.best_run(store, task)), _result_text)
@@ -609,6 +653,8 @@ class Export(Command):
         p.add_argument("--out", metavar="FILE")
 
     def run(self, args):
+        from cmrt import query
+
         if args.out is not None:
             inputs.check_output(args.out, "--out")
         with _store(args.store, readonly=True) as store:
@@ -629,6 +675,8 @@ class Interpolate(Command):
         p.add_argument("--out", metavar="FILE.json", help="write the CMRT (usable as --curve FILE.json)")
 
     def run(self, args):
+        from cmrt.interpolate import interpolate, to_json
+
         if args.param is not None:
             inputs.param_name(args.param, "--param")
         if args.out is not None:
@@ -666,6 +714,12 @@ class Sequence(Command):
         p.add_argument("--trace", metavar="FILE.npz")
 
     def run(self, args):
+        from cmrt.curve import Cmrt
+        from cmrt.interpolate import superpose
+        from cmrt.objective import evaluate
+        from cmrt.sequence import load_sequence
+        from cmrt.simulate import simulate
+
         if args.trace is not None:
             inputs.check_output(args.trace, "--trace")
         seq = load_sequence(args.file)
@@ -759,6 +813,8 @@ class Bench(Command):
                        help="skip timing a full 'cmrt optimize TASK --seed 1 --init none' (throwaway store)")
 
     def run(self, args):
+        from cmrt.bench import run_bench
+
         backends = tuple(args.backends.split(",")) if args.backends else BACKENDS
         unknown = [b for b in backends if b not in BACKENDS]
         if unknown:
@@ -796,6 +852,8 @@ def _timed_optimization(task: Task) -> tuple[int, float]:
     throwaway store: (evaluations, wall seconds). Cold, because a warm start from the shipped library
     curve ends the fast bend after one generation - that would time start-up, not the optimization -
     and the user's store is neither read nor written."""
+    from cmrt import jobs
+
     with tempfile.TemporaryDirectory() as tmp, open_store(Path(tmp) / "bench.db") as store:
         t0 = time.perf_counter()
         run = jobs.optimize_now(store, task, seed=1, init="none")
@@ -811,6 +869,13 @@ class Demo(Command):
     def run(self, args):
         """Optimize the fast bend into the store and show the stored result (printed as it goes: it takes a
         while)."""
+        from cmrt import jobs, query
+        from cmrt.curve import Cmrt
+        from cmrt.library import library_curve
+        from cmrt.optimize import OptimizeSettings
+        from cmrt.parallel import Evaluator
+        from cmrt.task import load_task
+
         task = load_task("bend").with_speed(0.4)
         print("Fast bend (T = 0.4 s, trunk first, both feet planted). The reactive controller alone:")
         print(_report_text(simulate_report(task, Cmrt.zero(task.clip_s), "zero")))
@@ -819,7 +884,7 @@ class Demo(Command):
         evaluator = Evaluator(args.backend, args.workers, args.scheduler)
         try:
             with _store(args.store) as store:
-                progress = _Progress(_DEFAULTS.max_evals, enabled=sys.stderr.isatty())
+                progress = _Progress(OptimizeSettings().max_evals, enabled=sys.stderr.isatty())
                 try:
                     run = jobs.optimize_now(store, task, evaluator, progress, seed=1, init="none")
                 finally:

@@ -69,6 +69,11 @@ MAX_NUMBER_CHARS = 40  # a number written with more characters than this is refu
 MAX_RUN_S = 60.0  # clip_s + tail_s: the longest simulated clip (memory: see the module docstring)
 INT64_MAX = 2**63 - 1
 
+# The choices of --reference and --backend, defined here (and imported by cmrt.control.references and
+# cmrt.parallel) so that building the command line does not import MuJoCo, numba or dask.
+REFERENCE_MODES = ("center", "yu")
+BACKENDS = ("batch", "serial", "loky", "loky+batch", "dask", "dask+batch")
+
 
 # --- showing user values --------------------------------------------------------------
 def escape(text: str) -> str:

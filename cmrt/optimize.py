@@ -43,18 +43,13 @@ from __future__ import annotations
 
 import functools
 import math
-import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-with warnings.catch_warnings():
-    warnings.simplefilter("ignore")  # pycma warns when matplotlib is missing
-    import cma
-
 from cmrt import checkpoint
-from cmrt.checkpoint import InvalidCheckpoint
+from cmrt.checkpoint import InvalidCheckpoint, cma  # pycma, imported without matplotlib (import_cma)
 from cmrt.curve import N_KNOTS, Cmrt
 from cmrt.objective import EvalRecord
 

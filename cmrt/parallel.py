@@ -26,12 +26,11 @@ import numpy as np
 from cmrt.curve import Cmrt
 from cmrt.ensemble import combine, training_members
 from cmrt.errors import CmrtError, TransientFault
+from cmrt.inputs import BACKENDS
 from cmrt.objective import EvalRecord, evaluate
 from cmrt.props import prop_class
 from cmrt.simulate import simulate_batch
 from cmrt.task import Task
-
-BACKENDS = ("batch", "serial", "loky", "loky+batch", "dask", "dask+batch")
 
 
 def evaluate_candidate(task: Task, x: np.ndarray) -> EvalRecord:

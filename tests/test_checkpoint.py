@@ -6,6 +6,8 @@ import functools
 import os
 import pickle
 import sqlite3
+import subprocess
+import sys
 import time
 import zlib
 
@@ -486,3 +488,28 @@ def test_a_real_worker_process_refuses_a_pickle_checkpoint(tmp_path):
     _, err = worker.communicate(timeout=300)
     assert worker.returncode == 0, err
     assert_refused_and_nothing_else_changed(path, before, a, b, marker)
+
+
+_LEAN_IMPORT = """
+import sys
+import cmrt.optimize
+lean = "matplotlib" not in sys.modules and "scipy.stats" not in sys.modules
+import matplotlib.pyplot, scipy.stats  # importable as usual afterwards
+from cmrt.checkpoint import cma
+es = cma.CMAEvolutionStrategy([0.0] * 8, 0.5, {"verbose": -9, "seed": 3})
+print(lean, cma.s._pyplot is None, es.ask()[0][0])
+"""
+
+
+def test_pycma_is_imported_without_matplotlib_and_scipy_stats():
+    """``import_cma`` keeps matplotlib and scipy.stats (1.5 s) out of pycma's import; both import as usual
+    afterwards and CMA-ES samples exactly as with the plain import. A user's matplotlib, imported first, is
+    left alone (pycma then has its plotting)."""
+    lean = subprocess.run([sys.executable, "-c", _LEAN_IMPORT], capture_output=True, text=True, check=True)
+    plain = subprocess.run([sys.executable, "-c", "import matplotlib.pyplot\n" + _LEAN_IMPORT],
+                           capture_output=True, text=True, check=True)
+    got_lean, no_pyplot, x_lean = lean.stdout.split()
+    got_plain, no_pyplot_plain, x_plain = plain.stdout.split()
+    assert (got_lean, no_pyplot) == ("True", "True")
+    assert (got_plain, no_pyplot_plain) == ("False", "False")
+    assert x_lean == x_plain

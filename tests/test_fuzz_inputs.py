@@ -19,6 +19,7 @@ import itertools
 import json
 import math
 import shutil
+import sys
 from pathlib import Path
 from unittest import mock
 
@@ -26,7 +27,7 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from cmrt import cli
+from cmrt import cli, objective
 from cmrt.character import POSE_JOINTS, SIDED_JOINTS
 from cmrt.ensemble import RobustSpec
 from cmrt.props import PROPS
@@ -92,8 +93,9 @@ def check(result, json_out: bool = True) -> int:
 @contextlib.contextmanager
 def _no_physics():
     """The simulator replaced by a stub whose evaluation is all NaN (it must print as null)."""
-    with mock.patch.object(cli, "simulate", lambda task, curve, record=True: None), \
-            mock.patch.object(cli, "evaluate", lambda task, traj: fake_evaluation()):
+    # the CLI imports them when a verb runs: patched where they live (``cmrt.simulate`` names the function)
+    with mock.patch.object(sys.modules["cmrt.simulate"], "simulate", lambda task, curve, record=True: None), \
+            mock.patch.object(objective, "evaluate", lambda task, traj: fake_evaluation()):
         yield
 
 

@@ -8,11 +8,12 @@ import json
 import math
 import os
 import sqlite3
+import sys
 
 import numpy as np
 import pytest
 
-from cmrt import cli, inputs
+from cmrt import cli, inputs, objective
 from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
 from cmrt.inputs import MAX_RUN_S, Range, shown
@@ -210,8 +211,9 @@ def test_show_and_export_json_never_print_nan(tmp_path, capsys):
 
 
 def test_simulate_json_turns_nan_into_null(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(cli, "simulate", lambda task, curve, record=True: None)
-    monkeypatch.setattr(cli, "evaluate", lambda task, traj: fake_evaluation())
+    # the CLI imports them when a verb runs: patched where they live (``cmrt.simulate`` names the function)
+    monkeypatch.setattr(sys.modules["cmrt.simulate"], "simulate", lambda task, curve, record=True: None)
+    monkeypatch.setattr(objective, "evaluate", lambda task, traj: fake_evaluation())
     store = tmp_path / "s.sqlite"
     r = call(capsys, ["simulate", "bend", "--json", "--store", store])
     assert r.rc == 0 and assert_valid_json(r.out)["objective"] is None
