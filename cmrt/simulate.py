@@ -61,6 +61,8 @@ PROTECTIVE_DAMPING_PER_RAD_S = 0.05
 # Scoring runs in the center mode with feet planted do their control steps in one compiled call
 # (cmrt.tick); False runs them on the Python path, as traces do (tests compare the two bit for bit).
 COMPILED_TICK = True
+# ...and step the batch through MuJoCo's bound C++ ``step`` (see ``_direct_step``); False: ``Batch.step``.
+DIRECT_STEP = True
 CONTROL_FIELDS = ("qpos", "qvel", "cdof", "cdof_dot", "cvel", "cinert", "M", "qfrc_bias", "qfrc_passive",
                   "subtree_com", "xpos", "geom_xpos")
 STATE_FIELDS = ("qpos", "qvel", "qacc_warmstart")
@@ -428,6 +430,28 @@ def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarra
     return ctrl, bad
 
 
+def _direct_step(batch: mujoco.batch.Batch, stage: mujoco.mjtStage):
+    """``step(ids32)``: ``batch.step(ids, stage=stage)`` without the checks ``Batch.step`` makes of its ids
+    on every call (dtype, order, uniqueness, range: 5 us, as much Python as the rest of a lean step), for
+    ids the scoring loop validated once when they changed - sorted, unique, in range, int32 - or None for
+    all rows. It calls the C++ batch ``Batch.step`` itself wraps (the private ``_b``), so the simulation is
+    the same call (tests/test_tick.py compares the two bit for bit and checks this path is taken with
+    the installed MuJoCo); a MuJoCo without it gets the public ``Batch.step``. 11 % of the seed-1
+    optimization's evaluation time on 2 cores (docs/performance.md)."""
+    raw = getattr(getattr(batch, "_b", None), "step", None)
+    check = getattr(batch, "_check", None)
+    if not DIRECT_STEP or raw is None or check is None:
+        return lambda ids32: batch.step(ids=ids32, stage=stage)
+    stage_int = int(stage)
+
+    def step(ids32: np.ndarray | None) -> None:
+        failed = raw(ids32, 1, stage_int)
+        if failed:  # a simulation MuJoCo could not step: Batch.step's own error
+            check(ids32, failed)
+
+    return step
+
+
 def _ground_records(rec: _Recorder, touch: np.ndarray, sample_x: np.ndarray, sample_every: int) -> None:
     """The ground-force records of the steps a compiled scoring loop ran, from its per-step heel/toe forces
     ``touch`` (n, k, 4; a row's readings past its last step are cut off later) and heel/toe x at the sample
@@ -615,12 +639,14 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
         sample_x = np.full((n, n_steps, n_points), np.nan)  # heel/toe x at the CoP sample steps
         sensors = b["sensordata"][:, :n_points]
         every, every_step, thorax = config.control_every, prop.every_step, ch.thorax_body
+        step_rows, rows32 = _direct_step(batch, vel_stage), None  # rows32: the stepped rows, int32 (None: all)
         while k < n_steps:
             if k >= next_end:
                 ids = still_running(k)
                 if ids.size == 0:
                     break
                 sel = step_ids = ids
+                rows32 = ids.astype(np.int32)  # sorted and unique: a subset of arange(n)
                 next_end = falls.end[ids].min()
             control = k % every == 0
             if control or every_step:
@@ -641,7 +667,7 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
                                rec["lo"], rec["hi"], rec["qpos"], rec_com, rec["pref"], sample_x)
             if k in push_steps:
                 b["xfrc_applied"][sel, thorax, 0] = drive.push_n[sel, k]
-            batch.step(ids=step_ids, stage=vel_stage)
+            step_rows(rows32)
             if has_contact_force:
                 rec["prop_force"][sel, k] = prop.contact_force(b, sel)
             touch[:, k] = sensors  # rows that stopped repeat their last reading: cut off at ``last``

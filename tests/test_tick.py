@@ -2,6 +2,7 @@
 
 import sys
 
+import mujoco.batch
 import numpy as np
 import pytest
 
@@ -104,4 +105,23 @@ def test_a_step_the_compiled_path_cannot_do_hands_the_clip_to_the_python_path(na
     handed_over = simulate_batch(task, curves, threads=1)
     assert len(calls) == 100
     for a, b in zip(reference, handed_over, strict=True):
+        _assert_identical(a, b)
+
+
+def test_the_direct_step_is_taken_and_equals_batch_step(monkeypatch):
+    """The scoring loop steps through MuJoCo's bound C++ ``step`` with ids validated once (``_direct_step``):
+    with the installed MuJoCo that path is taken (``Batch.step`` is not called), and every array is bit for
+    bit what ``Batch.step`` gives - also after falls, when only some rows step."""
+    task = load_task("bend").with_speed(0.4)
+    curves = _clips(task)
+    simulate_batch(task, curves[:1])  # the settled start pose, cached: its own steps are not counted
+    calls = []
+    step = mujoco.batch.Batch.step
+    monkeypatch.setattr(mujoco.batch.Batch, "step", lambda self, *a, **k: calls.append(1) or step(self, *a, **k))
+    direct = simulate_batch(task, curves, threads=1)
+    assert calls == [] and any(t.fell for t in direct) and not all(t.fell for t in direct)
+    monkeypatch.setattr(simulate_module, "DIRECT_STEP", False)
+    public = simulate_batch(task, curves, threads=1)
+    assert len(calls) > 1000
+    for a, b in zip(direct, public, strict=True):
         _assert_identical(a, b)
