@@ -1,7 +1,8 @@
 """Split the batched evaluator's wall time into MuJoCo stepping, the compiled control step and the rest.
 
 Alternates, in one process, the physics floor (the same steps, zero control) with ``simulate_batch`` of N
-candidates, both on ONE thread (one ``Batch`` thread; one group of clips), timing ``Batch.step`` and
+candidates, both on ONE thread (one ``Batch`` thread; one group of clips), timing the physics steps
+(``Batch.step``, or the scoring loop's direct step, ``simulate._direct_step``) and
 ``cmrt.tick.control_tick`` (the controller kernel, the monitor and the records of a control step) inside
 the latter; "rest" is the evaluator's own Python (the loop, CoP samples, setup). On one thread the parts
 add up to the wall time; the default evaluator runs one such group per core in parallel threads, and
@@ -44,11 +45,22 @@ def main() -> None:
     state = settled_state(task, ControllerConfig())
     spent = {"step": 0.0, "tick": 0.0}
     step, control_tick = mujoco.batch.Batch.step, simulate_module.control_tick
+    direct_step = simulate_module._direct_step
 
-    def timed_step(self, *a, **k):
+    def timed_step(self, *a, **k):  # the Python path's steps
         t0 = time.perf_counter()
         step(self, *a, **k)
         spent["step"] += time.perf_counter() - t0
+
+    def timed_direct_step(batch, stage):  # the scoring loop's steps (simulate._direct_step)
+        inner = direct_step(batch, stage)
+
+        def timed(rows):
+            t0 = time.perf_counter()
+            inner(rows)
+            spent["step"] += time.perf_counter() - t0
+
+        return timed
 
     def timed_tick(*a):
         t0 = time.perf_counter()
@@ -77,11 +89,13 @@ def main() -> None:
     for _ in range(args.rounds):
         f1 = floor(1)
         mujoco.batch.Batch.step, simulate_module.control_tick = timed_step, timed_tick
+        simulate_module._direct_step = timed_direct_step
         spent.update(step=0.0, tick=0.0)
         try:
             w1 = wall(lambda: simulate_batch(task, curves, threads=1))
         finally:
             mujoco.batch.Batch.step, simulate_module.control_tick = step, control_tick
+            simulate_module._direct_step = direct_step
         fc = floor(cores)
         wc = wall(lambda: simulate_batch(task, curves))
         rows.append((f1, w1, spent["step"], spent["tick"], w1 - spent["step"] - spent["tick"], fc, wc))
