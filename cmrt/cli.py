@@ -385,6 +385,7 @@ def _opt_defaults(args) -> None:
 
 
 def _submit_kwargs(args) -> dict:
+    _opt_defaults(args)
     return dict(seed=args.seed, max_evals=args.max_evals, popsize=args.popsize, sigma0=args.sigma0,
                 min_evals=args.min_evals, init=args.init, stall_generations=args.stall_generations)
 
