@@ -55,6 +55,13 @@ class Character:
         """Geom ids of the heel and toe spheres (right heel, right toe, left heel, left toe)."""
         return tuple(g for pair in self.foot_points for g in pair)
 
+    def joint_range_rad(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) of each actuator's joint (rad; +-inf for an unlimited joint): the stops of the MJCF."""
+        m = self.model
+        joints = m.actuator_trnid[:, 0]
+        limited = m.jnt_limited[joints].astype(bool)
+        return (np.where(limited, m.jnt_range[joints, 0], -np.inf), np.where(limited, m.jnt_range[joints, 1], np.inf))
+
     def dof(self, joint_name: str) -> int:
         """The dof index of a joint by name."""
         return int(self.model.joint(joint_name).dofadr[0])

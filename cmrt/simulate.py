@@ -492,7 +492,7 @@ class _CompiledTick:
         self.geometry = (geo.points, geo.body_geoms, geo.half, geo.radius, geo.leg_dofs, geo.root_pitch, act,
                          FOOT_POINT_RADIUS_M, CONTACT_HEIGHT_M, limits.com_height_m, limits.airborne_s,
                          limits.roll_rad, limits.capture_margin_m)
-        self.controller = (c.chain, c.m_rows, c.m_cols, c.point_bodies, c.actuated, c.limits, c.w2, c.params)
+        self.controller = (c.chain, c.m_rows, c.m_cols, c.point_bodies, c.actuated, c.bounds, c.w2, c.params)
         self.drive = (*(_read_only(r if variants else r[None]) for r in (drive.q_ref, drive.qd_ref, drive.qdd_ref)),
                       drive.variant_of.astype(np.int64) if variants else np.zeros(n, np.int64),
                       drive.disp_m, drive.disp_vel_m_s)

@@ -22,11 +22,46 @@ on every task):
 
 from __future__ import annotations
 
+import hashlib
+from pathlib import Path
+
 import numpy as np
 from numba import njit
 
+from cmrt import balance
 from cmrt.balance import _first_failed
+from cmrt.control import kernel
 from cmrt.control.kernel import N_INFO, N_SWING, control_step
+
+
+def drop_stale_cache(here: Path = Path(__file__)) -> bool:
+    """Drop this module's numba cache when a module it compiles in has changed; True if it did.
+
+    numba keys a cached function by its own source file only, and ``control_tick`` compiles
+    ``kernel.control_step`` and ``balance._first_failed`` into itself: after an edit of kernel.py alone the
+    cached tick would go on running the old controller while the Python path runs the new one (measured:
+    trajectories differed from the first control step). A stamp of those sources next to the cache says
+    which versions the cache was built from. Best effort: an unwritable cache directory is numba's
+    user-wide one, which this does not touch."""
+    stamp = hashlib.sha256(b"".join(Path(m.__file__).read_bytes() for m in (kernel, balance))).hexdigest()
+    cache = here.parent / "__pycache__"
+    marker = cache / f"{here.stem}.inlined.sha256"
+    try:
+        if marker.read_text() == stamp:
+            return False
+    except OSError:
+        pass
+    try:
+        for f in list(cache.glob(f"{here.stem}.*.nbi")) + list(cache.glob(f"{here.stem}.*.nbc")):
+            f.unlink()
+        cache.mkdir(exist_ok=True)
+        marker.write_text(stamp)
+    except OSError:
+        return False
+    return True
+
+
+drop_stale_cache()  # before the first call loads the cache
 
 
 @njit(cache=True, nogil=True)

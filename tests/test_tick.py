@@ -125,3 +125,25 @@ def test_the_direct_step_is_taken_and_equals_batch_step(monkeypatch):
     assert len(calls) > 1000
     for a, b in zip(direct, public, strict=True):
         _assert_identical(a, b)
+
+
+def test_a_changed_inlined_module_drops_the_compiled_ticks_cache(tmp_path):
+    """numba keys a cache by the function's own file: when kernel.py or balance.py change, the tick's cached
+    machine code (which compiled them in) must go, or the compiled path runs the old controller."""
+    from cmrt.tick import drop_stale_cache
+
+    here = tmp_path / "tick.py"
+    here.write_text("")
+    cache = tmp_path / "__pycache__"
+    cache.mkdir()
+    stale = [cache / "tick.control_tick-130.py311.nbi", cache / "tick.control_tick-130.py311.1.nbc"]
+    other = cache / "simulate.cpython-311.pyc"
+    for f in [*stale, other]:
+        f.write_text("x")
+    assert drop_stale_cache(here)  # no stamp yet: built from unknown sources
+    assert not any(f.exists() for f in stale) and other.exists()
+    stale[0].write_text("x")
+    assert not drop_stale_cache(here)  # same sources: the cache stays
+    assert stale[0].exists()
+    (cache / "tick.inlined.sha256").write_text("another kernel")
+    assert drop_stale_cache(here) and not stale[0].exists()

@@ -82,6 +82,13 @@ class ControllerConfig:
     swing_k: float = 400.0  # 1/s^2, swing foot stiffness about its planned path
     swing_d: float = 40.0  # 1/s, its damping (critical for swing_k)
     swing_leg_tracking: float = 0.01  # factor on the swing leg's joint-tracking weight while it swings
+    # Motor limits and joint stops as rows of the QP (issue 25), so the plan is one the motors can carry out and
+    # never leans on a stop; off, torques beyond a limit are clipped after the solve (the v0.2 controller, kept
+    # bit for bit until the library and the docs' tables are re-measured with the limits in the plan).
+    limits_in_plan: bool = False
+    stop_k: float = 400.0  # 1/s^2, the plan approaches a joint stop no faster than this spring (docs/controller.md)
+    stop_d: float = 40.0  # 1/s, its damping (critical)
+    stop_margin_rad: float = 0.02  # the plan keeps this far from every joint stop
 
     def tracking_weights(self, ch: Character) -> np.ndarray:
         """Per-dof weight of joint tracking in the QP (root translation untracked: momentum sets it)."""
@@ -147,6 +154,10 @@ class MomentumBalanceController:
         self.w2 = config.tracking_weights(ch) ** 2
         self.actuated = np.array(ch.actuated_dofs, dtype=np.int64)
         self.limits = ch.torque_limit_nm.astype(float)
+        # per actuator: torque limit, and the joint range less the stop margin (rows of the QP)
+        lo, hi = ch.joint_range_rad()
+        self.bounds = np.ascontiguousarray(np.stack([self.limits, lo + config.stop_margin_rad,
+                                                     hi - config.stop_margin_rad], axis=1))
         self.mass = ch.mass_kg
         self.points = np.array(ch.foot_point_geoms, dtype=np.int64)  # heel_r, toe_r, heel_l, toe_l
         self.point_bodies = ch.model.geom_bodyid[self.points].astype(np.int64)
@@ -163,7 +174,8 @@ class MomentumBalanceController:
                              (kernel.P_RD, c.roll_d), (kernel.P_RADIUS, FOOT_POINT_RADIUS_M),
                              (kernel.P_DUALREG, DUAL_REGULARIZATION), (kernel.P_SW, c.swing_weight),
                              (kernel.P_SK, c.swing_k), (kernel.P_SD, c.swing_d),
-                             (kernel.P_SWT, c.swing_leg_tracking)):
+                             (kernel.P_SWT, c.swing_leg_tracking), (kernel.P_JK, c.stop_k),
+                             (kernel.P_JD, c.stop_d), (kernel.P_LIMITS, float(c.limits_in_plan))):
             params[index] = value
         self.params = params
         self._per_n: dict[int, dict] = {}
@@ -205,7 +217,7 @@ class MomentumBalanceController:
         kernel.control_step(
             c["rows"], *(_as_kernel(f[k]) for k in _FIELDS),
             self.chain, self.m_rows, self.m_cols, self.points, self.point_bodies, self.leg_dofs, self.actuated,
-            self.limits, self.w2, self.params,
+            self.bounds, self.w2, self.params,
             *(_shared_rows(r, buf, view) for r, (buf, view) in zip((q_ref, qd_ref, qdd_ref), c["refs"], strict=True)),
             _as_kernel(com_ref_x), _as_kernel(com_ref_vel_x), _as_kernel(cop_des_x),
             _as_kernel(in_contact, np.bool_), c["mass"] if mass_kg is None else _as_kernel(mass_kg),

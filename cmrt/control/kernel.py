@@ -29,8 +29,8 @@ from numba import njit
 FLAT, HEEL, TOE, AIR = 0, 1, 2, 3
 # Indices into the parameter vector (built by controller.MomentumBalanceController).
 (P_KL, P_DL, P_KT, P_DT, P_BL, P_BH, P_BT, P_EPS, P_G, P_MU, P_FMIN, P_DAMP, P_RW, P_RK, P_RD,
- P_RADIUS, P_DUALREG, P_SW, P_SK, P_SD, P_SWT) = range(21)
-N_PARAMS = 21
+ P_RADIUS, P_DUALREG, P_SW, P_SK, P_SD, P_SWT, P_JK, P_JD, P_LIMITS) = range(24)
+N_PARAMS = 24
 # The swing foot's task-space target (cmrt.control.stepping): heel point x, z, foot pitch; their rates
 # and accelerations; then the bend added to the stance knee's reference while the foot swings (rad).
 # ``swing_foot`` per simulation: -1 (both feet support), 0 (right swings), 1 (left).
@@ -38,7 +38,11 @@ N_SWING = 10
 S_CROUCH = 9
 N_INFO = 6  # planned F_x, F_z, CoP x, right foot state, left foot state, torque saturated
 N_INEQ = 5  # F_z >= n f_min, two friction rows, two CoP rows
-MAX_PASSES = 8
+MAX_PASSES = 8  # active-set passes with the wrench rows alone
+# ...and with the motors' limits and the joint stops as rows too (``P_LIMITS``): one row enters or leaves per pass
+MAX_PASSES_LIMITS = 40
+# A torque beyond its limit by more than this fraction means the QP found no plan within the limits.
+LIMIT_SLACK = 1e-6
 TOL = 1e-9
 # Feet farther apart than this (heel to heel, m) stand in a split stance - only a step gets them there: the
 # plan's load is then split with every point's share bounded below (``bounded_shares``). Side by side the
@@ -144,7 +148,7 @@ def bounded_shares(x, carries, cop, lower):
 
 
 @njit(cache=True, nogil=True)
-def solve_qp(Q, g, E, e, C, c, c_on, dual_reg):
+def solve_qp(Q, g, E, e, C, c, c_on, dual_reg, passes=MAX_PASSES):
     """min 1/2 x'Qx - g'x  s.t.  E x = e,  C x + c >= 0 (rows with c_on), by a primal active set.
 
     Each pass solves the KKT system of the equalities and the active inequalities; the most
@@ -155,7 +159,7 @@ def solve_qp(Q, g, E, e, C, c, c_on, dual_reg):
     active = np.zeros(ni, np.bool_)
     order = np.empty(ni, np.int64)
     x = np.zeros(nx)
-    for _ in range(MAX_PASSES):
+    for _ in range(passes):
         na = 0
         for k in range(ni):
             if active[k]:
@@ -326,9 +330,14 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
         R[2, 0], R[2, 1], r0[2] = 1.0, mu, mu * mg
         R[3, 0], R[3, 1], R[3, 2], r0[3] = arm, com[0] - lo, -1.0, (com[0] - lo) * mg - edge
         R[4, 0], R[4, 1], R[4, 2], r0[4] = -arm, hi - com[0], 1.0, (hi - com[0]) * mg - edge
-        C = R @ A
-        c = R @ a + r0
-        c_on = np.zeros(N_INEQ, np.bool_)
+        nu = actuated.size
+        in_plan = params[P_LIMITS] > 0.0  # off: motor limits clipped after the solve (the v0.2 controller, bit for bit)
+        nrow = N_INEQ + 4 * nu if in_plan else N_INEQ
+        C = np.zeros((nrow, nv))
+        c = np.empty(nrow)
+        C[:N_INEQ] = R @ A
+        c[:N_INEQ] = R @ a + r0
+        c_on = np.zeros(nrow, np.bool_)
         if grounded:
             c_on[:3] = True
             if rolling:  # the CoP is exactly at the rolling edge
@@ -336,18 +345,16 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
                 e[ne] = -c[3]
                 ne += 1
             else:
-                c_on[3:] = True
+                c_on[3:N_INEQ] = True
         else:  # airborne: no ground force at all
             for r in range(3):
                 E[ne] = A[r]
                 e[ne] = -a[r] - (mg if r == 1 else 0.0)
                 ne += 1
-        qdd = solve_qp(Q, g, E[:ne], e[:ne], C, c, c_on, params[P_DUALREG])
 
-        # inverse dynamics with the plan's ground forces, split over the loaded points
-        w = A @ qdd + a
-        fx, fz = w[0], w[1] + mg
-        cop = com[0] + (arm * fx - w[2]) / fz if fz > 1e-9 else com[0]
+        # the torques are affine in the plan, tau = T qdd + t0 (inverse dynamics with the plan's ground
+        # forces split over the loaded points, below): the motors' limits are rows of the QP, so the plan
+        # is one the motors can carry out - nothing is clipped after the solve
         carries = np.zeros(4, np.bool_)
         for foot in range(2):
             carries[2 * foot] = state[foot] == FLAT or state[foot] == HEEL
@@ -366,9 +373,46 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
         for k in range(m_rows.size):
             M[m_rows[k], m_cols[k]] = M_sparse[row, k]
             M[m_cols[k], m_rows[k]] = M_sparse[row, k]
-        gen = M @ qdd
+        h = np.empty(nv)
         for j in range(nv):
-            gen[j] += qfrc_bias[row, j] - qfrc_passive[row, j]
+            h[j] = qfrc_bias[row, j] - qfrc_passive[row, j]
+        Tm = M.copy()  # d tau / d qdd over all dofs (the actuated rows are taken below)
+        t0 = h.copy()
+        if grounded and in_plan:
+            # F_z share of point p: fz / count + (x_p - mean) (cop fz - mean fz) / spread, and cop fz =
+            # com_x fz + arm F_x - Hdot is linear in w; F_x is split equally (exact for feet side by side)
+            for p in range(4):
+                if carries[p]:
+                    lever = (pts[p, 0] - mean) / spread if spread > 1e-12 else 0.0
+                    dz = A[1] / count + lever * ((com[0] - mean) * A[1] + arm * A[0] - A[2])
+                    z0 = (a[1] + mg) / count + lever * ((com[0] - mean) * (a[1] + mg) + arm * a[0] - a[2])
+                    Tm -= np.outer(Jp[p, 0], A[0] / count) + np.outer(Jp[p, 1], dz)
+                    t0 -= Jp[p, 0] * (a[0] / count) + Jp[p, 1] * z0
+        kj, dj = params[P_JK], params[P_JD]
+        for u in range(nu if in_plan else 0):
+            ju = actuated[u]
+            lim = limits[u, 0]
+            C[N_INEQ + 2 * u] = -Tm[ju]
+            c[N_INEQ + 2 * u] = lim - t0[ju]
+            C[N_INEQ + 2 * u + 1] = Tm[ju]
+            c[N_INEQ + 2 * u + 1] = lim + t0[ju]
+            # joint stops: the joint may approach its stop (less a margin) no faster than a critically damped
+            # spring would, qdd >= -k (q - lo) - d qd: the plan never leans on a stop, whose force it does not
+            # model (a standing knee on its 0 rad stop carried up to 47 N m that way)
+            r = N_INEQ + 2 * nu + 2 * u
+            C[r, ju] = 1.0
+            c[r] = kj * (q[ju] - limits[u, 1]) + dj * qd[ju]
+            C[r + 1, ju] = -1.0
+            c[r + 1] = -kj * (q[ju] - limits[u, 2]) - dj * qd[ju]
+            c_on[N_INEQ + 2 * u] = c_on[N_INEQ + 2 * u + 1] = c_on[r] = c_on[r + 1] = True
+        qdd = solve_qp(Q, g, E[:ne], e[:ne], C, c, c_on, params[P_DUALREG],
+                       MAX_PASSES_LIMITS if in_plan else MAX_PASSES)
+
+        # inverse dynamics with the plan's ground forces, split over the loaded points
+        w = A @ qdd + a
+        fx, fz = w[0], w[1] + mg
+        cop = com[0] + (arm * fx - w[2]) / fz if fz > 1e-9 else com[0]
+        gen = M @ qdd + h
         split = ((carries[0] or carries[1]) and (carries[2] or carries[3])
                  and abs(pts[0, 0] - pts[2, 0]) > SPLIT_STANCE_M and fz > 1e-9)
         if split:
@@ -382,13 +426,12 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
                     if spread > 1e-12:
                         share += (pts[p, 0] - mean) * (cop - mean) / spread
                 gen -= Jp[p, 0] * (share * fx) + Jp[p, 1] * (share * fz)
-        saturated = 0.0
+        saturated = 0.0  # clipped at a motor limit (with the limits in the plan: the QP found no plan within them)
         for u in range(actuated.size):
             t = gen[actuated[u]]
-            if t > limits[u]:
-                t, saturated = limits[u], 1.0
-            elif t < -limits[u]:
-                t, saturated = -limits[u], 1.0
-            tau_out[i, u] = t
+            lim = limits[u, 0]
+            if abs(t) > (lim * (1.0 + LIMIT_SLACK) if in_plan else lim):
+                saturated = 1.0
+            tau_out[i, u] = min(max(t, -lim), lim)  # within LIMIT_SLACK: rounding only
         info_out[i, 0], info_out[i, 1], info_out[i, 2] = fx, fz, cop
         info_out[i, 3], info_out[i, 4], info_out[i, 5] = state[0], state[1], saturated
