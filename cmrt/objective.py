@@ -53,7 +53,6 @@ MISSED_GOAL_PENALTY = 30.0  # ABC 5: a missed catch is heavily penalised (also: 
 NOT_SETTLED_PENALTY = 5.0
 TIMING_WINDOW_FACTOR = 1.5  # timing_lag_s looks at [P, P + 1.5 T] (within the clip): a late motion is seen
 DRIVING_JOINT_RAD = 0.1  # joints whose reference moves more than this over [P, P + T] drive the motion
-FALL_CAPTURE_DEADBAND_M = 0.01  # capture point this close to the support centre: the CoM velocity decides
 BODY_ON_FLOOR_Z_M = 0.0  # as the balance monitor's BODY_ON_FLOOR check: a non-foot body below the floor
 # Figures only a recorded run (traces, ``cmrt simulate``) has, or has differently (a topple played out): a scoring
 # run reports None (fall_direction from the capture point). Nothing the score depends on is among them.
@@ -344,13 +343,13 @@ def fall_direction(traj: Trajectory) -> dict:
     """Which way the body went: ``forward`` / ``backward`` (None: no fall, or a blow-up). A topple played out
     (recorded runs): the side of the support centre at the fall the CoM is on when a body other than the feet
     first reaches the floor, or at the end of the record (``source`` "topple"). A scoring run stops at the fall:
-    the side of the capture point at the fall, or the sign of the CoM velocity when the capture point is
-    within ``FALL_CAPTURE_DEADBAND_M`` of the support centre (``source`` "capture_point")."""
+    the edge of the feet the capture point has left at the fall, or, if it is still between them (a fall for
+    another reason: a rolled foot, the CoM low), the sign of the CoM velocity (``source`` "capture_point")."""
     none = {"fall_direction": None, "fall_direction_source": None}
     if not traj.fell or traj.diverged:
         return none
-    k = _fall_index(traj)
-    center = traj.support_center_x_m[min(k, traj.time_s.size - 1)]
+    k = min(_fall_index(traj), traj.time_s.size - 1)
+    center = traj.support_center_x_m[k]
     span = _after_fall_span(traj)
     if span is not None:
         d, source = traj.com_m[span[1], 0] - center, "topple"
@@ -358,7 +357,9 @@ def fall_direction(traj: Trajectory) -> dict:
         xi, vel = traj.fall_capture_point_x_m, traj.fall_com_vel_x_m_s
         if xi is None or vel is None:
             return none
-        d, source = (xi - center if abs(xi - center) > FALL_CAPTURE_DEADBAND_M else vel), "capture_point"
+        lo, hi = traj.support_lo_x_m[k], traj.support_hi_x_m[k]
+        d = xi - hi if xi > hi else xi - lo if xi < lo else vel if vel != 0 else xi - center
+        source = "capture_point"
     if not np.isfinite(d):
         return none
     return {"fall_direction": "forward" if d >= 0 else "backward", "fall_direction_source": source}

@@ -102,5 +102,5 @@ def test_a_push_falls_the_way_it_pushes_and_the_topple_is_measured(force_n, dire
     dofs = list(character().actuated_dofs)
     assert ev.after_fall_max_joint_speed_rad_s == np.abs(traj.qvel[k : c + 1][:, dofs]).max() > 1.0
     assert ev.after_fall_peak_foot_force_bw > 0.0 and ev.after_fall_max_foot_lift_m > 0.0
-    assert ev.max_plan_cop_error_m < 0.01  # the push is not a plan the feet could not carry out
+    assert ev.max_plan_cop_error_m < 0.02  # measured 8 mm (+250 N), 1 mm (-250 N): the plan is carried out
     assert np.sign(traj.com_m[c, 0] - traj.support_center_x_m[k]) == np.sign(force_n)
