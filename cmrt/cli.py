@@ -126,7 +126,22 @@ def _report_text(r: dict) -> str:
         f"{_n(r['airborne_s'], '.3f')} s  max joint speed {_n(r['max_joint_speed_rad_s'], '.1f')} rad/s",
         *([f"  steps {r['steps']} (lift-off at {', '.join(f'{t:.3f}' for t in r['step_times_s'])} s)"]
           if r.get("steps") and isinstance(r.get("step_times_s"), list | tuple) else []),
+        f"  planned vs executed CoP {_n(r.get('max_plan_cop_error_m'), '.2f', 1000)} mm  timing lag "
+        f"{_n(r.get('timing_lag_s'), '.3f')} s",
+        *([_after_fall_text(r)] if r.get("fall_direction") is not None else []),
     ])
+
+
+def _after_fall_text(r: dict) -> str:
+    """The fall's direction and, for a topple played out, how violent it was."""
+    line = f"  fell {r['fall_direction']} (by its {r['fall_direction_source'].replace('_', ' ')})"
+    if r.get("after_fall_max_joint_speed_rad_s") is None:
+        return line
+    floor = r.get("after_fall_floor_contact_s")
+    until = "the end" if floor is None else f"the body on the floor at {floor:.3f} s"
+    return (f"{line}; to {until}: joint speed {_n(r['after_fall_max_joint_speed_rad_s'], '.1f')} rad/s, foot "
+            f"force {_n(r['after_fall_peak_foot_force_bw'], '.2f')} x BW, foot lift "
+            f"{_n(r['after_fall_max_foot_lift_m'], '.1f', 100)} cm")
 
 
 def _result(run: Run) -> dict:
@@ -741,7 +756,8 @@ class Sequence(Command):
         return Output(r, lambda r: f"{escape(seq.name)} ({len(seq.motions)} motions, {seq.clip_s:.2f} s) "
                       f"curve={args.curve}: {_outcome(r)}\n  objective {_n(r['objective'], '.4f')}  max |CoP error| "
                       f"{_n(r['max_cop_error_m'], '.4f')} m  final pose error {_n(r['final_pose_error_rad'], '.4f')} "
-                      "rad")
+                      f"rad  timing lag {_n(r['timing_lag_s'], '.3f')} s"
+                      + ("" if r["fall_direction"] is None else "\n" + _after_fall_text(r)))
 
 
 class Plot(Command):

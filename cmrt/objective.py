@@ -31,7 +31,7 @@ Penalty (0 for a success), graded so that CMA-ES has a slope:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -51,6 +51,14 @@ DIVERGED_PENALTY = 100.0
 NOT_PERFORMED_PENALTY = 5.0
 MISSED_GOAL_PENALTY = 30.0  # ABC 5: a missed catch is heavily penalised (also: slab not toppled, no hit)
 NOT_SETTLED_PENALTY = 5.0
+TIMING_WINDOW_FACTOR = 1.5  # timing_lag_s looks at [P, P + 1.5 T] (within the clip): a late motion is seen
+DRIVING_JOINT_RAD = 0.1  # joints whose reference moves more than this over [P, P + T] drive the motion
+BODY_ON_FLOOR_Z_M = 0.0  # as the balance monitor's BODY_ON_FLOOR check: a non-foot body below the floor
+# Figures only a recorded run (traces, ``cmrt simulate``) has, or has differently (a topple played out): a scoring
+# run reports None (fall_direction from the capture point). Nothing the score depends on is among them.
+TRACE_ONLY_FIELDS = ("max_plan_cop_error_m", "fall_direction", "fall_direction_source",
+                     "after_fall_max_joint_speed_rad_s", "after_fall_peak_foot_force_bw", "after_fall_max_foot_lift_m",
+                     "after_fall_floor_contact_s")
 
 
 @dataclass(frozen=True)
@@ -102,6 +110,19 @@ class Evaluation:
     # each lifted off
     steps: int = 0
     step_times_s: tuple[float, ...] = ()
+    # diagnostics (docs/controller.md, *Diagnostics*); none enters the objective or the verdict
+    max_plan_cop_error_m: float | None = None  # planned vs executed CoP (recorded runs)
+    timing_lag_s: float | None = None  # how late the motion was done (pose changes)
+    fall_direction: str | None = None  # "forward" / "backward" (None: no fall, or a blow-up)
+    fall_direction_source: str | None = None  # "topple" (played out) or "capture_point" (a scoring run)
+    after_fall_max_joint_speed_rad_s: float | None = None  # from the fall to the first non-foot floor contact
+    after_fall_peak_foot_force_bw: float | None = None
+    after_fall_max_foot_lift_m: float | None = None
+    after_fall_floor_contact_s: float | None = None  # None: no body other than the feet reached the floor
+
+    def scored(self) -> Evaluation:
+        """This evaluation without the trace-only figures: what a scoring run of the same clip gives."""
+        return replace(self, **{name: None for name in TRACE_ONLY_FIELDS})
 
 
 def _sample_index(task: Task, traj: Trajectory) -> np.ndarray:
@@ -229,6 +250,10 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
         ball_sag_m=traj.prop_extras.get("ball_sag_m"),
         steps=len(traj.step_times_s),
         step_times_s=tuple(round(float(t), 4) for t in traj.step_times_s),
+        max_plan_cop_error_m=plan_cop_error_m(traj, contact["first_contact_s"]),
+        timing_lag_s=timing_lag_s(task, traj),
+        **fall_direction(traj),
+        **after_fall(traj),
     )
 
 
@@ -242,3 +267,117 @@ def _contact_summary(traj: Trajectory, before: np.ndarray) -> dict:
     touching = np.flatnonzero(f > CONTACT_FORCE_N)
     return {"first_contact_s": float(traj.time_s[before][touching[0]]) if touching.size else None,
             "peak_contact_force_n": float(f.max()), "contact_impulse_n_s": float(f.sum() * dt)}
+
+
+def plan_cop_error_m(traj: Trajectory, first_contact_s: float | None = None) -> float | None:
+    """Largest |planned - executed CoP| over the control steps of a recorded run: the controller's
+    ``ControlOutput.cop_x_m`` against the CoP the touch sensors measured during the physics step its torques
+    were first applied in. Only where the feet carry ``MIN_FOOT_FORCE_FRACTION`` of body weight, before any
+    fall, outside ``IMPACT_WINDOW_S`` after the first hand-prop contact, no foot swinging (the record is NaN
+    there). None without a plan (an unrecorded run)."""
+    weight = character().mass_kg * GRAVITY_M_S2
+    keep = np.isfinite(traj.plan_cop_x_m) & np.isfinite(traj.cop_x_m) & _before_fall(traj)
+    keep &= traj.normal_force_n >= MIN_FOOT_FORCE_FRACTION * weight
+    if first_contact_s is not None:
+        keep &= ~((traj.time_s >= first_contact_s) & (traj.time_s < first_contact_s + IMPACT_WINDOW_S))
+    if not keep.any():
+        return None
+    return float(np.max(np.abs(traj.plan_cop_x_m[keep] - traj.cop_x_m[keep])))
+
+
+def timing_lag_s(task: Task, traj: Trajectory) -> float | None:
+    """How late the motion was done (s): over [P, P + 1.5 T] within the clip, before any fall, at the CoP
+    sample steps, the uniform delay tau in [0, T] (physics-step grid) of the reference that best fits the
+    driving joints (reference moving more than ``DRIVING_JOINT_RAD`` over [P, P + T]), plus the RMS error
+    left after that shift divided by the RMS reference joint speed over [P, P + T]: what is not explained
+    by a delay counts as seconds of lag too, so a motion done half way or slowed down cannot score small.
+    None for a task without a pose change, or when balance was lost before the window."""
+    if task.end_pose_deg is None or task.duration_s <= 0 or traj.time_s.size < 2:
+        return None
+    start, stop = task.task_window_s()
+    dt = float(traj.time_s[1] - traj.time_s[0])
+    end = min(start + TIMING_WINDOW_FACTOR * (stop - start), task.clip_s)
+    idx = _sample_index(task, traj)
+    t = traj.time_s[idx]
+    idx = idx[(t >= start - 1e-9) & (t <= end + 1e-9)]
+    if idx.size == 0:
+        return None
+    q_ref, qd_ref, _ = task.reference(traj.time_s[: idx[-1] + 1])
+    dofs = np.array(character().actuated_dofs)
+    grid = traj.time_s[: idx[-1] + 1]
+    window = (grid >= start - 1e-9) & (grid <= stop + 1e-9)
+    moving = np.ptp(q_ref[window][:, dofs], axis=0) > DRIVING_JOINT_RAD
+    drive = dofs[moving]
+    if drive.size == 0:
+        return None
+    q = traj.qpos[idx][:, drive]
+    ref = q_ref[:, drive]
+    shifts = np.arange(int(round((stop - start) / dt)) + 1)
+    rms = np.empty(shifts.size)
+    for a in range(0, shifts.size, 64):  # chunks: a long sequence's window would not fit at once
+        j = shifts[a : a + 64]
+        late = ref[np.maximum(idx[None, :] - j[:, None], 0)]  # (taus, samples, joints): q_ref(t - tau)
+        rms[a : a + j.size] = np.sqrt(np.mean((q[None] - late) ** 2, axis=(1, 2)))
+    best = int(np.argmin(rms))
+    speed = float(np.sqrt(np.mean(qd_ref[window][:, drive] ** 2)))
+    return float(shifts[best] * dt + rms[best] / speed) if speed > 0 else None
+
+
+def _fall_index(traj: Trajectory) -> int:
+    return int(np.searchsorted(traj.time_s, traj.fall_time_s - 1e-9))
+
+
+def _after_fall_span(traj: Trajectory) -> tuple[int, int, float | None] | None:
+    """(fall step, last step, first non-foot floor contact s) of a topple played out after a fall (recorded
+    runs); None if the record stops at the fall (scoring runs, blow-ups)."""
+    if not traj.fell or traj.diverged or not traj.protective.any():
+        return None
+    k = _fall_index(traj)
+    hit = np.flatnonzero(traj.lowest_body_z_m[k:] < BODY_ON_FLOOR_Z_M)
+    if hit.size:
+        return k, k + int(hit[0]), float(traj.time_s[k + hit[0]])
+    return k, traj.time_s.size - 1, None
+
+
+def fall_direction(traj: Trajectory) -> dict:
+    """Which way the body went: ``forward`` / ``backward`` (None: no fall, or a blow-up). A topple played out
+    (recorded runs): the side of the support centre at the fall the CoM is on when a body other than the feet
+    first reaches the floor, or at the end of the record (``source`` "topple"). A scoring run stops at the fall:
+    the edge of the feet the capture point has left at the fall, or, if it is still between them (a fall for
+    another reason: a rolled foot, the CoM low), the sign of the CoM velocity (``source`` "capture_point")."""
+    none = {"fall_direction": None, "fall_direction_source": None}
+    if not traj.fell or traj.diverged:
+        return none
+    k = min(_fall_index(traj), traj.time_s.size - 1)
+    center = traj.support_center_x_m[k]
+    span = _after_fall_span(traj)
+    if span is not None:
+        d, source = traj.com_m[span[1], 0] - center, "topple"
+    else:
+        xi, vel = traj.fall_capture_point_x_m, traj.fall_com_vel_x_m_s
+        if xi is None or vel is None:
+            return none
+        lo, hi = traj.support_lo_x_m[k], traj.support_hi_x_m[k]
+        d = xi - hi if xi > hi else xi - lo if xi < lo else vel if vel != 0 else xi - center
+        source = "capture_point"
+    if not np.isfinite(d):
+        return none
+    return {"fall_direction": "forward" if d >= 0 else "backward", "fall_direction_source": source}
+
+
+def after_fall(traj: Trajectory) -> dict:
+    """How violent the topple after a fall is, from the fall to the first non-foot floor contact (or the end of
+    the record): the largest actuated joint speed, the peak total foot force (body weights), the highest heel/toe
+    lift above its settled height, and when that contact came. All None unless the topple was played out."""
+    span = _after_fall_span(traj)
+    if span is None:
+        return {"after_fall_max_joint_speed_rad_s": None, "after_fall_peak_foot_force_bw": None,
+                "after_fall_max_foot_lift_m": None, "after_fall_floor_contact_s": None}
+    k, last, contact_s = span
+    part = slice(k, last + 1)
+    weight = character().mass_kg * GRAVITY_M_S2
+    dofs = list(character().actuated_dofs)
+    return {"after_fall_max_joint_speed_rad_s": float(np.nanmax(np.abs(traj.qvel[part][:, dofs]))),
+            "after_fall_peak_foot_force_bw": float(np.nanmax(traj.normal_force_n[part]) / weight),
+            "after_fall_max_foot_lift_m": float(np.nanmax(traj.point_lift_m[part])),
+            "after_fall_floor_contact_s": contact_s}

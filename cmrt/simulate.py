@@ -98,6 +98,9 @@ class Trajectory:
     com_ref_x_m: np.ndarray  # the controller's reference CoM, CMRT included (control steps; held between them)
     cop_ref_x_m: np.ndarray  # its reference CoP (the support centre, or Yu's eq. 3.4): at the CoP sample steps
     ctrl_nm: np.ndarray  # (n, nu): the torques applied during the step (control steps; every step in traces)
+    plan_cop_x_m: np.ndarray  # the CoP the controller planned for them (control steps of traces; NaN: no plan,
+    # protective mode, a foot swinging)
+    lowest_body_z_m: np.ndarray  # lowest point of a body other than the feet above the floor (traces)
     protective: np.ndarray  # (n,) bool: torques came from the protective mode (after a fall)
     clip_s: float  # L: the end of the scored clip; the standing tail follows
     fell: bool
@@ -110,6 +113,8 @@ class Trajectory:
     step_times_s: tuple[float, ...] = ()  # lift-off of every step the supervisor took (stepping tasks)
     footprints: tuple[tuple[int, float, float], ...] = ()  # (foot 0 right / 1 left, touchdown s, heel x m)
     prop_extras: dict[str, float] = field(default_factory=dict)  # e.g. grip_s, ball_sag_m for a ball
+    fall_capture_point_x_m: float | None = None  # at the fall (the direction of a fall not played out)
+    fall_com_vel_x_m_s: float | None = None
 
     @property
     def max_lift_m(self) -> float:
@@ -123,6 +128,8 @@ class Trajectory:
         for key in ("fell", "diverged", "clip_s", "final_com_speed_m_s"):
             out[key] = np.array(getattr(self, key))
         out["fall_time_s"] = np.array(np.nan if self.fall_time_s is None else self.fall_time_s)
+        for key in ("fall_capture_point_x_m", "fall_com_vel_x_m_s"):
+            out[key] = np.array(np.nan if getattr(self, key) is None else getattr(self, key))
         out["fall_reason"] = np.array("" if self.fall_reason is None else self.fall_reason.value)
         out["task_success"] = np.array(np.nan if self.task_success is None else float(self.task_success))
         out.update({k: np.array(v) for k, v in self.prop_extras.items()})
@@ -247,7 +254,8 @@ def _judge_prop(prop, b, rows, force, times, windows, goal, extras) -> None:
 
 
 def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass, step: StepCommand | None = None):
-    """Torques for the given rows; a row whose plan is singular or non-finite gets zeros and bad=True."""
+    """Torques and the planned CoP (``ControlOutput.cop_x_m``) for the given rows; a row whose plan is singular or
+    non-finite gets zero torques, a NaN plan and bad=True."""
     if step is not None:
         com_ref, com_ref_vel = step.com_targets(com_ref, com_ref_vel)
 
@@ -257,21 +265,24 @@ def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass, 
     # no np.errstate here: the compiled kernel raises no numpy FP warnings, and entering one per control
     # step cost more than a percent of an evaluation
     try:
-        ctrl = controller.torques(f, *refs, com_ref, com_ref_vel, cop_ref, contact, mass,
-                                  **swing(slice(None))).torque_nm
+        out = controller.torques(f, *refs, com_ref, com_ref_vel, cop_ref, contact, mass, **swing(slice(None)))
+        ctrl, plan_cop = out.torque_nm, out.cop_x_m
     except np.linalg.LinAlgError:  # find the culprits one by one; the others are unaffected
         ctrl = np.full((com_ref.size, controller.limits.size), np.nan)
+        plan_cop = np.full(com_ref.size, np.nan)
         for i in range(com_ref.size):
             fi = {name: f[name][i : i + 1] for name in CONTROL_FIELDS}
             try:
-                ctrl[i] = controller.torques(fi, *refs, com_ref[i : i + 1], com_ref_vel[i : i + 1],
-                                             cop_ref[i : i + 1], contact[i : i + 1], mass[i : i + 1],
-                                             **swing(slice(i, i + 1))).torque_nm[0]
+                out = controller.torques(fi, *refs, com_ref[i : i + 1], com_ref_vel[i : i + 1],
+                                         cop_ref[i : i + 1], contact[i : i + 1], mass[i : i + 1],
+                                         **swing(slice(i, i + 1)))
+                ctrl[i], plan_cop[i] = out.torque_nm[0], out.cop_x_m[0]
             except np.linalg.LinAlgError:
                 pass
     bad = ~np.all(np.isfinite(ctrl), axis=1)
     ctrl[bad] = 0.0
-    return ctrl, bad
+    plan_cop = np.where(bad, np.nan, plan_cop)
+    return ctrl, bad, plan_cop
 
 
 class _Recorder:
@@ -279,7 +290,7 @@ class _Recorder:
 
     SHAPES = {"com": (2,), "com_vel": (), "xi": (), "cop": (), "sc": (), "lo": (), "hi": (), "fz": (),
               "ffz": (2,), "lift": (4,), "contact": (4,), "roll": (2,), "jspeed": (), "cref": (), "pref": (),
-              "ctrl": None, "prop_force": (),
+              "plan_cop": (), "body_z": (), "ctrl": None, "prop_force": (),
               "qpos": None, "qvel": None}
 
     def __init__(self, n: int, n_steps: int, nq: int, nv: int, nu: int):
@@ -359,6 +370,8 @@ class _Falls:
         self.hold = np.zeros((n, n_act))  # protective mode: the pose at the fall
         self.qpos = np.zeros((n, nq))  # the state a fallen clip is judged by
         self.speed_m_s = np.zeros(n)
+        self.capture_x = np.full(n, np.nan)  # the capture point and CoM velocity at the fall (its direction)
+        self.com_vel_x = np.full(n, np.nan)
         self.airborne_for_s = np.zeros(n)
         self.end = np.full(n, run_steps)
 
@@ -406,9 +419,10 @@ def _targets(yu: YuReference | None, b: dict, sel, ids: np.ndarray, drive: _Driv
 def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarray, fallen: np.ndarray,
              drive: _Drive, k: int, targets: Targets, contact: np.ndarray, mass: np.ndarray,
              hold: np.ndarray, act: np.ndarray, nu: int, step: StepCommand | None = None
-             ) -> tuple[np.ndarray, np.ndarray]:
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Torques of simulations ``ids`` (batch rows ``sel``): the controller for those standing, protective
-    mode for those that fell. ``bad``: the controller's plan was singular or non-finite. ``targets``: the
+    mode for those that fell. ``bad``: the controller's plan was singular or non-finite; ``plan_cop``: the CoP
+    it planned (NaN in protective mode or for a bad plan). ``targets``: the
     reference CoM/CoP of rows ``ids`` (``_targets``); ``step``: the stepping supervisor's command for rows
     ``ids`` (None: feet planted)."""
     t = targets
@@ -418,16 +432,18 @@ def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarra
                         mass[sel], step)
     ctrl = np.zeros((ids.size, nu))
     bad = np.zeros(ids.size, bool)
+    plan_cop = np.full(ids.size, np.nan)
     if not fallen.all():
         up = np.flatnonzero(~fallen)
         rows = ids[up]
         f = {name: b[name][rows] for name in CONTROL_FIELDS}
-        ctrl[up], bad[up] = _control(controller, f, drive.refs_at(k, rows), t.com_x_m[up], t.com_vel_x_m_s[up],
-                                     t.cop_x_m[up], contact[up], mass[rows], None if step is None else step.rows(up))
+        ctrl[up], bad[up], plan_cop[up] = _control(
+            controller, f, drive.refs_at(k, rows), t.com_x_m[up], t.com_vel_x_m_s[up], t.cop_x_m[up], contact[up],
+            mass[rows], None if step is None else step.rows(up))
     rows = ids[fallen]
     ctrl[fallen] = _protective_torques(b["qpos"][rows][:, act], b["qvel"][rows][:, act], hold[rows],
                                        controller.limits)
-    return ctrl, bad
+    return ctrl, bad, plan_cop
 
 
 def _direct_step(batch: mujoco.batch.Batch, stage: mujoco.mjtStage):
@@ -620,6 +636,10 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
     def fell_now(k: int, new: np.ndarray, qpos: np.ndarray, momentum: np.ndarray) -> int:
         """Rows ``new`` (of ``ids``) fell at step ``k``; returns the next step at which a row stops."""
         sims = ids[new]
+        com = b["subtree_com"][sims, 1]
+        falls.com_vel_x[sims] = momentum[new, 0] / (ch.mass_kg + prop.carried_kg[sims])
+        with np.errstate(all="ignore"):  # a blow-up's NaNs
+            falls.capture_x[sims] = capture_point_x(com[:, 0], com[:, 2], falls.com_vel_x[sims])
         # scoring: stop after this step; recording: play the topple out (not a blow-up: nothing to show)
         falls.fell(sims, k, qpos[new], act,
                    np.hypot(momentum[new, 0], momentum[new, 1]) / (ch.mass_kg + prop.carried_kg[sims]),
@@ -719,14 +739,18 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
                 rec["lift"][sel, k] = geom_xpos[:, geo.points, 2] - settled_z
                 rec["contact"][sel, k] = contact
                 rec["roll"][sel, k] = roll
+                rec["body_z"][sel, k] = lowest if control else geo.lowest_body_z(geom_xpos, b["geom_xmat"][sel])
         if control:
             rec["jspeed"][sel, k] = jspeed
             mass = ch.mass_kg + prop.carried_kg  # what the controller knows it carries
             targets = _targets(yu, b, sel, ids, drive, k, center, lo, hi, com, vel_x, nb)
             com_ref_now[ids], cop_ref_now[ids] = targets.com_x_m, targets.cop_x_m
             rec["cref"][sel, k] = targets.com_x_m
-            ctrl, bad = _torques(controller, b, sel, ids, falls.code[ids] > 0, drive, k, targets, contact, mass,
-                                 falls.hold, act, m.nu, step)
+            ctrl, bad, plan_cop = _torques(controller, b, sel, ids, falls.code[ids] > 0, drive, k, targets, contact,
+                                           mass, falls.hold, act, m.nu, step)
+            if record:  # the plan against the CoP measured in the physics step these torques act in
+                swinging = np.zeros(ids.size, bool) if stepper is None else stepper.swinging(ids).any(axis=1)
+                rec["plan_cop"][sel, k] = np.where(swinging, np.nan, plan_cop)
             ctrl_all[ids] = ctrl
             b["ctrl"][sel] = ctrl
 
@@ -818,10 +842,13 @@ def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarra
             point_contact=r["contact"],
             foot_roll_rad=r["roll"], prop_force_n=r["prop_force"], max_joint_speed_rad_s=r["jspeed"],
             cmrt_displacement_m=disp[i, : last[i]], prop_extras={k: float(v[i]) for k, v in extras.items()},
-            com_ref_x_m=r["cref"], cop_ref_x_m=r["pref"], ctrl_nm=r["ctrl"], protective=protective, clip_s=task.clip_s,
+            com_ref_x_m=r["cref"], cop_ref_x_m=r["pref"], ctrl_nm=r["ctrl"], plan_cop_x_m=r["plan_cop"],
+            lowest_body_z_m=r["body_z"], protective=protective, clip_s=task.clip_s,
             fell=bool(code), fall_time_s=float(times[falls.step[i]]) if code else None, fall_reason=reason,
             diverged=reason is FallReason.DIVERGED, final_qpos=final_qpos[i],
             final_com_speed_m_s=float(final_speed[i]),
+            fall_capture_point_x_m=float(falls.capture_x[i]) if code else None,
+            fall_com_vel_x_m_s=float(falls.com_vel_x[i]) if code else None,
             task_success=None if np.isnan(goal[i]) else bool(goal[i]),
             step_times_s=() if stepper is None else tuple(t for t in stepper.step_times[i]
                                                           if not code or t <= times[falls.step[i]]),

@@ -20,9 +20,14 @@ def test_simulate_json_fields_and_trace(tmp_path):
     out = json.loads(r.stdout)
     for key in ("task", "speed", "objective", "fell", "max_cop_error_m", "final_pose_error_rad", "success",
                 "performed", "settled", "min_cop_margin_m", "peak_normal_force_bw", "airborne_s",
-                "max_joint_speed_rad_s", "tracking_error_rad"):
+                "max_joint_speed_rad_s", "tracking_error_rad", "max_plan_cop_error_m", "timing_lag_s",
+                "fall_direction", "fall_direction_source", "after_fall_max_joint_speed_rad_s",
+                "after_fall_peak_foot_force_bw", "after_fall_max_foot_lift_m", "after_fall_floor_contact_s"):
         assert key in out
     assert out["task"] == "bend" and out["speed"] == 1.2 and out["fell"] is False and out["success"] is True
+    # simulate records: the plan is there (the slow bend meets it to < 1 mm); no fall, no fall figures
+    assert 0.0 < out["max_plan_cop_error_m"] < 0.001 and 0.0 < out["timing_lag_s"] < 0.1
+    assert out["fall_direction"] is None and out["after_fall_floor_contact_s"] is None
     z = np.load(trace)
     for key in (
         "time_s",
@@ -38,6 +43,9 @@ def test_simulate_json_fields_and_trace(tmp_path):
         "point_contact",
         "max_joint_speed_rad_s",
         "protective",
+        "plan_cop_x_m",
+        "lowest_body_z_m",
+        "fall_capture_point_x_m",
     ):
         assert key in z.files
     assert z["qpos"].shape == (round((2.6 + 0.5) / 0.002), 15)  # the clip and its standing tail

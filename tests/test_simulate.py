@@ -131,9 +131,14 @@ def test_batched_clips_equal_clips_alone_and_falls_do_not_poison_the_batch():
 def test_recording_a_trace_does_not_change_the_score():
     task = load_task("bend").with_speed(0.5)
     curve = library_curve(task.with_speed(0.4))
-    assert evaluate(task, simulate(task, curve, record=True)) == evaluate(task, simulate(task, curve, record=False))
+    # the same score; a trace adds figures only it has (objective.TRACE_ONLY_FIELDS)
+    recorded = evaluate(task, simulate(task, curve, record=True))
+    assert recorded.scored() == evaluate(task, simulate(task, curve, record=False)).scored()
+    assert recorded.max_plan_cop_error_m is not None
     falling = load_task("stand").with_params(push_force_n=250.0, push_duration_s=0.1, clip_s=3.0)
-    assert evaluate(falling, simulate(falling, record=True)) == evaluate(falling, simulate(falling, record=False))
+    recorded = evaluate(falling, simulate(falling, record=True))
+    assert recorded.scored() == evaluate(falling, simulate(falling, record=False)).scored()
+    assert recorded.after_fall_max_joint_speed_rad_s is not None and recorded.fall_direction_source == "topple"
 
 
 def test_a_trace_covers_the_clip_and_its_standing_tail():
