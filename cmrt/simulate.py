@@ -53,10 +53,13 @@ from cmrt.tick import control_tick, geometry, sample_support
 SETTLE_S = 1.5
 POST_FALL_S = 1.0  # a recorded clip runs at least this long past a fall, so the topple is seen
 CONTACT_HEIGHT_M = 0.001  # a heel/toe point whose lowest point is below this height touches the floor
-# Protective mode after a fall: a passive spring-damper about the pose at the fall, per joint
-# (a fraction of the motor's torque limit per rad and per rad/s): muscle tone, no goal.
-PROTECTIVE_STIFFNESS_PER_RAD = 0.5
-PROTECTIVE_DAMPING_PER_RAD_S = 0.05
+# Protective mode after a fall: a passive spring-damper about the pose at the fall, per joint (a fraction of
+# the motor's torque limit per rad and per rad/s): muscle tone, no goal. It is MuJoCo's own joint stiffness and
+# damping, set per simulation (``_go_limp``), so the implicit integrator carries the damping: as torques held
+# over a control step (v0.2) the damper was unstable on the light distal joints (ankle c T / I = 3.77 > 2:
+# ankles chattering at 79-100 rad/s, feet slapping the floor at 5-15 body weights). docs/controller.md.
+PROTECTIVE_STIFFNESS_PER_RAD = 0.1
+PROTECTIVE_DAMPING_PER_RAD_S = 0.1
 
 # Scoring runs in the center mode with feet planted do their control steps in one compiled call
 # (cmrt.tick); False runs them on the Python path, as traces do (tests compare the two bit for bit).
@@ -232,11 +235,28 @@ def _ground_support(contact: np.ndarray, point_x: np.ndarray) -> tuple[np.ndarra
     return grounded, lo, hi
 
 
-def _protective_torques(q: np.ndarray, qd: np.ndarray, hold: np.ndarray, limits: np.ndarray) -> np.ndarray:
-    """After a fall: a passive spring-damper about the pose it fell in - muscle tone without a goal, so it
-    cannot add energy (the CoM only goes down)."""
-    tau = PROTECTIVE_STIFFNESS_PER_RAD * limits * (hold - q) - PROTECTIVE_DAMPING_PER_RAD_S * limits * qd
-    return np.clip(tau, -limits, limits)
+class _Limp:
+    """Protective mode: the fallen simulations' joints become passive springs and dampers about the pose they
+    fell in - muscle tone without a goal, so it cannot add energy (the CoM only goes down) - as MuJoCo's per-
+    simulation joint stiffness, damping and spring pose, integrated by MuJoCo (its damping implicitly). Their
+    motors are off."""
+
+    def __init__(self, batch, limits_nm: np.ndarray):
+        m = character().model
+        joints = m.actuator_trnid[:, 0]
+        self.dofs, self.qpos_adr = m.jnt_dofadr[joints], m.jnt_qposadr[joints]
+        self.joints, self.limits, self.batch = joints, limits_nm, batch
+        self.fields: tuple | None = None
+
+    def fall(self, sims: np.ndarray, qpos: np.ndarray) -> None:
+        """Simulations ``sims`` (batch rows) fell in pose ``qpos`` (their rows)."""
+        if self.fields is None:  # per-simulation values from the first fall on (the others keep the model's)
+            self.fields = tuple(self.batch.expand(k) for k in ("jnt_stiffness", "dof_damping", "qpos_spring"))
+        stiffness, damping, spring = self.fields
+        for row, q in zip(sims, qpos, strict=True):
+            stiffness[row, self.joints] = PROTECTIVE_STIFFNESS_PER_RAD * self.limits
+            damping[row, self.dofs] = PROTECTIVE_DAMPING_PER_RAD_S * self.limits
+            spring[row, self.qpos_adr] = q[self.qpos_adr]
 
 
 def _judge_prop(prop, b, rows, force, times, windows, goal, extras) -> None:
@@ -440,10 +460,7 @@ def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarra
         ctrl[up], bad[up], plan_cop[up] = _control(
             controller, f, drive.refs_at(k, rows), t.com_x_m[up], t.com_vel_x_m_s[up], t.cop_x_m[up], contact[up],
             mass[rows], None if step is None else step.rows(up))
-    rows = ids[fallen]
-    ctrl[fallen] = _protective_torques(b["qpos"][rows][:, act], b["qvel"][rows][:, act], hold[rows],
-                                       controller.limits)
-    return ctrl, bad, plan_cop
+    return ctrl, bad, plan_cop  # the fallen: motors off, their joints passive (``_Limp``)
 
 
 def _direct_step(batch: mujoco.batch.Batch, stage: mujoco.mjtStage):
@@ -610,6 +627,7 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
     settled_z = b["geom_xpos"][0, geo.points, 2].copy()
 
     rec = _Recorder(n, n_steps, m.nq, m.nv, m.nu)
+    limp = _Limp(batch, controller.limits)
     stepper = _stepper(task, n)
     step = None
     falls = _Falls(n, act.size, nq, run_steps)
@@ -645,6 +663,9 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
                    np.hypot(momentum[new, 0], momentum[new, 1]) / (ch.mass_kg + prop.carried_kg[sims]),
                    np.where(record & (falls.code[sims] != diverged_code), np.maximum(run_steps, k + post_fall), k + 1))
         _judge_prop(prop, b, sims, rec["prop_force"][sims, :k], times[:k], drive.windows_s, goal, extras)
+        if record:
+            played = falls.code[sims] != diverged_code
+            limp.fall(sims[played], qpos[new][played])
         return falls.end[ids].min()
 
     def still_running(k: int) -> np.ndarray:

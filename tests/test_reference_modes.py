@@ -26,6 +26,9 @@ from tests.input_helpers import make_old_store
 PUSH = dict(clip_s=3.0, push_force_n=150.0, push_start_s=1.0, push_duration_s=0.1)
 
 
+LIBRARY_RTOL = 1e-6  # shipped library figures against this machine's replay
+
+
 def test_task_files_carry_the_mode_and_it_changes_the_hash():
     bend = load_task("bend")
     assert bend.reference_mode == "center" and "reference" not in bend.to_dict()  # older hashes stay valid
@@ -183,7 +186,9 @@ def test_yu_library_entries_reproduce_and_interpolate_within_their_mode():
     for e in entries:
         task = load_task(e["task"]).with_params(**e["params"]).with_reference("yu")
         ev = evaluate(task, simulate(task, library_curve(task), record=False))
-        assert ev.objective == e["objective"] and ev.success == e["success"]
+        # computed on another machine (library.json): another CPU's SIMD paths round differently (measured on
+        # this VM: 1e-14 relative), so a stated relative tolerance, not bit-identity
+        assert ev.objective == pytest.approx(e["objective"], rel=LIBRARY_RTOL) and ev.success == e["success"]
     yu = interpolate(load_task("bend").with_speed(0.8).with_reference("yu"))
     center = interpolate(load_task("bend").with_speed(0.8))
     assert [v for v, _ in yu.sources] == [0.4, 1.2]  # the yu family: 0.4 and 1.2 s

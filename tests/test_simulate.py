@@ -62,7 +62,9 @@ def test_strong_push_topples_instead_of_launching(stand, force_n):
     assert traj.com_m[k, 1] > 0.9  # still upright when the fall is declared: not already launched or down
     assert traj.time_s[-1] >= traj.fall_time_s + POST_FALL_S - 1e-9
     assert np.nanmax(traj.com_m[k:, 1]) <= traj.com_m[k, 1] + 0.05
-    assert traj.com_m[-1, 1] < 0.4  # it went down, toward the push
+    # it went down, toward the push, onto the floor: the protective mode's tone lets the legs fold, so a
+    # backward fall ends sitting (CoM 0.42 m) where a body held stiff fell flat like a plank (0.12 m)
+    assert ev.after_fall_floor_contact_s is not None and traj.com_m[-1, 1] < 0.5
     assert np.sign(traj.com_m[-1, 0] - traj.com_m[k, 0]) == np.sign(force_n)
     assert_plausible(ev)
 
