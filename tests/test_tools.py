@@ -63,11 +63,12 @@ def test_random_success_tool_json_is_reproducible():
     first, again = run_tool("random_success.py", *args), run_tool("random_success.py", *args)
     assert first.returncode == 0, first.stderr
     out = json.loads(first.stdout)
-    for key in ("success_fraction", "samples", "fell_fraction", "not_performed_fraction", "objective_median",
-                "objective_min", "success_fraction_wilson95", "seed", "wall_s", "machine"):
+    for key in ("success_fraction", "under_threshold_fraction", "samples", "fell_fraction", "not_performed_fraction",
+                "objective_median", "objective_min", "success_fraction_wilson95", "seed", "wall_s", "machine"):
         assert key in out
     assert out["samples"] == 4 and out["seed"] == 3
     assert out["success_fraction"] == out["successes"] / out["samples"]
+    assert 0 <= out["under_threshold_fraction"] <= out["success_fraction"]
     assert 0 <= out["fell_fraction"] + out["not_performed_fraction"] + out["success_fraction"] <= 1
     lo, hi = out["success_fraction_wilson95"]
     assert lo <= out["success_fraction"] <= hi

@@ -9,8 +9,9 @@ x0 = 0, the flat CMRT, and ``sigma0``) in its 8-parameter space, mapped to CMRTs
 global RNG, not pycma's), simulated with the batched evaluator (``simulate_batch``) and scored by
 ``evaluate``. A task where most such draws already succeed is easy for any search; one where none do
 is where the optimizer's restarts and budget matter. Reports the success fraction with its 95 % Wilson
-interval, the fractions that fell and that stood without performing the motion (or reaching the goal),
-the objective's median and minimum, the seed, wall time and the machine.
+interval, the fraction of successes below the task's ``stop_threshold`` (a first generation drawing one
+stops the run), the fractions that fell and that stood without performing the motion (or reaching the
+goal), the objective's median and minimum, the seed, wall time and the machine.
 """
 
 from __future__ import annotations
@@ -91,6 +92,9 @@ def measure(task: Task, samples: int, seed: int) -> dict:
     return {
         "task": task.name, "speed": task.speed, "samples": samples, "seed": seed,
         "successes": wins, "success_fraction": wins / samples,
+        # successes the optimizer would stop at (its threshold rule) if its first generation drew them
+        "under_threshold_fraction": sum(e.success and e.objective < task.stop_threshold for e in scores) / samples,
+        "stop_threshold": task.stop_threshold,
         "success_fraction_wilson95": [lo, hi],
         "fell_fraction": fell / samples,
         "not_performed_fraction": not_performed / samples,  # stood, but the motion or goal was not done
@@ -127,7 +131,9 @@ def main(argv: list[str] | None = None) -> int:
         speed = f" --speed {task.speed:g}" if task.speed is not None else ""
         lo, hi = result["success_fraction_wilson95"]
         print(f"{task.name}{speed}: {result['successes']}/{samples} random CMRTs succeed "
-              f"({result['success_fraction']:.1%}, 95 % {lo:.1%}-{hi:.1%}); fell {result['fell_fraction']:.1%}, "
+              f"({result['success_fraction']:.1%}, 95 % {lo:.1%}-{hi:.1%}; below the threshold "
+              f"{task.stop_threshold:g}: {result['under_threshold_fraction']:.1%}); "
+              f"fell {result['fell_fraction']:.1%}, "
               f"not performed {result['not_performed_fraction']:.1%}; objective median "
               f"{result['objective_median']:.3f}, min {result['objective_min']:.3f}; seed {seed}, "
               f"{result['wall_s']} s")
