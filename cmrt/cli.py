@@ -840,8 +840,8 @@ class Bench(Command):
             [f"{r['task']} speed {r['speed']}, population {r['population']}, {r['steps_per_clip']} steps/clip, "
              f"control {r['control_hz']:.0f} Hz ({r['machine']}, median of {r['repeat']} alternating rounds)"]
             + [f"  {name:32s} {1e3 * v:8.2f} ms/clip   x{v / floor:5.2f}" for name, v in rows]
-            + [f"  floor: the clips' recorded torques replayed open loop, {r['steps_replayed']} steps as evaluated "
-               f"({r['steps_evaluated']}); replayed CoM off the closed loop's by at most "
+            + [f"  floor: the clips' recorded torques replayed open loop, {r['steps_replayed']} steps replayed, "
+               f"{r['steps_evaluated']} evaluated; replayed CoM off the closed loop's by at most "
                f"{r['replay_max_divergence_m']:.2g} m",
                f"  batched / floor within each round: median {r['ratio_batched_to_physics']:.2f} "
                f"(min {r['ratio_batched_to_physics_min']:.2f}, max {r['ratio_batched_to_physics_max']:.2f})",
