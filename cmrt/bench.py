@@ -77,7 +77,8 @@ class Replay:
 
 def record_replay(task: Task, curves: list[Cmrt], config: ControllerConfig = ControllerConfig()) -> Replay:
     """Run the clips as the evaluator scores them (their lengths) and recorded (their torques at every step;
-    a recorded run is the scoring run up to a fall, then plays the topple out, which is cut off here)."""
+    a recorded run is the scoring run up to a fall, then plays the topple out, which is cut off here).
+    Nominal clips only: the replay applies the task's own pushes, not an ensemble member's."""
     scored = simulate_batch(task, curves, config)
     recorded = simulate_batch(task, curves, config, record=True)
     steps = np.array([tr.time_s.size for tr in scored])
@@ -85,9 +86,9 @@ def record_replay(task: Task, curves: list[Cmrt], config: ControllerConfig = Con
     ctrl = np.zeros((steps.max(), len(curves), nu))
     com = np.full((steps.max(), len(curves), 2), np.nan)
     for i, tr in enumerate(recorded):
-        if tr.time_s.size < steps[i] or tr.fell != scored[i].fell:
-            raise CmrtError(f"clip {i}: the recorded run is not the scored one")  # cannot happen: scores ignore
-        ctrl[: steps[i], i] = tr.ctrl_nm[: steps[i]]  # record=True (tested)
+        if tr.time_s.size < steps[i] or tr.fell != scored[i].fell:  # scores do not depend on record (tested)
+            raise CmrtError(f"clip {i}: the recorded run is not the scored one")
+        ctrl[: steps[i], i] = tr.ctrl_nm[: steps[i]]
         com[: steps[i], i] = tr.com_m[: steps[i]]
     return Replay(ctrl_nm=ctrl, steps=steps, com_m=com)
 
