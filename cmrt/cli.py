@@ -845,7 +845,8 @@ class Bench(Command):
     def _text(r: dict) -> str:
         floor = r["physics_only_s_per_clip"]
         rows = [
-            ("physics only (floor)", floor),
+            ("physics only (floor: replay)", floor),
+            ("zero-torque collapse (old floor)", r["zero_torque_s_per_clip"]),
             ("batched evaluator", r["batched_s_per_clip"]),
             ("serial, one clip at a time", r["serial_s_per_clip"]),
             (f"robust, per member ({r['robust_members']}/cand.)", r["robust_s_per_member"]),
@@ -855,7 +856,10 @@ class Bench(Command):
             [f"{r['task']} speed {r['speed']}, population {r['population']}, {r['steps_per_clip']} steps/clip, "
              f"control {r['control_hz']:.0f} Hz ({r['machine']}, median of {r['repeat']} alternating rounds)"]
             + [f"  {name:32s} {1e3 * v:8.2f} ms/clip   x{v / floor:5.2f}" for name, v in rows]
-            + [f"  batched / floor within each round: median {r['ratio_batched_to_physics']:.2f} "
+            + [f"  floor: the clips' recorded torques replayed open loop, {r['steps_replayed']} steps replayed, "
+               f"{r['steps_evaluated']} evaluated; replayed CoM off the closed loop's by at most "
+               f"{r['replay_max_divergence_m']:.2g} m",
+               f"  batched / floor within each round: median {r['ratio_batched_to_physics']:.2f} "
                f"(min {r['ratio_batched_to_physics_min']:.2f}, max {r['ratio_batched_to_physics_max']:.2f})",
                f"  robust ensemble member / plain clip within each round: median "
                f"{r['ratio_robust_member_to_plain']:.2f}"]

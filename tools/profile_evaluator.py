@@ -1,6 +1,7 @@
 """Split the batched evaluator's wall time into MuJoCo stepping, the compiled control step and the rest.
 
-Alternates, in one process, the physics floor (the same steps, zero control) with ``simulate_batch`` of N
+Alternates, in one process, the physics floor (``cmrt bench``'s: the same clips' recorded torques replayed
+open loop, as many steps as each was evaluated, ``bench.replay_physics``) with ``simulate_batch`` of N
 candidates, both on ONE thread (one ``Batch`` thread; one group of clips), timing the physics steps
 (``Batch.step``, or the scoring loop's direct step, ``simulate._direct_step``) and
 ``cmrt.tick.control_tick`` (the controller kernel, the monitor and the records of a control step) inside
@@ -23,10 +24,10 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from cmrt import ControllerConfig, load_task
-from cmrt.bench import _candidates
+from cmrt import load_task
+from cmrt.bench import _candidates, record_replay, replay_physics
 from cmrt.curve import Cmrt
-from cmrt.simulate import settled_state, simulate_batch
+from cmrt.simulate import simulate_batch
 
 simulate_module = sys.modules["cmrt.simulate"]  # the module: ``cmrt.simulate`` is also a function's name
 
@@ -39,10 +40,9 @@ def main() -> None:
     p.add_argument("--rounds", type=int, default=5)
     args = p.parse_args()
     task = load_task(args.task).with_speed(args.speed)
-    m, n = task.model(), args.population
-    n_steps = int(round((task.clip_s + task.tail_s) / m.opt.timestep))
+    n = args.population
     curves = [Cmrt.from_params(x, task.clip_s) for x in _candidates(task, n)]
-    state = settled_state(task, ControllerConfig())
+    replay = record_replay(task, curves)  # also the warm-up: compiled code, settled state
     spent = {"step": 0.0, "tick": 0.0}
     step, control_tick = mujoco.batch.Batch.step, simulate_module.control_tick
     direct_step = simulate_module._direct_step
@@ -68,14 +68,9 @@ def main() -> None:
         spent["tick"] += time.perf_counter() - t0
         return out
 
-    def floor(threads: int) -> float:
-        batch = mujoco.batch.Batch(m, nsim=n, nthread=threads, persistent=True)
-        for k, v in state.items():
-            batch.bind(k)[:] = v
-        batch.forward()
+    def floor(threads: int) -> float:  # groups of one-thread batches, as the evaluator runs
         t0 = time.perf_counter()
-        for _ in range(n_steps):
-            step(batch)
+        replay_physics(task, replay, threads=threads)
         return time.perf_counter() - t0
 
     def wall(fn) -> float:
@@ -84,7 +79,6 @@ def main() -> None:
         return time.perf_counter() - t0
 
     cores = os.cpu_count() or 1
-    simulate_batch(task, curves)  # warm-up: compiled code, settled state
     rows = []
     for _ in range(args.rounds):
         f1 = floor(1)

@@ -5,7 +5,8 @@
 Each seed is a full optimization (batched evaluator, the default budget and stopping rules)
 into a scratch store of its own; a seed succeeds when its best CMRT is a success (balance held, motion
 performed, settled, goal reached). Reports the success rate, the evaluations until the first
-successful candidate (median and worst over the seeds that found one), restarts and wall time.
+successful candidate (median and worst over the seeds that found one), the fraction of seeds whose best
+is a success below the task's ``stop_threshold`` (``under_threshold_rate``), restarts and wall time.
 """
 
 from __future__ import annotations
@@ -58,13 +59,23 @@ def measure(task, seeds: list[int], init: str, max_evals: int, progress: bool) -
             })
             if progress:
                 print(json.dumps(rows[-1]), file=sys.stderr)
-    found = [r.first_success_evals for r in rows if r.success]
+    return summary(task, seeds, init, max_evals, rows)
+
+
+def summary(task, seeds: list[int], init: str, max_evals: int, rows: list[dict]) -> dict:
+    """The figures over the seeds' rows (dicts, as ``measure`` builds them and ``--json`` prints them).
+    ``under_threshold_rate``: seeds whose best is a success below the task's ``stop_threshold`` - the runs
+    that stopped on the threshold rule rather than converging or running out of budget above it."""
+    found = [r["first_success_evals"] for r in rows if r["success"]]
+    under = [r["success"] and r["best_objective"] < task.stop_threshold for r in rows]
     return {
         "task": task.name, "speed": task.speed, "init": init, "seeds": seeds, "max_evals": max_evals,
-        "success_rate": sum(r.success for r in rows) / len(rows),
+        "stop_threshold": task.stop_threshold,
+        "success_rate": sum(r["success"] for r in rows) / len(rows),
+        "under_threshold_rate": sum(under) / len(rows),
         "median_evals_to_success": statistics.median(found) if found else None,
         "worst_evals_to_success": max(found) if found else None,
-        "wall_s": round(sum(r.wall_s for r in rows), 1),
+        "wall_s": round(sum(r["wall_s"] for r in rows), 1),
         "machine": f"{platform.machine()}, {__import__('os').cpu_count()} cores, Python {platform.python_version()}",
         "runs": rows,
     }
@@ -91,7 +102,8 @@ def main() -> int:
         print(json.dumps(result))
     else:
         speed = f" --speed {task.speed:g}" if task.speed is not None else ""
-        print(f"{task.name}{speed}, init {args.init}: {result['success_rate']:.0%} of {len(result['seeds'])} seeds; "
+        print(f"{task.name}{speed}, init {args.init}: {result['success_rate']:.0%} of {len(result['seeds'])} seeds "
+              f"({result['under_threshold_rate']:.0%} below the threshold {task.stop_threshold:g}); "
               f"evaluations to the first success: median {result['median_evals_to_success']}, worst "
               f"{result['worst_evals_to_success']}; {result['wall_s']} s")
         for r in result["runs"]:
