@@ -436,6 +436,19 @@ def _targets(yu: YuReference | None, b: dict, sel, ids: np.ndarray, drive: _Driv
                       com_vel_x=com_vel_x, cinert=b["cinert"][sel, :nb], support_lo_x=lo, support_hi_x=hi)
 
 
+def _delayed(targets: Targets, delay_steps: int, k: int, ids: np.ndarray, com_x_m: np.ndarray, com_vel_x_m_s: np.ndarray,
+             rec_com: np.ndarray, fb_vel: np.ndarray) -> Targets:
+    """The targets as the delayed balance feedback acts on them (``ControllerConfig.feedback_delay_s``): the
+    kernel's ``k_l m (c_r - c) + d_l (m c_r' - L)`` then sees the CoM of ``delay_steps`` ago, c(t - tau), while the
+    plan's dynamics and contact rows use the state of now (docs/controller.md). Before the clip's first
+    ``delay_steps`` the character stood still: the first control step stands in for them."""
+    if delay_steps == 0:
+        return targets
+    kd = max(k - delay_steps, 0)
+    return Targets(targets.com_x_m + (com_x_m - rec_com[ids, kd, 0]),
+                   targets.com_vel_x_m_s + (com_vel_x_m_s - fb_vel[ids, kd]), targets.cop_x_m)
+
+
 def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarray, fallen: np.ndarray,
              drive: _Drive, k: int, targets: Targets, contact: np.ndarray, mass: np.ndarray,
              hold: np.ndarray, act: np.ndarray, nu: int, step: StepCommand | None = None
@@ -510,7 +523,7 @@ class _CompiledTick:
 
     def __init__(self, b: dict, geo: _Geometry, controller: MomentumBalanceController, limits: BalanceLimits,
                  drive: _Drive, rec: _Recorder, falls: _Falls, act: np.ndarray, n: int, nb: int, mass_kg: float,
-                 dt: float, control_dt: float, lean_check: bool):
+                 dt: float, control_dt: float, lean_check: bool, delay_steps: int, fb_vel: np.ndarray):
         c = controller
         variants = drive.variant_of is not None
         # Every row of the batch's fields, read-only and C-contiguous: one numba signature (each costs ~40 s
@@ -532,6 +545,7 @@ class _CompiledTick:
         self.lean = (lean_check, rec["prop_force"], CONTACT_FORCE_N)
         self.state = (falls.airborne_for_s, falls.code, rec["sc"], rec["lo"], rec["hi"], rec["qpos"], rec["com"],
                       rec["jspeed"], rec["cref"])
+        self.delay = (delay_steps, fb_vel)
 
     def __call__(self, k: int, ids: np.ndarray, carried_kg: np.ndarray, com_ref_now: np.ndarray,
                  cop_ref_now: np.ndarray, ctrl_all: np.ndarray):
@@ -545,7 +559,7 @@ class _CompiledTick:
         try:
             fell = control_tick(k, ids, self.dt, self.control_dt, self.nb, self.mass_kg, *self.fields, *self.geometry,
                                 *self.controller, *self.drive, carried_kg, *self.lean, *self.state,
-                                com_ref_now, cop_ref_now, ctrl_all, point_x, momentum, new)
+                                com_ref_now, cop_ref_now, ctrl_all, *self.delay, point_x, momentum, new)
         except np.linalg.LinAlgError:
             return None
         if fell < 0:
@@ -645,8 +659,12 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
     sel, ids, step_ids = slice(None), active, None
     rec_fz, rec_com = rec["fz"], rec["com"]
     has_contact_force = prop.contact_force(b, slice(None)) is not None
+    # the balance feedback's delay (ControllerConfig.feedback_delay_s), whole control steps; the CoM velocity at
+    # every control step so far (its position is in the records)
+    delay_steps = config.control_every * int(round(config.feedback_delay_s / control_dt))
+    fb_vel = np.full((n, n_steps), np.nan)
     compiled = (_CompiledTick(b, geo, controller, limits, drive, rec, falls, act, n, nb, ch.mass_kg, dt, control_dt,
-                              has_contact_force)
+                              has_contact_force, delay_steps, fb_vel)
                 if COMPILED_TICK and yu is None and stepper is None and not record else None)
 
     push_steps = set(np.flatnonzero(drive.push_changes).tolist())  # a set: cheaper per step than an array
@@ -767,7 +785,9 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
             targets = _targets(yu, b, sel, ids, drive, k, center, lo, hi, com, vel_x, nb)
             com_ref_now[ids], cop_ref_now[ids] = targets.com_x_m, targets.cop_x_m
             rec["cref"][sel, k] = targets.com_x_m
-            ctrl, bad, plan_cop = _torques(controller, b, sel, ids, falls.code[ids] > 0, drive, k, targets, contact,
+            fb_vel[ids, k] = vel_x
+            felt = _delayed(targets, delay_steps, k, ids, com[:, 0], vel_x, rec_com, fb_vel)
+            ctrl, bad, plan_cop = _torques(controller, b, sel, ids, falls.code[ids] > 0, drive, k, felt, contact,
                                            mass, falls.hold, act, m.nu, step)
             if record:  # the plan against the CoP measured in the physics step these torques act in
                 swinging = np.zeros(ids.size, bool) if stepper is None else stepper.swinging(ids).any(axis=1)

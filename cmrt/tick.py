@@ -178,6 +178,8 @@ def control_tick(k, ids, dt, control_dt, nb, mass_kg,
                  # monitor state and records, (n_all, ...)
                  airborne_for_s, fall_code, rec_sc, rec_lo, rec_hi, rec_qpos, rec_com, rec_jspeed, rec_cref,
                  com_ref_now, cop_ref_now, ctrl_all,
+                 # the balance feedback's delay (steps) and the CoM velocity at past control steps (n_all, steps)
+                 delay_steps, fb_vel,
                  # out, rows ``ids``
                  point_x, momentum, new):
     """Control step ``k`` of a scoring run, rows ``ids`` (center reference, feet planted, nobody fallen),
@@ -224,6 +226,11 @@ def control_tick(k, ids, dt, control_dt, nb, mass_kg,
         cop_ref[r] = center
         com_ref_now[s], cop_ref_now[s] = com_ref[r], cop_ref[r]
         rec_cref[s, k] = com_ref[r]
+        fb_vel[s, k] = vel_x[r]
+        if delay_steps > 0:  # the feedback sees the CoM of delay_steps ago (simulate._delayed, the same operations)
+            kd = k - delay_steps if k >= delay_steps else 0
+            com_ref[r] += subtree_com[s, 1, 0] - rec_com[s, kd, 0]
+            com_ref_vel[r] += vel_x[r] - fb_vel[s, kd]
         v = variant[s]
         for j in range(nv):
             qr[r, j], qdr[r, j], qddr[r, j] = q_ref[v, k, j], qd_ref[v, k, j], qdd_ref[v, k, j]
