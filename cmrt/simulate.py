@@ -436,8 +436,8 @@ def _targets(yu: YuReference | None, b: dict, sel, ids: np.ndarray, drive: _Driv
                       com_vel_x=com_vel_x, cinert=b["cinert"][sel, :nb], support_lo_x=lo, support_hi_x=hi)
 
 
-def _delayed(targets: Targets, delay_steps: int, k: int, ids: np.ndarray, com_x_m: np.ndarray, com_vel_x_m_s: np.ndarray,
-             rec_com: np.ndarray, fb_vel: np.ndarray) -> Targets:
+def _delayed(targets: Targets, delay_steps: int, k: int, ids: np.ndarray, com_x_m: np.ndarray,
+             com_vel_x_m_s: np.ndarray, rec_com: np.ndarray, fb_vel: np.ndarray) -> Targets:
     """The targets as the delayed balance feedback acts on them (``ControllerConfig.feedback_delay_s``): the
     kernel's ``k_l m (c_r - c) + d_l (m c_r' - L)`` then sees the CoM of ``delay_steps`` ago, c(t - tau), while the
     plan's dynamics and contact rows use the state of now (docs/controller.md). Before the clip's first

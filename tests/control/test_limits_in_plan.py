@@ -76,12 +76,13 @@ def test_the_plan_respects_the_motor_limits_and_is_what_mujoco_applies(bend_stat
 
 
 def test_the_default_controller_is_unchanged_bit_for_bit(bend_states):
-    """``limits_in_plan`` off is the v0.2 controller: the same torques as a controller built without it."""
+    """``limits_in_plan`` off is the v0.2 controller: the rows are not built, so their gains change nothing."""
     task, traj = bend_states
     ch = character()
     d = mujoco.MjData(ch.model)
-    default = MomentumBalanceController(ch)
-    explicit = MomentumBalanceController(ch, dataclasses.replace(ControllerConfig(), limits_in_plan=False))
+    default = MomentumBalanceController(ch, ControllerConfig(limits_in_plan=False))
+    explicit = MomentumBalanceController(ch, dataclasses.replace(ControllerConfig(), limits_in_plan=False,
+                                                                 stop_k=1.0, stop_d=1.0))
     for k in range(400, 1400, 100):
         a, _, _ = _plan_and_apply(default, task, traj, k, d)
         b, _, _ = _plan_and_apply(explicit, task, traj, k, d)
@@ -108,7 +109,7 @@ def test_the_plan_keeps_off_the_joint_stops():
     N m the plan does not know of; with the stops in the plan they carry nothing."""
     task = load_task("rise")
     on = simulate(task, config=ControllerConfig(limits_in_plan=True))
-    off = simulate(task, config=ControllerConfig())
+    off = simulate(task, config=ControllerConfig(limits_in_plan=False))
     assert _max_stop_force_nm(off) > 5.0
     assert _max_stop_force_nm(on) == 0.0
     knees = [character().dof(f"knee_{s}") for s in "rl"]
