@@ -85,12 +85,12 @@ class ControllerConfig:
     # Motor limits and joint stops as rows of the QP (issue 25), so the plan is one the motors can carry out and
     # never leans on a stop; off, torques beyond a limit are clipped after the solve (the v0.2 controller, kept
     # bit for bit until the library and the docs' tables are re-measured with the limits in the plan).
-    limits_in_plan: bool = False
+    limits_in_plan: bool = True
     # Delay of the balance feedback (s; whole control steps): the linear-momentum objective acts on the CoM
     # position and velocity sensed this long ago, while the plan's dynamics and contact rows use the present
     # state and the CMRT (the anticipation) is not delayed. 0: the v0.2 controller, bit for bit (issue 25;
     # docs/controller.md). Applied by cmrt.simulate, which keeps the history.
-    feedback_delay_s: float = 0.0
+    feedback_delay_s: float = 0.1
     stop_k: float = 400.0  # 1/s^2, the plan approaches a joint stop no faster than this spring (docs/controller.md)
     stop_d: float = 40.0  # 1/s, its damping (critical)
     stop_margin_rad: float = 0.02  # the plan keeps this far from every joint stop
