@@ -130,3 +130,198 @@ def test_success_rate_tool_runs_to_its_summary():
 def test_success_rate_bad_seeds_exit_2():
     r = run_tool("success_rate.py", "bend", "--seeds", "x-y", "--quiet")
     assert r.returncode == 2 and r.stderr.startswith("error: ")
+
+
+# --- every other tool: run once as its docstring says, on the cheapest arguments -----------------
+# Each checks exit status 0 and the keys or columns the tool promises: a refactor of cmrt that breaks a
+# tool fails here rather than the next time someone measures with it.
+
+def _ok(r: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
+    assert r.returncode == 0, r.stderr[-3000:]
+    return r
+
+
+def _json_lines(text: str) -> list:
+    """The one-JSON-object-per-line streams some tools write (to stdout, or as progress on stderr among
+    whatever else a library warns there)."""
+    return [json.loads(line) for line in text.splitlines() if line.startswith("{")]
+
+
+def _same(a: list, b: list) -> bool:
+    """Equal as JSON text (a NaN is not equal to itself as a float)."""
+    return json.dumps(a) == json.dumps(b)
+
+
+def test_every_tool_is_run_by_a_test():
+    """The project's rule: a script in tools/ without a ``run_tool`` call in this file fails here."""
+    import re
+
+    run = set(re.findall(r"""run_tool\(\s*["']([\w.-]+\.py)["']""", Path(__file__).read_text()))
+    assert run == {p.name for p in TOOLS.glob("*.py")}
+
+
+def test_analyze_reference_tool():
+    """(tools/analyze_reference.py is another engineer's: tested as it is.)"""
+    rows = json.loads(_ok(run_tool("analyze_reference.py", "bend", "--speeds", "0.4,1.2", "--json")).stdout)
+    assert [r["speed"] for r in rows] == [0.4, 1.2] and all(r["task"] == "bend" for r in rows)
+    for r in rows:
+        lo, hi = r["support_interval_m"]
+        assert lo < hi and r["com_drop_m"] > 0
+        assert r["possible"] == (r["min_vertical_force_n"] > 0)
+        assert r["required_cop_range_m"][0] <= r["required_cop_range_m"][1]
+        assert r["com_leaves_support"] == (r["com_projection_range_m"][0] < lo or r["com_projection_range_m"][1] > hi)
+        assert isinstance(r["cop_leaves_support"], bool)
+
+
+def test_bench_backends_tool():
+    """One worker, one round, four candidates: the warm-up, both backends and their agreement."""
+    out = json.loads(_ok(run_tool("bench_backends.py", "--candidates", "4", "--workers", "1", "--rounds", "1",
+                                  "--json")).stdout)
+    assert out["candidates"] == 4 and out["workers"] == 1 and out["rounds"] == 1
+    assert out["serial_evals_per_s"] > 0 and out["loky_evals_per_s"] > 0
+    assert out["serial_identical_to_serial"] and out["loky_identical_to_serial"]
+    assert out["loky_speedup"] == pytest.approx(out["loky_evals_per_s"] / out["serial_evals_per_s"])
+
+
+def test_bench_checkpoint_tool():
+    rows = json.loads(_ok(run_tool("bench_checkpoint.py", "--popsize", "4", "--generations", "2", "--repeat", "1",
+                                   "--json")).stdout)
+    assert [r["state"] for r in rows] == ["typical", "after 3 restarts"]
+    assert rows[0]["popsize"] == 4 and rows[0]["generations"] == 2 and rows[1]["restarts"] == 3
+    for r in rows:
+        assert 0 < r["cmrt_bytes"] and 0 < r["pickle_bytes"]
+        assert all(r[f"{fmt}_{op}_ms"] >= 0 for fmt in ("cmrt", "pickle") for op in ("dumps", "loads"))
+
+
+def test_bench_clip_tool():
+    out = json.loads(_ok(run_tool("bench_clip.py", "--repeat", "1", "--json")).stdout)
+    assert out["task"] == "bend" and out["speed"] == 0.4 and out["steps"] == 1550  # (2.6 + 0.5) s / 2 ms
+    assert out["ratio"] == pytest.approx(out["eval_s_per_clip"] / out["physics_only_s_per_clip"])
+
+
+@pytest.mark.slow
+def test_compare_references_tool():
+    """One task (the library's CMRTs) and one push grid point (the zero CMRT falls: a short optimization
+    per mode and direction), with the zero-CMRT sweeps: every part of the table."""
+    r = _ok(run_tool("compare_references.py", "--json", "--tasks", "fast-bend", "--pushes", "300",
+                     "--push-max-evals", "10"))
+    out = json.loads(r.stdout)
+    progress = _json_lines(r.stderr)  # each row and each largest push as it is found
+    assert _same([p for p in progress if "direction" not in p], out["rows"])
+    assert _same([p for p in progress if "direction" in p], out["largest_push"])
+    task_rows = [row for row in out["rows"] if row["task"] == "fast-bend"]
+    assert [(row["reference"], row["curve"]) for row in task_rows] == \
+        [("center", "zero"), ("center", "optimized"), ("yu", "zero"), ("yu", "optimized")]
+    assert all(row["source"] == "library" for row in task_rows if row["curve"] == "optimized")
+    for row in out["rows"]:
+        assert {"success", "objective", "cop_error_own_reference_norm", "min_cop_margin_m", "fall_reason"} <= set(row)
+    pushes = [row for row in out["rows"] if row["task"].startswith("stand push")]
+    assert {row["task"] for row in pushes} == {"stand push +300 N", "stand push -300 N"}
+    assert all(row["source"].startswith("optimized (seed 1") for row in pushes if row["curve"] == "optimized")
+    assert [(p["direction"], p["reference"]) for p in out["largest_push"]] == \
+        [("forward", "center"), ("forward", "yu"), ("backward", "center"), ("backward", "yu")]
+    for p in out["largest_push"]:
+        assert p["optimized_grid_n"] == [300.0] and 0 <= p["zero_cmrt_n"] <= 400
+        assert p["optimized_cmrt_n"] in (0.0, 300.0) and p["optimized_at_least"] == (p["optimized_cmrt_n"] == 300.0)
+
+
+def test_diagnostics_table_tool():
+    rows = _json_lines(_ok(run_tool("diagnostics_table.py", "--json", "--case", "bend:0.4")).stdout)
+    tool = load_tool("diagnostics_table.py")
+    assert [(r["case"], r["curve"]) for r in rows] == [("bend:0.4", "zero"), ("bend:0.4", "library")]
+    assert all(set(tool.KEYS) | {"case", "curve", "wall_s"} == set(r) for r in rows)
+
+
+def test_find_library_curve_tool_no_save_leaves_the_library_alone():
+    """A two-speed family on a tiny budget (the first run and a warm-started one); --no-save must not
+    touch the shipped library."""
+    library = ROOT / "cmrt" / "assets" / "library.json"
+    before = library.read_bytes()
+    r = run_tool("find_library_curve.py", "bend", "--speeds", "0.4,0.6", "--max-evals", "10", "--no-save")
+    assert library.read_bytes() == before
+    _ok(r)
+    decoder, text, entries = json.JSONDecoder(), r.stdout.strip(), []
+    while text:  # one indented JSON entry per speed
+        entry, end = decoder.raw_decode(text)
+        entries.append(entry)
+        text = text[end:].strip()
+    assert [e["speed"] for e in entries] == [0.4, 0.6]
+    assert [e["init_run"] for e in entries] == [False, True]  # the second warm-started from the first
+    for e in entries:
+        assert e["task"] == "bend" and e["seed"] == 1 and e["evaluations"] <= 10
+        assert {"cmrt", "objective", "success", "zero_cmrt_objective", "params", "robust"} <= set(e)
+        assert "reference" not in e  # the center mode's entries carry no key
+
+
+def test_interpolation_table_tool():
+    rows = json.loads(_ok(run_tool("interpolation_table.py", "--between", "0.5", "--beyond", "0.35",
+                                   "--max-evals", "10", "--json")).stdout)
+    assert [(r["speed"], r["kind"]) for r in rows] == [(0.5, "interpolated"), (0.35, "extrapolated")]
+    assert rows[0]["from"] == [0.4, 0.6] and 0 <= rows[0]["weight"] <= 1
+    assert rows[0]["ratio"] == pytest.approx(rows[0]["interpolated_objective"] / rows[0]["direct_objective"])
+    assert "direct_objective" not in rows[1]  # nothing to optimize against beyond the family
+
+
+def test_plausibility_tool():
+    """Every case: cheap enough as it is (two clips per case, batched)."""
+    tool = load_tool("plausibility.py")
+    rows = json.loads(_ok(run_tool("plausibility.py", "--json")).stdout)
+    assert {(r["task"], json.dumps(r["params"])) for r in rows} == {(n, json.dumps(p)) for n, p in tool.CASES}
+    assert sum(r["curve"] == "zero" for r in rows) == len(tool.CASES)
+    assert {r["curve"] for r in rows if r["task"] == "bend"} == {"zero", "library"}
+    for r in rows:
+        assert {"success", "fell", "peak_normal_force_bw", "airborne_s", "max_joint_speed_rad_s", "min_cop_margin_m",
+                "tracking_error_rad", "objective"} <= set(r)
+
+
+def test_profile_evaluator_tool():
+    """No --json: the two lines it prints, and the one-thread parts adding up to the evaluator's time."""
+    import re
+
+    out = _ok(run_tool("profile_evaluator.py", "--population", "2", "--rounds", "1")).stdout
+    num = r"([\d.]+)"
+    m = re.search(rf"one thread: floor {num} \| evaluator {num} = steps {num} \+ control steps {num} \+ rest {num} "
+                  rf"ms/clip \(x{num}\) \| \d+ threads: floor {num}, evaluator {num} ms/clip \(x{num}\)", out)
+    assert m, out
+    evaluator, steps, ticks, rest = (float(m[i]) for i in (2, 3, 4, 5))
+    assert steps + ticks + rest == pytest.approx(evaluator, abs=0.2)  # each printed to 0.1 ms
+    assert re.search(r"median, one thread: x[\d.]+ = steps [\d.]+ \+ control steps [\d.]+ \+ rest [\d.]+", out), out
+
+
+def test_push_recovery_table_tool():
+    """--max-force 400 --resolution 200: the top force and one bisection step per supervisor and direction."""
+    tool = load_tool("push_recovery_table.py")
+    out = json.loads(_ok(run_tool("push_recovery_table.py", "--json", "--max-force", "400", "--resolution",
+                                  "200")).stdout)
+    assert [(r["stepping"], r["direction"]) for r in out["rows"]] == \
+        [(s, d) for s in tool.SUPERVISORS for d in ("forward", "backward")]
+    for r in out["rows"]:
+        assert r["supervisor"] == tool.SUPERVISORS[r["stepping"]]
+        forces = [t["force_n"] for t in r["tried"]]
+        assert abs(forces[-1]) == 400 and len(forces) == (1 if r["tried"][-1]["success"] else 2)
+        survived = [t["force_n"] for t in r["tried"] if t["success"]]
+        assert r["largest_push_survived_n"] == (max(survived, key=abs) if survived else None)
+    assert out["wall_s"] >= 0
+
+
+def test_reproduce_table1_tool():
+    """A row with the paper's figures and one without, each run on a 10-evaluation budget (--max-evals)."""
+    rows = json.loads(_ok(run_tool("reproduce_table1.py", "--rows", "fast-bend,rise", "--max-evals", "10",
+                                   "--json")).stdout)
+    assert [r["row"] for r in rows] == ["fast-bend", "rise"]
+    for r in rows:
+        assert r["evaluations"] <= 10 and r["stop_reason"] == "budget"
+        assert {"zero_objective", "zero_outcome", "optimized_objective", "optimized_success", "library_objective",
+                "library_outcome", "library_final_pose_error_rad", "wall_s"} <= set(r)
+    assert rows[0]["paper_N"] == 683 and "paper_N" not in rows[1]
+
+
+def test_robustness_table_tool():
+    """One library task (rise): the zero, plain and robust CMRT on the 20-clip validation ensemble."""
+    r = _ok(run_tool("robustness_table.py", "--json", "--task", "rise"))
+    rows = json.loads(r.stdout)
+    assert _same(_json_lines(r.stderr), rows)  # the progress lines are the rows
+    assert [(row["task"], row["curve"]) for row in rows] == [("rise", "zero"), ("rise", "plain"), ("rise", "robust")]
+    for row in rows:
+        assert row["validation_total"] == 20
+        assert 0 <= row["validation_survived"] + row["validation_fell"] <= 20

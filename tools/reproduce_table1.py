@@ -5,7 +5,9 @@ default batched backend) into a scratch store, and the CMRT shipped in the libra
 objective and outcome (success, fell, motion not performed / goal missed), evaluations and
 wall time, next to the paper's timings, threshold, iterations N and computation time C (s).
 
-    python tools/reproduce_table1.py [--rows fast-bend,catch] [--json]
+    python tools/reproduce_table1.py [--rows fast-bend,catch] [--max-evals N] [--json]
+
+``--max-evals`` caps each run's budget (default: the optimizer's own), for a quick check that the table runs.
 """
 
 from __future__ import annotations
@@ -38,14 +40,15 @@ def outcome(ev) -> str:
     return "goal missed" if ev.task_success is False else ("not performed" if ev.performed is False else "not settled")
 
 
-def row(name: str, store_dir: Path) -> dict:
+def row(name: str, store_dir: Path, max_evals: int | None = None) -> dict:
     task_name, overrides, paper = ROWS[name]
     task = load_task(task_name).with_params(**overrides)
     zero = evaluate(task, simulate(task, record=False))
     lib = evaluate(task, simulate(task, library_curve(task), record=False))
     t0 = time.perf_counter()
     with open_store(store_dir / f"{name}.sqlite") as store, Evaluator("batch") as ev:
-        run = optimize_now(store, task, ev, seed=1, init="none")
+        budget = {} if max_evals is None else {"max_evals": max_evals}
+        run = optimize_now(store, task, ev, seed=1, init="none", **budget)
     wall = time.perf_counter() - t0
     out = {
         "row": name, "task": task.name, "L": task.clip_s, "P": task.preparation_s, "T": task.duration_s,
@@ -65,10 +68,11 @@ def row(name: str, store_dir: Path) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description="ABC Table 1 with outcomes")
     ap.add_argument("--rows", default=",".join(ROWS))
+    ap.add_argument("--max-evals", type=int, help="budget of each run (default: the optimizer's)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        rows = [row(r, Path(tmp)) for r in args.rows.split(",")]
+        rows = [row(r, Path(tmp), args.max_evals) for r in args.rows.split(",")]
     if args.json:
         print(json.dumps(rows, indent=2))
         return
