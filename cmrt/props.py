@@ -59,6 +59,9 @@ CONTACT_FORCE_N = 1.0  # a hand-prop force above this counts as contact
 TOPPLED_DEG = 30.0  # a slab rotated this far has passed its balance angle and is falling
 GRAVITY_M_S2 = 9.81
 SLAB_WIDTH_M = 0.6
+BAG_LENGTH_M = 1.0  # a 100 cm heavy bag
+BAG_THICKNESS_M = 0.35  # 35 cm across
+BAG_DAMPING_RATIO = 0.05  # of critical: a bag swings several times before it hangs still
 
 
 def _free_planar(body, prefix: str) -> None:
@@ -406,8 +409,62 @@ class Pad(Prop):
                               self.params["max_contact_s"])
 
 
+class Bag(Prop):
+    """A heavy bag hanging as a pendulum in front of the character (kind ``bag``), to be struck and let go.
+
+    A box of ``bag_mass_kg`` (``BAG_LENGTH_M`` long, ``BAG_THICKNESS_M`` deep: a 35 cm bag seen from the
+    side), its centre ``bag_center_z_m`` up, hinged about +y at a pivot ``bag_rope_m`` above that centre
+    (the chains, taken as rigid), its face at ``bag_x_m``. The swing is lightly damped (``BAG_DAMPING_RATIO``
+    of critical). Struck = the same rule as the pad's (``strike_success``): the fist's impulse, no contact
+    before the task window, no contact episode longer than ``max_contact_s``."""
+
+    kind = "bag"
+    PARAMS = {"bag_mass_kg": 40.0, "bag_x_m": 0.79, "bag_center_z_m": 1.2, "bag_rope_m": 1.0,
+              "bag_timeconst_s": 0.01, "strike_impulse_n_s": 3.0, "max_contact_s": 0.3}
+    MODEL_PARAMS = ("bag_mass_kg", "bag_x_m", "bag_center_z_m", "bag_rope_m", "bag_timeconst_s")
+    LIMITS = {"bag_mass_kg": Range(0.5, 1000.0, unit="kg"), "bag_x_m": Range(0.2, 5.0, unit="m"),
+              # the bag (half its length below its centre) clears the floor; the pivot is above the bag's top
+              "bag_center_z_m": Range(BAG_LENGTH_M / 2 + 0.01, 5.0, unit="m"),
+              "bag_rope_m": Range(BAG_LENGTH_M / 2, 10.0, unit="m"),
+              "bag_timeconst_s": Range(0.004, 1.0, unit="s"),  # at least 2 x the 2 ms physics step
+              "strike_impulse_n_s": Range(0.0, 1e4, unit="N s"), "max_contact_s": Range(0.0, 60.0, unit="s")}
+    mass_body = "bag"
+
+    @classmethod
+    def add_to_spec(cls, spec, p):
+        m, rope = p["bag_mass_kg"], p["bag_rope_m"]
+        h, t = BAG_LENGTH_M, BAG_THICKNESS_M
+        body = spec.worldbody.add_body(name="bag", pos=[p["bag_x_m"] + t / 2, 0, p["bag_center_z_m"] + rope])
+        j = body.add_joint(name="bag_swing", type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 1, 0])
+        j.limited = mujoco.mjtLimited.mjLIMITED_FALSE
+        j.armature = 0.0
+        inertia = m * (rope**2 + (h**2 + t**2) / 12)  # about the pivot
+        j.damping = [2 * BAG_DAMPING_RATIO * math.sqrt(inertia * m * GRAVITY_M_S2 * rope), 0.0, 0.0]
+        body.add_geom(name="bag", type=mujoco.mjtGeom.mjGEOM_BOX, size=[t / 2, 0.2, h / 2], pos=[0, 0, -rope],
+                      mass=m, contype=1, conaffinity=1, solref=[p["bag_timeconst_s"], 1.0],
+                      rgba=[0.55, 0.2, 0.15, 1])
+        _hand_touch_sensors(spec)
+
+    def __init__(self, model, params):
+        super().__init__(model, params)
+        joint = model.joint("bag_swing")
+        self.qpos, self.dof = joint.qposadr[0], joint.dofadr[0]
+
+    def settle_hold(self, b):
+        b["qpos"][:, self.qpos] = 0.0
+        b["qvel"][:, self.dof] = 0.0
+
+    def extras(self, b, rows):
+        """How fast the bag swings away now (m/s at its centre; + = away from the character)."""
+        return {"bag_speed_m_s": -b["qvel"][rows, self.dof] * self.params["bag_rope_m"]}
+
+    def success(self, b, rows, contact_force_n, times, window):
+        return strike_success(contact_force_n, times, window, self.params["strike_impulse_n_s"],
+                              self.params["max_contact_s"])
+
+
 #: The prop kinds a task file may name, each its class.
-PROPS: dict[str, type[Prop]] = {cls.kind: cls for cls in (Ball, Slab, Pad)}
+PROPS: dict[str, type[Prop]] = {cls.kind: cls for cls in (Ball, Slab, Pad, Bag)}
 
 
 def prop_class(kind: str | None) -> type[Prop]:

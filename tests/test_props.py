@@ -1,11 +1,14 @@
 """The props as the paper sets them: a ball that weighs, a free slab pushed, a pad struck."""
 
+import copy
+
 import mujoco
 import numpy as np
 import pytest
 
 from cmrt import CmrtError, evaluate, library_curve, load_model, load_task, simulate
 from cmrt.props import (
+    BAG_DAMPING_RATIO,
     BALL_RADIUS_M,
     FOREARM_RADIUS_M,
     GRIP_TOLERANCE_M,
@@ -16,6 +19,7 @@ from cmrt.props import (
     prop_class,
     strike_success,
 )
+from cmrt.curve import Cmrt
 from cmrt.task import task_from_dict
 
 from .test_simulate import assert_plausible
@@ -61,7 +65,7 @@ def test_one_class_per_prop_kind():
             assert names == [getattr(human, obj)(i).name for i in range(count)]
         assert m.nbody == human.nbody + 1 and m.body(human.nbody).name in (kind, cls.mass_body)
         assert isinstance(cls(m, task.params), cls)
-    with pytest.raises(CmrtError, match="prop.kind must be one of ball, slab, wall"):
+    with pytest.raises(CmrtError, match="prop.kind must be one of ball, slab, wall, bag"):
         task_from_dict({"prop": {"kind": "anvil"}})
 
 
@@ -140,19 +144,64 @@ def test_push_is_a_push_on_a_free_slab():
     assert_plausible(lib)
 
 
-def test_punch_strikes_the_pad_and_does_not_lean_on_it():
+def test_the_heavy_bag_is_a_lightly_damped_pendulum():
+    """The bag swings about its pivot with the compound pendulum's period, and its inputs are checked."""
     task = load_task("punch")
-    lib = evaluate(task, simulate(task, library_curve(task), record=False))
-    assert lib.success and lib.first_contact_s >= task.preparation_s
-    assert lib.contact_impulse_n_s >= task.params["strike_impulse_n_s"]
-    assert_plausible(lib)
-    # a punch that stays out (the v0.1 task): the fist rests on the pad for the rest of the clip - a lean
+    p = task.params
+    m = copy.deepcopy(task.model())  # the compiled model is cached per process: change only a copy
+    assert [m.joint(j).name for j in range(m.njnt) if m.joint(j).name.startswith("bag")] == ["bag_swing"]
+    assert m.body("bag").mass[0] == pytest.approx(p["bag_mass_kg"])
+    d = mujoco.MjData(m)
+    mujoco.mj_kinematics(m, d)
+    face = d.geom_xpos[m.geom("bag").id, 0] - m.geom("bag").size[0]
+    assert face == pytest.approx(p["bag_x_m"]) and d.geom_xpos[m.geom("bag").id, 2] == pytest.approx(p["bag_center_z_m"])
+    m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT  # the bag alone (the humanoid falls meanwhile)
+    swing = m.joint("bag_swing").qposadr[0]
+    d.qpos[swing] = -0.05  # swung away from the character
+    t, angle = [], []
+    while d.time < 2.5:
+        mujoco.mj_step(m, d)
+        t.append(d.time), angle.append(d.qpos[swing])
+    angle = np.array(angle)
+    crossings = np.array(t)[1:][np.diff(np.sign(angle)) != 0]
+    rope, size = p["bag_rope_m"], m.geom("bag").size
+    inertia = p["bag_mass_kg"] * (rope**2 + ((2 * size[2]) ** 2 + (2 * size[0]) ** 2) / 12)
+    period = 2 * np.pi * np.sqrt(inertia / (p["bag_mass_kg"] * 9.81 * rope))
+    assert crossings[1] - crossings[0] == pytest.approx(period / 2, rel=0.02)  # half of ~2.1 s for the shipped bag
+    t = np.array(t)
+    half_swing = np.abs(angle[(t > crossings[0]) & (t < crossings[1])]).max() / 0.05
+    assert half_swing == pytest.approx(np.exp(-np.pi * BAG_DAMPING_RATIO), abs=0.02)  # lightly damped
+    for key, bad in (("bag_mass_kg", 0.0), ("bag_rope_m", 0.1), ("bag_timeconst_s", 0.001), ("bag_center_z_m", 0.3)):
+        with pytest.raises(CmrtError, match=key):
+            task.with_params(**{key: bad})
+
+
+#: A CMRT that leans the body into the punch: the CoM target 6 cm forward of the support centre at 1.0 s
+#: (the strike lands at ~1.04 s), back over the feet by 1.4 s.
+LEAN_IN = Cmrt(2.6, (0.5, 1.0, 1.4, 2.0), (0.0, 0.06, 0.0, 0.0))
+
+
+def test_punch_into_the_heavy_bag_knocks_the_body_over_without_anticipation():
+    """The strike is delivered either way (impulse above the task's 15 N s, no contact before P, none lasting);
+    its reaction knocks the reactive controller over backward, and leaning into the punch beforehand keeps
+    balance - the paper's anticipation."""
+    task = load_task("punch")
+    zero = evaluate(task, simulate(task, record=False))
+    assert zero.task_success and zero.contact_impulse_n_s >= task.params["strike_impulse_n_s"]
+    assert zero.first_contact_s >= task.preparation_s
+    assert zero.fell and not zero.success and zero.fall_direction == "backward"
+    assert zero.fall_time_s > zero.first_contact_s  # knocked over by the strike, not before it
+    lean = evaluate(task, simulate(task, LEAN_IN, record=False))
+    assert lean.success and lean.contact_impulse_n_s > zero.contact_impulse_n_s  # the body's weight behind it
+    for ev in (zero, lean):  # a real punch's joint speeds and ground forces, before any fall
+        assert ev.max_joint_speed_rad_s <= 25.0 and ev.peak_normal_force_bw <= 2.5
+    assert_plausible(lean)
+    # a punch that stays out (the v0.1 task): the fist rests on the bag for the rest of the clip - a lean
     raw = task.to_dict()
     raw["end_pose_deg"] = raw.pop("via_pose_deg")
     leaning = task_from_dict(raw)
-    ev = evaluate(leaning, simulate(leaning, record=False))
+    ev = evaluate(leaning, simulate(leaning, LEAN_IN, record=False))
     assert ev.task_success is False and not ev.success
-    assert ev.contact_impulse_n_s > task.params["strike_impulse_n_s"]  # plenty of impulse, but leaning
 
 
 def test_strike_rule_on_synthetic_forces():
