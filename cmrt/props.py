@@ -180,13 +180,17 @@ class Ball(Prop):
 
     kind = "ball"
     PARAMS = {"ball_mass_kg": 7.0, "ball_speed_m_s": 4.0, "ball_angle_deg": 10.0, "ball_flight_s": 0.4,
-              "ball_arrival_s": 1.35, "ball_height_m": 1.36, "ball_reach_m": 0.86, "max_ball_sag_m": 0.1}
-    MODEL_PARAMS = ("ball_mass_kg",)
+              "ball_arrival_s": 1.35, "ball_height_m": 1.36, "ball_reach_m": 0.86, "max_ball_sag_m": 0.1,
+              "ball_grip_timeconst_s": GRIP_TIMECONST_S, "ball_grip_settle_s": GRIP_SETTLE_S}
+    MODEL_PARAMS = ("ball_mass_kg", "ball_grip_timeconst_s")
     LIMITS = {"ball_mass_kg": Range(0.1, 100.0, unit="kg"),  # above BALL_RESIDUAL_MASS_KG: the hand-over moves it
               "ball_speed_m_s": Range(0.0, 50.0, unit="m/s"), "ball_angle_deg": Range(-90.0, 90.0, unit="deg"),
               "ball_flight_s": Range(0.01, 10.0, unit="s"), "ball_arrival_s": Range(0.0, 60.0, unit="s"),
               "ball_height_m": Range(0.0, 5.0, unit="m"), "ball_reach_m": Range(-5.0, 5.0, unit="m"),
-              "max_ball_sag_m": Range(0.0, 2.0, unit="m")}
+              "max_ball_sag_m": Range(0.0, 2.0, unit="m"),
+              # the grip's constraint time constant: >= 2 physics steps (MuJoCo's stability rule), at most 0.5 s
+              "ball_grip_timeconst_s": Range(0.004, 0.5, unit="s"),
+              "ball_grip_settle_s": Range(0.004, 2.0, unit="s")}
     mass_body = "ball"
     every_step = True
 
@@ -199,7 +203,7 @@ class Ball(Prop):
         for side in ("r", "l"):  # both hands grip: the load is shared by the two arms
             eq = spec.add_equality(name=f"catch_{side}", type=mujoco.mjtEq.mjEQ_CONNECT, name1=f"forearm_{side}",
                                    name2="ball", objtype=mujoco.mjtObj.mjOBJ_BODY, active=False)
-            eq.solref = [GRIP_TIMECONST_S, 1.0]
+            eq.solref = [p.get("ball_grip_timeconst_s", GRIP_TIMECONST_S), 1.0]
 
     def __init__(self, model, params):
         super().__init__(model, params)
@@ -302,7 +306,8 @@ class Ball(Prop):
         rate = np.hypot(*(drift - self.drift[rows]).T) / dt
         self.drift[rows] = drift
         fresh = t - self.grip_s[rows] < 2 * dt  # no previous drift yet
-        return ~fresh & ((rate < GRIP_SETTLED_M_S) | (t - self.grip_s[rows] >= GRIP_SETTLE_S - 1e-9))
+        settle_s = self.params.get("ball_grip_settle_s", GRIP_SETTLE_S)
+        return ~fresh & ((rate < GRIP_SETTLED_M_S) | (t - self.grip_s[rows] >= settle_s - 1e-9))
 
     def _hand_over(self, b: dict, sim: int) -> None:
         """Move the ball's mass into the forearms (half each, at the ball's place in their frames)."""
