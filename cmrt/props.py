@@ -386,7 +386,12 @@ class Slab(Prop):
         self.pitch = model.joint("slab_pitch").qposadr[0]
 
     def success(self, b, rows, contact_force_n, times, window):
-        return b["qpos"][rows, self.pitch] > math.radians(TOPPLED_DEG)  # rotated away, past its balance angle
+        """Toppled (rotated away past its balance angle) by a push: the hands did not touch the slab before the
+        task window - leaning on it from the preparation on is not a push (the optimizer finds that lean
+        whenever the hands start within reach of it)."""
+        touching = np.nan_to_num(contact_force_n) > CONTACT_FORCE_N
+        early = (touching & (times < window[0] - 1e-9)).any(axis=1)
+        return (b["qpos"][rows, self.pitch] > math.radians(TOPPLED_DEG)) & ~early
 
 
 class Pad(Prop):

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from cmrt import CmrtError, evaluate, library_curve, load_model, load_task, simulate
+from cmrt.curve import Cmrt
 from cmrt.props import (
     BAG_DAMPING_RATIO,
     BALL_RADIUS_M,
@@ -19,7 +20,6 @@ from cmrt.props import (
     prop_class,
     strike_success,
 )
-from cmrt.curve import Cmrt
 from cmrt.task import task_from_dict
 
 from .test_simulate import assert_plausible
@@ -154,7 +154,8 @@ def test_the_heavy_bag_is_a_lightly_damped_pendulum():
     d = mujoco.MjData(m)
     mujoco.mj_kinematics(m, d)
     face = d.geom_xpos[m.geom("bag").id, 0] - m.geom("bag").size[0]
-    assert face == pytest.approx(p["bag_x_m"]) and d.geom_xpos[m.geom("bag").id, 2] == pytest.approx(p["bag_center_z_m"])
+    assert face == pytest.approx(p["bag_x_m"])
+    assert d.geom_xpos[m.geom("bag").id, 2] == pytest.approx(p["bag_center_z_m"])
     m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT  # the bag alone (the humanoid falls meanwhile)
     swing = m.joint("bag_swing").qposadr[0]
     d.qpos[swing] = -0.05  # swung away from the character
