@@ -172,3 +172,27 @@ def test_analyze_reference_tool_json():
     assert ex["any"] <= ex["from_motion_start"] <= ex["none"]  # more freedom never hurts
     assert row["max_joint_speed_rad_s"] > 0 and len(row["capture_point_range_m"]) == 2
 
+
+# --- tools/bend_search.py ------------------------------------------------------------------------
+
+def test_bend_search_draws_within_its_ranges():
+    tool = load_tool("bend_search.py")
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        end, timing = tool.draw(rng)
+        assert all(lo <= end[k] <= hi for k, (lo, hi) in tool.POSE_DEG.items())
+        for joints in tool.GROUPS.values():
+            (a, b), *rest = [timing[j] for j in joints]
+            assert 0.0 <= a <= 0.3 and 0.7 <= b <= 1.0 and all(w == [a, b] for w in rest)
+
+
+def test_bend_search_tool_json():
+    r = run_tool("bend_search.py", "--samples", "3", "--seed", "1", "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["samples"] == 3 and out["possible"] == len(out["rows"]) and out["simulated"] <= out["possible"]
+    assert sum(b["n"] for b in out["bins"]) == out["simulated"]
+    for row in out["rows"]:
+        if "success" in row:
+            assert row["ref_max_joint_speed_rad_s"] <= 25 and isinstance(row["success"], bool)
+    assert run_tool("bend_search.py", "--samples", "0").returncode == 2

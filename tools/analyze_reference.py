@@ -23,6 +23,10 @@ What the controller can give, and whether a CoM pre-shift (a CMRT) could make th
   is a linear program on a 10 ms grid, zero with zero rate at the clip's ends (as a CMRT is),
   |dc| <= 0.3 m. ``from_motion_start`` > 0 and ``any`` <= 0 is "performable with a pre-shift, not
   without" - without counting on the motion being done late, which the tracking bound limits.
+  It is a model, not the controller: the QP may also deviate single joints within the tracking
+  bound, which no CoM shift describes. Measured on the 0.4 s bend (tools/bend_search.py): references
+  with ``from_motion_start`` up to +0.5 m were still performed with the zero CMRT, and ``none`` is
+  metres wherever F_z is small (the band's edges divide by it). Read the excesses with the zero-CMRT run.
 
     python tools/analyze_reference.py bend --speeds 0.4,0.6,0.8,1.2 [--json]
 """
