@@ -325,3 +325,69 @@ def test_robustness_table_tool():
     for row in rows:
         assert row["validation_total"] == 20
         assert 0 <= row["validation_survived"] + row["validation_fell"] <= 20
+
+
+# --- tools/analyze_reference.py ------------------------------------------------------------------
+
+def test_analyze_reference_band_closes_with_the_load():
+    tool = load_tool("analyze_reference.py")
+    lo, hi = tool.cop_band(np.array([686.7, 160.0, 100.0]), -0.06, 0.18, 40.0)
+    assert lo[0] == pytest.approx(-0.06 + 80 * 0.24 / 686.7) and hi[0] == pytest.approx(0.18 - 80 * 0.24 / 686.7)
+    assert lo[1] == pytest.approx(hi[1]) == pytest.approx(0.06)  # 4 x 40 N: only the support centre
+    assert lo[2] > hi[2]  # below it: closed
+    assert tool.excess(np.array([0.0, 0.1]), np.array([-0.05, -0.05]), np.array([0.15, 0.05])) == pytest.approx(0.05)
+    assert tool.excess(np.zeros(3), lo, hi) == float("inf")
+
+
+def test_analyze_reference_a_pre_shift_needs_time():
+    """A CoP needed 3 cm beyond the toe side of the band for 0.6 s: a shift built beforehand removes it; one
+    that may only start with the need cannot (moving the CoM back means first pushing the CoP forward)."""
+    tool = load_tool("analyze_reference.py")
+    n, step = 200, 0.01
+    band_lo, band_hi = np.full(n, -0.03), np.full(n, 0.15)
+    cop = np.full(n, 0.06)
+    cop[100:160] = 0.18
+    arm = np.full(n, 0.09)  # m c_z / F_z at body weight, s^2
+    anyshift, rng = tool.best_shift(cop, band_lo, band_hi, arm, step)
+    late, _ = tool.best_shift(cop, band_lo, band_hi, arm, step, free_from=100)
+    none = tool.excess(cop, band_lo, band_hi)
+    assert none == pytest.approx(0.03)
+    assert anyshift < 0 and rng[0] < -0.03  # the CoM moved back beforehand
+    assert 0.01 < late < none  # a reaction helps, but not enough
+    friction, _ = tool.best_shift(cop, band_lo, band_hi, arm, step, fx_room=(np.zeros(n), np.zeros(n)), mass_kg=70)
+    assert friction == pytest.approx(0.03, abs=1e-6)  # no horizontal force to spare: no shift
+
+
+def test_analyze_reference_tool_json():
+    r = run_tool("analyze_reference.py", "bend", "--speeds", "1.2", "--json")
+    assert r.returncode == 0, r.stderr
+    (row,) = json.loads(r.stdout)
+    assert row["speed"] == 1.2 and row["possible"] and row["min_vertical_force_bw"] > 0
+    ex = row["cop_excess_m"]
+    assert ex["any"] <= ex["from_motion_start"] <= ex["none"]  # more freedom never hurts
+    assert row["max_joint_speed_rad_s"] > 0 and len(row["capture_point_range_m"]) == 2
+
+
+# --- tools/bend_search.py ------------------------------------------------------------------------
+
+def test_bend_search_draws_within_its_ranges():
+    tool = load_tool("bend_search.py")
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        end, timing = tool.draw(rng)
+        assert all(lo <= end[k] <= hi for k, (lo, hi) in tool.POSE_DEG.items())
+        for joints in tool.GROUPS.values():
+            (a, b), *rest = [timing[j] for j in joints]
+            assert 0.0 <= a <= 0.3 and 0.7 <= b <= 1.0 and all(w == [a, b] for w in rest)
+
+
+def test_bend_search_tool_json():
+    r = run_tool("bend_search.py", "--samples", "3", "--seed", "1", "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["samples"] == 3 and out["possible"] == len(out["rows"]) and out["simulated"] <= out["possible"]
+    assert sum(b["n"] for b in out["bins"]) == out["simulated"]
+    for row in out["rows"]:
+        if "success" in row:
+            assert row["ref_max_joint_speed_rad_s"] <= 25 and isinstance(row["success"], bool)
+    assert run_tool("bend_search.py", "--samples", "0").returncode == 2
