@@ -34,7 +34,7 @@ def library_curve(task: Task, path: Path = LIBRARY_PATH, robust: bool = False) -
     The library holds a plain CMRT (optimized on the nominal clip, as the paper does: the
     default, which the Table 1 reproduction, the speed and mass families and the sequences
     use) and a robust one (optimized on the task's ensemble, ``cmrt.ensemble``: ``robust=True``).
-    Other parameters may differ (that is the expectation-mismatch demo: the 12 kg catch
+    Other parameters may differ (that is the expectation-mismatch demo: the 7 kg catch
     CMRT used on a 1 kg ball); if several entries share the speed, the one whose
     parameters all match wins, else the one for the task file's defaults.
     """

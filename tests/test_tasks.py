@@ -16,11 +16,11 @@ TASKS = available_tasks()
 #: no worse than the zero CMRT.
 #: - "anticipation": the reactive controller alone (zero CMRT) fails, the library CMRT succeeds at half
 #:   the objective or less;
-#: - "reactive": the zero CMRT already succeeds (the strike-and-retract punch); the library CMRT keeps the
-#:   CoP nearer the middle of the feet, so it scores better;
+#: - "reactive": the zero CMRT already succeeds; the library CMRT keeps the CoP nearer the middle of the feet,
+#:   so it scores better (no shipped task since the punch strikes a heavy bag, issue 25);
 #: - "standing": no motion and no speed, so no library CMRT; quiet standing (and a moderate push) succeeds.
 OUTCOME = {"bend": "anticipation", "rise": "anticipation", "catch": "anticipation", "push": "anticipation",
-           "punch": "reactive", "stand": "standing"}
+           "punch": "anticipation", "stand": "standing"}
 #: Parameters the per-task tests run a task with (stand: 3 s with a 120 N push instead of 10 s of quiet standing).
 VARIANT = {"stand": {"clip_s": 3.0, "push_force_n": 120.0}}
 
@@ -119,13 +119,6 @@ def test_determinism_per_task(name):
     assert (a.task_success, a.fall_reason) == (b.task_success, b.fall_reason)
     np.testing.assert_equal(a.prop_extras, b.prop_extras)
     assert evaluate(task, a) == evaluate(task, b)
-
-
-def test_the_papers_7kg_ball_is_caught_without_anticipation():
-    """Measured: on this character the weight of 7 kg at arm's length moves the CoP about 7 cm of the
-    ~10 cm it has in front; the task ships with 12 kg, which tips it forwards (README)."""
-    task = load_task("catch").with_params(ball_mass_kg=7.0)
-    assert evaluate(task, simulate(task, record=False)).success
 
 
 def test_slow_bend_library_beats_zero():
