@@ -13,6 +13,7 @@ from cmrt.simulate import _delayed, simulate, simulate_batch
 
 simulate_module = sys.modules["cmrt.simulate"]
 DELAYED = ControllerConfig(feedback_delay_s=0.1)
+INSTANT = ControllerConfig(feedback_delay_s=0.0)
 
 
 def test_the_feedback_sees_the_com_of_tau_ago():
@@ -46,7 +47,7 @@ def test_the_compiled_and_python_control_steps_delay_alike(monkeypatch):
     for a, b in zip(compiled, python, strict=True):
         assert a.fell == b.fell and a.fall_time_s == b.fall_time_s
         assert np.array_equal(a.qpos, b.qpos, equal_nan=True) and np.array_equal(a.cop_x_m, b.cop_x_m, equal_nan=True)
-    undelayed = simulate_batch(task, curves[:1], threads=1)[0]
+    undelayed = simulate_batch(task, curves[:1], INSTANT, threads=1)[0]
     assert not np.array_equal(undelayed.qpos, python[0].qpos, equal_nan=True)  # the delay did something
 
 
@@ -54,6 +55,6 @@ def test_a_delayed_controller_absorbs_less_of_a_push():
     """A 180 N x 0.1 s thorax push: recovered with instant feedback, a fall with 0.1 s of delay (measured
     thresholds: 194 N and 162 N; docs/controller.md)."""
     task = load_task("stand").with_params(push_force_n=180.0, clip_s=5.0)
-    assert evaluate(task, simulate(task, record=False)).success
+    assert evaluate(task, simulate(task, config=INSTANT, record=False)).success
     delayed = evaluate(task, simulate(task, config=DELAYED, record=False))
     assert delayed.fell and delayed.fall_direction == "forward"

@@ -29,7 +29,9 @@ def _weak_controller(in_plan: bool) -> MomentumBalanceController:
 @pytest.fixture(scope="module")
 def bend_states():
     task = load_task("bend").with_speed(0.8)
-    traj = simulate(task, config=ControllerConfig(limits_in_plan=True))  # knees off their stops
+    # knees off their stops, and planned as the test plans (no feedback delay: it calls the controller with the
+    # present CoM)
+    traj = simulate(task, config=ControllerConfig(limits_in_plan=True, feedback_delay_s=0.0))
     return task.reference(traj.time_s), traj
 
 

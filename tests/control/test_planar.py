@@ -51,6 +51,7 @@ N_STATES = 4  # random states per task model
 N_LOADED = 2  # more rows with extra mass in the forearms (a held load), per-simulation model fields
 LOAD_KG = 6.0
 EXACT_RTOL = 1e-9
+ABS_FLOOR = 1e-2  # rows smaller than this are compared to rtol * ABS_FLOOR (see assert_close)
 FD_RTOL = 1e-9
 FD_STEP_S = 3e-4
 FIELDS = ("qpos", "qvel", "cdof", "cdof_dot", "cvel", "cinert", "M", "subtree_com", "geom_xpos")
@@ -58,9 +59,11 @@ TASKS = cmrt.available_tasks()
 
 
 def assert_close(actual, expected, rtol, what):
-    """|actual - expected| <= rtol * max|expected| over the row (entries near zero are not singled out)."""
+    """|actual - expected| <= rtol * max|expected| over the row (entries near zero are not singled out); a row
+    whose largest entry is below ``ABS_FLOOR`` (a nearly still state) is held to rtol * ABS_FLOOR, which is still
+    ~10x the rounding of the chain's sums (measured 1.1e-12 on a punch state whose foot bias was 8e-4)."""
     actual, expected = np.asarray(actual), np.asarray(expected)
-    scale = max(np.abs(expected).max(), 1e-12)
+    scale = max(np.abs(expected).max(), ABS_FLOOR)
     err = np.abs(actual - expected).max()
     assert err <= rtol * scale, f"{what}: max error {err:.3g} > {rtol:g} x {scale:.3g}"
 
