@@ -104,3 +104,21 @@ def test_a_push_falls_the_way_it_pushes_and_the_topple_is_measured(force_n, dire
     assert ev.after_fall_peak_foot_force_bw > 0.0 and ev.after_fall_max_foot_lift_m > 0.0
     assert ev.max_plan_cop_error_m < 0.02  # measured 8 mm (+250 N), 1 mm (-250 N): the plan is carried out
     assert np.sign(traj.com_m[c, 0] - traj.support_center_x_m[k]) == np.sign(force_n)
+
+
+def test_the_on_time_rule_when_enforced(monkeypatch):
+    """With ``ENFORCE_TIMING`` a pose change done within the RMS bound but late is not performed, and its
+    penalty grows with the lag; off (today), the lag is only reported."""
+    import cmrt.objective as objective
+    from cmrt.objective import evaluate
+
+    slow = load_task("bend").with_speed(1.2)  # RMS bound: the reference 120 ms late; lag bound: 50 ms
+    t = clip_times(slow)
+    late = played(slow, reference_at(slow, t - 0.08))
+    base = evaluate(slow, late)
+    assert base.timing_lag_s == pytest.approx(0.08, abs=1e-6) and base.timing_lag_bound_s == 0.05
+    assert base.performed  # within the RMS bound, so performed while the rule is off
+    monkeypatch.setattr(objective, "ENFORCE_TIMING", True)
+    enforced = evaluate(slow, late)
+    assert not enforced.performed and enforced.penalty > base.penalty
+    assert evaluate(slow, played(slow, reference_at(slow, t - 0.03))).performed  # 30 ms: on time
