@@ -201,7 +201,8 @@ def test_a_known_push_neither_a_cmrt_nor_a_step_saves_alone_is_saved_by_both():
     """Item 4: -600 N x 0.1 s. Stepping alone (zero CMRT) steps back after the push and falls; the CMRT
     (optimized with stepping on, tests/data) alone leans back out of the heels and falls (and CMA-ES with
     stepping=0 found no CMRT that saves -600 N: docs/stepping.md); together the CMRT's lean triggers a
-    backward step *before* the push, and the wide stance takes it."""
+    backward step *before* the push, and from the wide stance two more steps back take it (controller v0.3:
+    with the balance feedback 0.1 s late, v0.2's single brace step no longer absorbs 60 N s)."""
     from cmrt.curve import Cmrt
     from cmrt.objective import evaluate
     from cmrt.simulate import simulate
@@ -214,7 +215,7 @@ def test_a_known_push_neither_a_cmrt_nor_a_step_saves_alone_is_saved_by_both():
     assert cmrt_alone.fell
     traj = simulate(task.with_params(stepping=1), curve, record=True)
     both = evaluate(task.with_params(stepping=1), traj)
-    assert both.success and both.steps == 1 and both.final_com_speed_m_s < 0.05
+    assert both.success and both.steps >= 1 and both.final_com_speed_m_s < 0.05
     push_start_s = task.params["push_start_s"]
     foot, landed_s, heel_x = traj.footprints[0]
     assert landed_s < push_start_s and heel_x < -0.25  # a step back, landed before the push arrives
