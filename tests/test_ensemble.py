@@ -74,8 +74,11 @@ def test_prop_mass_member_carries_the_scaled_ball():
     heavy = Perturbation(prop_mass_scale=1.1)
     base, more = simulate_batch(catch, [curve, curve], perturbations=[NOMINAL, heavy])
     assert base.prop_extras["grip_s"] > 0 and more.prop_extras["grip_s"] > 0
-    # the heavier ball pulls the hands lower
-    assert more.prop_extras["ball_sag_m"] > base.prop_extras["ball_sag_m"]
+    # the ball 10 % heavier brings 10 % more momentum into the hands (m v at the same throw): the impulse the
+    # hands take (from m (a - g) of the ball) scales with it. (Where the hands end up is a poor check: the
+    # 7 kg catch's library CMRT holds the ball right at the 0.1 m sag bound, and the end pose is the controller's.)
+    ratio = evaluate(catch, more).contact_impulse_n_s / evaluate(catch, base).contact_impulse_n_s
+    assert 1.05 < ratio < 1.15
 
 
 def test_robust_score_is_the_combined_ensemble():
