@@ -111,11 +111,14 @@ class Evaluation:
     n_samples: int
     task_success: bool | None = None
     # hand-prop interaction (None without a prop), before any fall: the first contact, the largest force
-    # and the impulse over the clip; for a ball, how far the hands holding it sagged below the reference
+    # and the impulse over the clip; for a ball, how far the hands holding it are below the reference at the
+    # end (signed), the largest |sag| since the grip, and how long they have been held within the bound
     first_contact_s: float | None = None
     peak_contact_force_n: float | None = None
     contact_impulse_n_s: float | None = None
     ball_sag_m: float | None = None
+    ball_max_sag_m: float | None = None
+    ball_held_s: float | None = None
     # stepping (task parameter ``stepping``): how many steps the supervisor took before any fall, and when
     # each lifted off
     steps: int = 0
@@ -265,6 +268,8 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
         task_success=traj.task_success,
         **contact,
         ball_sag_m=traj.prop_extras.get("ball_sag_m"),
+        ball_max_sag_m=traj.prop_extras.get("ball_max_sag_m"),
+        ball_held_s=traj.prop_extras.get("ball_held_s"),
         steps=len(traj.step_times_s),
         step_times_s=tuple(round(float(t), 4) for t in traj.step_times_s),
         max_plan_cop_error_m=plan_cop_error_m(traj, contact["first_contact_s"]),

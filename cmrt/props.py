@@ -53,6 +53,7 @@ HAND_OFFSET_M = np.array([0.0, 0.0, -0.40])  # forearm frame -> fingertip end of
 GRIP_TOLERANCE_M = 0.005  # the ball counts as touching the fingertips within this gap
 GRIP_TIMECONST_S = 0.01  # the grip's constraint time constant (MuJoCo's default 0.02 lets 12 kg wobble)
 GRIP_SETTLE_S = 0.06  # at the latest this long after the grip the load is handed to the forearms
+BALL_HOLD_S = 0.3  # a catch is held when the hands have stayed this long within max_ball_sag_m of the reference
 GRIP_SETTLED_M_S = 0.05  # ... or as soon as the ball moves with the point it is held at to within this
 BALL_RESIDUAL_MASS_KG = 0.05  # what the ball body keeps once its mass is in the forearms
 CONTACT_FORCE_N = 1.0  # a hand-prop force above this counts as contact
@@ -181,13 +182,14 @@ class Ball(Prop):
     kind = "ball"
     PARAMS = {"ball_mass_kg": 7.0, "ball_speed_m_s": 4.0, "ball_angle_deg": 10.0, "ball_flight_s": 0.4,
               "ball_arrival_s": 1.35, "ball_height_m": 1.36, "ball_reach_m": 0.86, "max_ball_sag_m": 0.1,
-              "ball_grip_timeconst_s": GRIP_TIMECONST_S, "ball_grip_settle_s": GRIP_SETTLE_S}
+              "ball_hold_s": BALL_HOLD_S, "ball_grip_timeconst_s": GRIP_TIMECONST_S,
+              "ball_grip_settle_s": GRIP_SETTLE_S}
     MODEL_PARAMS = ("ball_mass_kg", "ball_grip_timeconst_s")
     LIMITS = {"ball_mass_kg": Range(0.1, 100.0, unit="kg"),  # above BALL_RESIDUAL_MASS_KG: the hand-over moves it
               "ball_speed_m_s": Range(0.0, 50.0, unit="m/s"), "ball_angle_deg": Range(-90.0, 90.0, unit="deg"),
               "ball_flight_s": Range(0.01, 10.0, unit="s"), "ball_arrival_s": Range(0.0, 60.0, unit="s"),
               "ball_height_m": Range(0.0, 5.0, unit="m"), "ball_reach_m": Range(-5.0, 5.0, unit="m"),
-              "max_ball_sag_m": Range(0.0, 2.0, unit="m"),
+              "max_ball_sag_m": Range(0.0, 2.0, unit="m"), "ball_hold_s": Range(0.0, 10.0, unit="s"),
               # the grip's constraint time constant: >= 2 physics steps (MuJoCo's stability rule), at most 0.5 s
               "ball_grip_timeconst_s": Range(0.004, 0.5, unit="s"),
               "ball_grip_settle_s": Range(0.004, 2.0, unit="s")}
@@ -222,6 +224,9 @@ class Ball(Prop):
         self.handed_over = np.zeros(0, bool)  # its mass has moved into the forearms
         self.handover_s = np.zeros(0)  # when (s; NaN: not yet)
         self.drift = np.zeros((0, 2))  # the ball's (x, z) offset from its anchor on the right forearm, last step
+        self.held_sag_m = np.zeros(0)  # largest |sag| of the hands since the hand-over (m; NaN: not handed over)
+        self._now_s = 0.0  # the time of the last step (s)
+        self.out_s = np.zeros(0)  # the last time the hands were off the reference by more than max_ball_sag_m (s)
         # ... and the batch's per-simulation model fields the ball changes (views: batch.expand)
         self.eq_data = np.zeros(0)
         self.gravcomp = np.zeros(0)
@@ -260,8 +265,17 @@ class Ball(Prop):
         self.handed_over = np.zeros(n, bool)
         self.drift = np.zeros((n, 2))
         self.handover_s = np.full(n, np.nan)
+        self.held_sag_m = np.full(n, np.nan)
+        self.out_s = np.full(n, np.inf)  # not held yet
 
     def step(self, batch, b, ids, t):
+        self._now_s = t
+        held = ids[self.handed_over[ids]]
+        if held.size:  # the hold: the hands must stay where the reference holds them, up or down
+            sag = np.abs(self.reference_tip_z - self._tip_z(b, held))
+            self.held_sag_m[held] = np.fmax(self.held_sag_m[held], sag)
+            off = (sag > self.params["max_ball_sag_m"]) | np.isinf(self.out_s[held])
+            self.out_s[held[off]] = t
         release = ids[~self.released[ids]]
         if release.size and t >= self.release_s - 1e-9:
             b["qvel"][release, self.dofs] = [*self.release_vel, 0.0]
@@ -348,17 +362,27 @@ class Ball(Prop):
         return mass * np.hypot(acc[:, 0], acc[:, 1] + GRAVITY_M_S2)
 
     def success(self, b, rows, contact_force_n, times, window):
-        """Caught, and held where the reference holds the hands: they sag at most ``max_ball_sag_m``."""
-        sag = self.extras(b, rows)["ball_sag_m"]
-        return ~np.isnan(self.grip_s[rows]) & (sag <= self.params["max_ball_sag_m"])
+        """Caught, and held: the hands have stayed within ``max_ball_sag_m`` of where the reference holds them
+        (above or below) for the last ``ball_hold_s``. Arms that give under the impact and bring the ball
+        back are a catch; arms still down, or flung up over the head, at the end are not."""
+        held_s = self.extras(b, rows)["ball_held_s"]
+        return ~np.isnan(self.grip_s[rows]) & (held_s >= self.params["ball_hold_s"] - 1e-9)
 
-    def extras(self, b, rows):
+    def _tip_z(self, b: dict, rows: np.ndarray) -> np.ndarray:
         hand = self.forearms[0]
         R = b["xmat"][rows, hand].reshape(-1, 3, 3)
-        tip_z = (b["xpos"][rows, hand] + R @ HAND_OFFSET_M)[:, 2]
+        return (b["xpos"][rows, hand] + R @ HAND_OFFSET_M)[:, 2]
+
+    def extras(self, b, rows):
         grip = self.grip_s[rows]
+        sag = self.reference_tip_z - self._tip_z(b, rows)  # > 0: below the reference
+        worst = np.fmax(self.held_sag_m[rows], np.abs(sag))
+        held_s = np.maximum(self._now_s - self.out_s[rows], 0.0)
+        caught = ~np.isnan(grip)
         return {"grip_s": grip, "handover_s": self.handover_s[rows],
-                "ball_sag_m": np.where(np.isnan(grip), np.nan, self.reference_tip_z - tip_z)}
+                "ball_sag_m": np.where(caught, sag, np.nan),  # at the end (signed)
+                "ball_max_sag_m": np.where(caught, worst, np.nan),  # the largest |sag| since the grip
+                "ball_held_s": np.where(caught, held_s, 0.0)}  # how long the hands have been within the bound
 
 
 class Slab(Prop):

@@ -17,6 +17,7 @@ from cmrt.props import (
     PROPS,
     Prop,
     ball_release,
+    fingertip_z,
     prop_class,
     strike_success,
 )
@@ -124,8 +125,29 @@ def test_catch_falls_forward_without_anticipation_and_the_library_saves_it(catch
     assert not zero.success and zero.fell and zero.fall_direction == "forward"
     assert zero.peak_normal_force_bw <= 2.5 and zero.airborne_s <= 0.01 and zero.max_joint_speed_rad_s <= 25.0
     lib = evaluate(task, simulate(task, library_curve(task), record=False))
-    assert lib.success and lib.ball_sag_m <= task.params["max_ball_sag_m"]
+    assert lib.success and abs(lib.ball_sag_m) <= task.params["max_ball_sag_m"]
+    assert lib.ball_held_s >= task.params["ball_hold_s"]
     assert_plausible(lib)
+
+
+def test_a_catch_is_held_only_if_the_hands_stay_on_the_reference_to_the_end(catch):
+    """The hold is judged over time, not at one instant: the figures the ball reports equal the fingertip's
+    recorded height against the reference's (largest |sag| since the hand-over, time since the hands were last
+    off by more than max_ball_sag_m), and a hold shorter than ball_hold_s is not a catch."""
+    task = load_task("catch")
+    traj = simulate(task, library_curve(task), record=True)
+    ev = evaluate(task, traj)
+    ref_z = fingertip_z(task.model(), task.end_qpos())
+    k0 = int(np.searchsorted(traj.time_s, traj.prop_extras["handover_s"]))
+    tip_z = np.array([fingertip(task, q)[0][1] for q in traj.qpos[k0:]])
+    off = np.abs(ref_z - tip_z)
+    assert ev.ball_max_sag_m == pytest.approx(off.max(), abs=0.005)
+    bound = task.params["max_ball_sag_m"]
+    last_off = traj.time_s[k0:][off > bound].max()
+    assert ev.ball_held_s == pytest.approx(traj.time_s[-1] - last_off, abs=0.02)
+    assert ev.ball_max_sag_m > bound and ev.success  # the arms gave under the 7 kg and brought it back
+    longer = task.with_params(ball_hold_s=ev.ball_held_s + 0.05)
+    assert not evaluate(longer, simulate(longer, library_curve(task), record=False)).task_success
 
 
 def test_push_is_a_push_on_a_free_slab():

@@ -10,6 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cmrt import evaluate, simulate
+from cmrt.character import character
+from cmrt.control import ControllerConfig
 from cmrt.optimize import OptimizeSettings, new_state
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -391,3 +394,30 @@ def test_bend_search_tool_json():
         if "success" in row:
             assert row["ref_max_joint_speed_rad_s"] <= 25 and isinstance(row["success"], bool)
     assert run_tool("bend_search.py", "--samples", "0").returncode == 2
+    assert run_tool("bend_search.py", "--commit", "0").returncode == 2
+    r = run_tool("bend_search.py", "--samples", "4", "--seed", "1", "--min-force-bw", "5", "--commit", "10", "--json")
+    out = json.loads(r.stdout)  # nothing needs 5 body weights at its least: nothing is simulated
+    assert out["commit"] == 10 and out["min_force_bw"] == 5 and out["simulated"] == 0 and out["possible"] > 0
+
+
+def test_a_committed_controller_does_a_possible_fast_bend_on_time_without_a_cmrt():
+    """docs/controller.md, *Fast bend*: with the driving joints tracked 10x more firmly, a 0.4 s bend whose
+    reference keeps the feet loaded (min F_z 0.28 BW) and that the CoM-shift model calls infeasible without
+    anticipation (excess +0.32 m) is done on time with the zero CMRT; the shipped controller does it late.
+    The ankle alone (its CoP inside the feet) balances it: a committed reactive controller does not fall."""
+    tool = load_tool("bend_search.py")
+    end = {"lumbar": 29, "hip": -52, "knee": 13, "neck": -17, "shoulder": -77}
+    trunk, legs = [0.04, 0.86], [0.29, 0.79]
+    timing = {"hip": trunk, "lumbar": trunk, "neck": trunk, "knee": legs, "ankle": legs, "shoulder": [0.04, 0.99]}
+    task = tool.bend_task(end, timing, 0.4)
+    ref = tool.analyze_reference.analyze(task)
+    assert ref["min_vertical_force_bw"] > 0.25 and ref["cop_excess_m"]["from_motion_start"] > 0.2
+    committed = evaluate(task, simulate(task, None, tool.CommittedConfig(commit=10.0), record=True))
+    shipped = evaluate(task, simulate(task, None, record=True))
+    assert committed.success and not committed.fell
+    assert committed.timing_lag_s <= 0.01 < 0.05 < shipped.timing_lag_s
+    assert committed.peak_normal_force_bw <= 2.5 and committed.airborne_s <= 0.01
+    w = tool.CommittedConfig(commit=10.0).tracking_weights(character())
+    base = ControllerConfig().tracking_weights(character())
+    names = character().dof_names
+    assert all(w[i] == (10.0 if n.split("_")[0] in tool.DRIVING else 1.0) * base[i] for i, n in enumerate(names))
