@@ -273,9 +273,12 @@ def _judge_prop(prop, b, rows, force, times, windows, goal, extras) -> None:
         extras.setdefault(key, np.full(goal.size, np.nan))[rows] = values
 
 
-def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass, step: StepCommand | None = None):
+def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass, step: StepCommand | None = None,
+             warm: np.ndarray | None = None, ids: np.ndarray | None = None):
     """Torques and the planned CoP (``ControlOutput.cop_x_m``) for the given rows; a row whose plan is singular or
-    non-finite gets zero torques, a NaN plan and bad=True."""
+    non-finite gets zero torques, a NaN plan and bad=True. ``warm`` (all simulations, n_rows): the QPs' active
+    sets (``ControllerConfig.warm_start``), read and updated at rows ``ids`` (a row whose plan is singular keeps
+    its own, as the compiled tick does)."""
     if step is not None:
         com_ref, com_ref_vel = step.com_targets(com_ref, com_ref_vel)
 
@@ -284,19 +287,26 @@ def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass, 
 
     # no np.errstate here: the compiled kernel raises no numpy FP warnings, and entering one per control
     # step cost more than a percent of an evaluation
+    active = None if warm is None else warm[ids]
     try:
-        out = controller.torques(f, *refs, com_ref, com_ref_vel, cop_ref, contact, mass, **swing(slice(None)))
+        out = controller.torques(f, *refs, com_ref, com_ref_vel, cop_ref, contact, mass, **swing(slice(None)),
+                                 warm=active)
         ctrl, plan_cop = out.torque_nm, out.cop_x_m
+        if warm is not None:
+            warm[ids] = active
     except np.linalg.LinAlgError:  # find the culprits one by one; the others are unaffected
         ctrl = np.full((com_ref.size, controller.limits.size), np.nan)
         plan_cop = np.full(com_ref.size, np.nan)
         for i in range(com_ref.size):
             fi = {name: f[name][i : i + 1] for name in CONTROL_FIELDS}
+            one = None if warm is None else warm[ids[i : i + 1]]
             try:
                 out = controller.torques(fi, *refs, com_ref[i : i + 1], com_ref_vel[i : i + 1],
                                          cop_ref[i : i + 1], contact[i : i + 1], mass[i : i + 1],
-                                         **swing(slice(i, i + 1)))
+                                         **swing(slice(i, i + 1)), warm=one)
                 ctrl[i], plan_cop[i] = out.torque_nm[0], out.cop_x_m[0]
+                if warm is not None:
+                    warm[ids[i]] = one[0]
             except np.linalg.LinAlgError:
                 pass
     bad = ~np.all(np.isfinite(ctrl), axis=1)
@@ -451,8 +461,8 @@ def _delayed(targets: Targets, delay_steps: int, k: int, ids: np.ndarray, com_x_
 
 def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarray, fallen: np.ndarray,
              drive: _Drive, k: int, targets: Targets, contact: np.ndarray, mass: np.ndarray,
-             hold: np.ndarray, act: np.ndarray, nu: int, step: StepCommand | None = None
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             hold: np.ndarray, act: np.ndarray, nu: int, step: StepCommand | None = None,
+             warm: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Torques of simulations ``ids`` (batch rows ``sel``): the controller for those standing, protective
     mode for those that fell. ``bad``: the controller's plan was singular or non-finite; ``plan_cop``: the CoP
     it planned (NaN in protective mode or for a bad plan). ``targets``: the
@@ -462,7 +472,7 @@ def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarra
     if not fallen.any():  # everyone under control: the bound arrays themselves, no copies
         f = b if isinstance(sel, slice) else {name: b[name][sel] for name in CONTROL_FIELDS}
         return _control(controller, f, drive.refs_at(k, ids), t.com_x_m, t.com_vel_x_m_s, t.cop_x_m, contact,
-                        mass[sel], step)
+                        mass[sel], step, warm, ids)
     ctrl = np.zeros((ids.size, nu))
     bad = np.zeros(ids.size, bool)
     plan_cop = np.full(ids.size, np.nan)
@@ -472,7 +482,7 @@ def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarra
         f = {name: b[name][rows] for name in CONTROL_FIELDS}
         ctrl[up], bad[up], plan_cop[up] = _control(
             controller, f, drive.refs_at(k, rows), t.com_x_m[up], t.com_vel_x_m_s[up], t.cop_x_m[up], contact[up],
-            mass[rows], None if step is None else step.rows(up))
+            mass[rows], None if step is None else step.rows(up), warm, rows)
     return ctrl, bad, plan_cop  # the fallen: motors off, their joints passive (``_Limp``)
 
 
@@ -523,7 +533,8 @@ class _CompiledTick:
 
     def __init__(self, b: dict, geo: _Geometry, controller: MomentumBalanceController, limits: BalanceLimits,
                  drive: _Drive, rec: _Recorder, falls: _Falls, act: np.ndarray, n: int, nb: int, mass_kg: float,
-                 dt: float, control_dt: float, lean_check: bool, delay_steps: int, fb_vel: np.ndarray):
+                 dt: float, control_dt: float, lean_check: bool, delay_steps: int, fb_vel: np.ndarray,
+                 warm: np.ndarray):
         c = controller
         variants = drive.variant_of is not None
         # Every row of the batch's fields, read-only and C-contiguous: one numba signature (each costs ~40 s
@@ -546,6 +557,7 @@ class _CompiledTick:
         self.state = (falls.airborne_for_s, falls.code, rec["sc"], rec["lo"], rec["hi"], rec["qpos"], rec["com"],
                       rec["jspeed"], rec["cref"])
         self.delay = (delay_steps, fb_vel)
+        self.warm = (warm, np.zeros_like(warm))  # the active sets, and where this step's are written first
 
     def __call__(self, k: int, ids: np.ndarray, carried_kg: np.ndarray, com_ref_now: np.ndarray,
                  cop_ref_now: np.ndarray, ctrl_all: np.ndarray):
@@ -559,7 +571,7 @@ class _CompiledTick:
         try:
             fell = control_tick(k, ids, self.dt, self.control_dt, self.nb, self.mass_kg, *self.fields, *self.geometry,
                                 *self.controller, *self.drive, carried_kg, *self.lean, *self.state,
-                                com_ref_now, cop_ref_now, ctrl_all, *self.delay, point_x, momentum, new)
+                                com_ref_now, cop_ref_now, ctrl_all, *self.delay, *self.warm, point_x, momentum, new)
         except np.linalg.LinAlgError:
             return None
         if fell < 0:
@@ -663,8 +675,10 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
     # every control step so far (its position is in the records)
     delay_steps = config.control_every * int(round(config.feedback_delay_s / control_dt))
     fb_vel = np.full((n, n_steps), np.nan)
+    # each simulation's QP active set at its last control step: the next one starts from it (warm start)
+    warm = np.zeros((n, controller.n_rows), bool)
     compiled = (_CompiledTick(b, geo, controller, limits, drive, rec, falls, act, n, nb, ch.mass_kg, dt, control_dt,
-                              has_contact_force, delay_steps, fb_vel)
+                              has_contact_force, delay_steps, fb_vel, warm)
                 if COMPILED_TICK and yu is None and stepper is None and not record else None)
 
     push_steps = set(np.flatnonzero(drive.push_changes).tolist())  # a set: cheaper per step than an array
@@ -788,7 +802,7 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
             fb_vel[ids, k] = vel_x
             felt = _delayed(targets, delay_steps, k, ids, com[:, 0], vel_x, rec_com, fb_vel)
             ctrl, bad, plan_cop = _torques(controller, b, sel, ids, falls.code[ids] > 0, drive, k, felt, contact,
-                                           mass, falls.hold, act, m.nu, step)
+                                           mass, falls.hold, act, m.nu, step, warm)
             if record:  # the plan against the CoP measured in the physics step these torques act in
                 swinging = np.zeros(ids.size, bool) if stepper is None else stepper.swinging(ids).any(axis=1)
                 rec["plan_cop"][sel, k] = np.where(swinging, np.nan, plan_cop)

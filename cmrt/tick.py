@@ -180,6 +180,8 @@ def control_tick(k, ids, dt, control_dt, nb, mass_kg,
                  com_ref_now, cop_ref_now, ctrl_all,
                  # the balance feedback's delay (steps) and the CoM velocity at past control steps (n_all, steps)
                  delay_steps, fb_vel,
+                 # the QPs' active sets (n_all, rows): kept from the last control step, and this step's first
+                 warm, warm_out,
                  # out, rows ``ids``
                  point_x, momentum, new):
     """Control step ``k`` of a scoring run, rows ``ids`` (center reference, feet planted, nobody fallen),
@@ -240,7 +242,11 @@ def control_tick(k, ids, dt, control_dt, nb, mass_kg,
     control_step(ids, cdof, cdof_dot, cvel, cinert, qpos, qvel, M, qfrc_bias, qfrc_passive, subtree_com, geom_xpos,
                  chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, torque_limits, w2, params,
                  qr, qdr, qddr, com_ref, com_ref_vel, cop_ref, contact, mass, np.full(n, -1.0),
-                 np.zeros((n, N_SWING)), tau, info)
+                 np.zeros((n, N_SWING)), warm, warm_out, tau, info)
+    for r in range(n):  # every plan found: keep the active sets (a singular plan raised, keeping none)
+        s = ids[r]
+        for j in range(warm.shape[1]):
+            warm[s, j] = warm_out[s, j]
 
     finite = np.empty(n, np.bool_)
     air = np.empty(n)

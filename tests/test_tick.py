@@ -1,12 +1,14 @@
 """The compiled control step (cmrt.tick) is the Python path's arithmetic: trajectories bit for bit."""
 
+import dataclasses
 import sys
 
 import mujoco.batch
 import numpy as np
 import pytest
 
-from cmrt import Cmrt, load_task
+from cmrt import Cmrt, library_curve, load_task
+from cmrt.control import ControllerConfig
 from cmrt.control.planar import PlanarKinematics
 from cmrt.ensemble import training_members
 from cmrt.props import prop_class
@@ -147,3 +149,20 @@ def test_a_changed_inlined_module_drops_the_compiled_ticks_cache(tmp_path):
     assert stale[0].exists()
     (cache / "tick.inlined.sha256").write_text("another kernel")
     assert drop_stale_cache(here) and not stale[0].exists()
+
+
+@pytest.mark.parametrize("name", ["bend", "punch", "catch", "push"])
+def test_the_warm_start_changes_no_plan_the_qp_solves(name):
+    """ControllerConfig.warm_start (each QP starts from the active set its simulation's last control step
+    ended on) saves KKT solves, not results: the zero and library CMRTs' clips, falls included, are the cold
+    start's bit for bit, scored and recorded (docs/performance.md: they differ only where the active set does
+    not settle within its passes, seen on the rise's fall)."""
+    task = load_task(name)
+    task = task.with_speed(0.4) if name == "bend" else task
+    curves = [None, library_curve(task)]
+    cold = dataclasses.replace(ControllerConfig(), warm_start=False)
+    assert ControllerConfig().warm_start
+    for record in (False, True):
+        warm = simulate_batch(task, curves, ControllerConfig(), record=record)
+        for a, b in zip(warm, simulate_batch(task, curves, cold, record=record), strict=True):
+            _assert_identical(a, b)

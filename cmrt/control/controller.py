@@ -91,6 +91,10 @@ class ControllerConfig:
     # state and the CMRT (the anticipation) is not delayed. 0: the v0.2 controller, bit for bit (issue 25;
     # docs/controller.md). Applied by cmrt.simulate, which keeps the history.
     feedback_delay_s: float = 0.1
+    # Start each control step's QP from the active set the previous step of the same simulation ended on
+    # (kernel.solve_qp): 1-2 KKT solves instead of 3-5. The solution comes from the final set alone, so the
+    # result only changes where the warm and the cold start end on different sets (docs/performance.md).
+    warm_start: bool = True
     stop_k: float = 400.0  # 1/s^2, the plan approaches a joint stop no faster than this spring (docs/controller.md)
     stop_d: float = 40.0  # 1/s, its damping (critical)
     stop_margin_rad: float = 0.02  # the plan keeps this far from every joint stop
@@ -180,9 +184,11 @@ class MomentumBalanceController:
                              (kernel.P_DUALREG, DUAL_REGULARIZATION), (kernel.P_SW, c.swing_weight),
                              (kernel.P_SK, c.swing_k), (kernel.P_SD, c.swing_d),
                              (kernel.P_SWT, c.swing_leg_tracking), (kernel.P_JK, c.stop_k),
-                             (kernel.P_JD, c.stop_d), (kernel.P_LIMITS, float(c.limits_in_plan))):
+                             (kernel.P_JD, c.stop_d), (kernel.P_LIMITS, float(c.limits_in_plan)),
+                             (kernel.P_WARM, float(c.warm_start))):
             params[index] = value
         self.params = params
+        self.n_rows = kernel.n_rows(self.actuated.size)  # width of the warm-start arrays
         self._per_n: dict[int, dict] = {}
 
     def _constants(self, n: int) -> dict:
@@ -195,7 +201,8 @@ class MomentumBalanceController:
                 "rows": np.arange(n),  # simulation i reads row i (writable int64, as the compiled loop's rows)
                 "refs": [(buf, _read_only(buf)) for buf in bufs],
                 "mass": _read_only(np.full(n, self.mass)), "no_swing": _read_only(np.full(n, -1.0)),
-                "no_target": _read_only(np.zeros((n, kernel.N_SWING)))}
+                "no_target": _read_only(np.zeros((n, kernel.N_SWING))),
+                "cold": _read_only(np.zeros((n, self.n_rows), bool)), "warm_out": np.zeros((n, self.n_rows), bool)}
         return c
 
     @staticmethod
@@ -206,7 +213,7 @@ class MomentumBalanceController:
 
     def torques(self, f: dict[str, np.ndarray], q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x,
                 in_contact: np.ndarray, mass_kg: np.ndarray | None = None, swing_foot: np.ndarray | None = None,
-                swing_target: np.ndarray | None = None) -> ControlOutput:
+                swing_target: np.ndarray | None = None, warm: np.ndarray | None = None) -> ControlOutput:
         """Torques for n simulations. ``f`` holds (n, ...) arrays of the MuJoCo fields at the current state:
         qpos, qvel, cdof, cdof_dot, cvel, cinert, M, qfrc_bias, qfrc_passive, subtree_com, geom_xpos.
         References are (nv,) (shared) or (n, nv) (one per simulation); CoM/CoP targets are (n,);
@@ -214,7 +221,9 @@ class MomentumBalanceController:
         mass with what it carries (default: its own). ``swing_foot`` (n,): -1, or the foot (0 right, 1 left)
         that swings toward ``swing_target`` (n, 10): heel point x, z, foot pitch, their rates and accelerations,
         the stance knee's extra bend
-        (``cmrt.control.stepping``); default: no foot swings."""
+        (``cmrt.control.stepping``); default: no foot swings. ``warm`` (n, n_rows) bool: each simulation's QP
+        active set from its previous control step, updated in place once every plan has been found (a singular
+        plan raises ``LinAlgError`` and leaves it as it was); None: every QP starts cold."""
         n = f["qvel"].shape[0]
         c = self._constants(n)
         tau = np.empty((n, self.actuated.size))
@@ -227,7 +236,10 @@ class MomentumBalanceController:
             _as_kernel(com_ref_x), _as_kernel(com_ref_vel_x), _as_kernel(cop_des_x),
             _as_kernel(in_contact, np.bool_), c["mass"] if mass_kg is None else _as_kernel(mass_kg),
             c["no_swing"] if swing_foot is None else _as_kernel(swing_foot),
-            c["no_target"] if swing_target is None else _as_kernel(swing_target), tau, info,
+            c["no_target"] if swing_target is None else _as_kernel(swing_target),
+            c["cold"] if warm is None else warm, c["warm_out"], tau, info,
         )
+        if warm is not None:
+            np.copyto(warm, c["warm_out"])
         return ControlOutput(torque_nm=tau, ground_force_n=info[:, :2], cop_x_m=info[:, 2],
                              foot_state=info[:, 3:5].astype(int), saturated=info[:, 5] > 0)

@@ -29,8 +29,8 @@ from numba import njit
 FLAT, HEEL, TOE, AIR = 0, 1, 2, 3
 # Indices into the parameter vector (built by controller.MomentumBalanceController).
 (P_KL, P_DL, P_KT, P_DT, P_BL, P_BH, P_BT, P_EPS, P_G, P_MU, P_FMIN, P_DAMP, P_RW, P_RK, P_RD,
- P_RADIUS, P_DUALREG, P_SW, P_SK, P_SD, P_SWT, P_JK, P_JD, P_LIMITS) = range(24)
-N_PARAMS = 24
+ P_RADIUS, P_DUALREG, P_SW, P_SK, P_SD, P_SWT, P_JK, P_JD, P_LIMITS, P_WARM) = range(25)
+N_PARAMS = 25
 # The swing foot's task-space target (cmrt.control.stepping): heel point x, z, foot pitch; their rates
 # and accelerations; then the bend added to the stance knee's reference while the foot swings (rad).
 # ``swing_foot`` per simulation: -1 (both feet support), 0 (right swings), 1 (left).
@@ -38,6 +38,12 @@ N_SWING = 10
 S_CROUCH = 9
 N_INFO = 6  # planned F_x, F_z, CoP x, right foot state, left foot state, torque saturated
 N_INEQ = 5  # F_z >= n f_min, two friction rows, two CoP rows
+
+
+def n_rows(nu: int) -> int:
+    """The QP's inequality rows with the limits in the plan (the warm-start arrays' width): the ground's,
+    then two torque rows and two joint-stop rows per motor."""
+    return N_INEQ + 4 * nu
 MAX_PASSES = 8  # active-set passes with the wrench rows alone
 # ...and with the motors' limits and the joint stops as rows too (``P_LIMITS``): one row enters or leaves per pass
 MAX_PASSES_LIMITS = 40
@@ -148,15 +154,24 @@ def bounded_shares(x, carries, cop, lower):
 
 
 @njit(cache=True, nogil=True)
-def solve_qp(Q, g, E, e, C, c, c_on, dual_reg, passes=MAX_PASSES):
+def solve_qp(Q, g, E, e, C, c, c_on, dual_reg, passes=MAX_PASSES, active=None):
     """min 1/2 x'Qx - g'x  s.t.  E x = e,  C x + c >= 0 (rows with c_on), by a primal active set.
 
     Each pass solves the KKT system of the equalities and the active inequalities; the most
     violated inactive row is added, or the active row with the most negative multiplier dropped.
     -dual_reg on the multipliers' diagonal makes redundant rows (both feet asking the same
-    vertical acceleration of a straight-kneed body) solvable in the least-squares sense."""
+    vertical acceleration of a straight-kneed body) solvable in the least-squares sense.
+
+    ``active`` (ni,) bool, in and out: the rows to start from (a warm start: the previous control step's
+    final set, less the rows now off) and, on return, the final set; None: start from none. The solution
+    is computed from the final set alone (its KKT system, rows in index order), so a warm start that ends
+    on the same set as a cold one gives the same x, bit for bit: it only saves passes."""
     nx, ne, ni = g.size, e.size, c.size
-    active = np.zeros(ni, np.bool_)
+    if active is None:
+        active = np.zeros(ni, np.bool_)
+    else:
+        for k in range(ni):
+            active[k] = active[k] and c_on[k]
     order = np.empty(ni, np.int64)
     x = np.zeros(nx)
     for _ in range(passes):
@@ -209,7 +224,7 @@ def solve_qp(Q, g, E, e, C, c, c_on, dual_reg, passes=MAX_PASSES):
 def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, qfrc_passive, com_all, geom_xpos,
                  chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, limits, w2, params,
                  q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, contact, mass_all, swing_foot,
-                 swing_target, tau_out, info_out):
+                 swing_target, warm_in, warm_out, tau_out, info_out):
     """Torques (tau_out, (n, nu)) for n simulations; info_out (n, N_INFO) gets the plan's summary.
 
     Arrays are the batch's bound MuJoCo fields, of which simulation ``i`` reads row ``rows[i]`` (the
@@ -218,7 +233,10 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
     ensemble's members may play the motion at different speeds); ``mass_all`` (n,) is each character's mass with what it
     carries (a caught ball's mass moves into the forearms); see controller.py for the formulation.
     A swinging foot (``swing_foot[i]`` >= 0) has no support rows and carries no load; its heel point and
-    pitch track ``swing_target[i]`` as a weighted objective, and its leg's joint tracking is weakened."""
+    pitch track ``swing_target[i]`` as a weighted objective, and its leg's joint tracking is weakened.
+    ``warm_in`` / ``warm_out`` (rows, n_rows(nu)) bool, read / written at row ``rows[i]``: the QP's active set
+    to start from (the row's previous control step's) and the one it ended on. The caller keeps ``warm_out``
+    as the next step's ``warm_in`` only once the whole call has succeeded (a singular plan raises)."""
     n = rows.shape[0]
     nb, nv = chain.shape
     grav = params[P_G]
@@ -376,25 +394,33 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
         h = np.empty(nv)
         for j in range(nv):
             h[j] = qfrc_bias[row, j] - qfrc_passive[row, j]
-        Tm = M.copy()  # d tau / d qdd over all dofs (the actuated rows are taken below)
+        # d tau / d qdd (rows: the actuated dofs only, the rows the QP needs) and tau at qdd = 0
+        nu_rows = nu if in_plan else 0
+        Tm = np.empty((nu_rows, nv))
+        for u in range(nu_rows):
+            Tm[u] = M[actuated[u]]
         t0 = h.copy()
         if grounded and in_plan:
             # F_z share of point p: fz / count + (x_p - mean) (cop fz - mean fz) / spread, and cop fz =
             # com_x fz + arm F_x - Hdot is linear in w; F_x is split equally (exact for feet side by side)
+            fx_share = A[0] / count
             for p in range(4):
                 if carries[p]:
                     lever = (pts[p, 0] - mean) / spread if spread > 1e-12 else 0.0
                     dz = A[1] / count + lever * ((com[0] - mean) * A[1] + arm * A[0] - A[2])
                     z0 = (a[1] + mg) / count + lever * ((com[0] - mean) * (a[1] + mg) + arm * a[0] - a[2])
-                    Tm -= np.outer(Jp[p, 0], A[0] / count) + np.outer(Jp[p, 1], dz)
+                    for u in range(nu_rows):  # the same operations as Tm -= outer(Jx, fx_share) + outer(Jz, dz)
+                        jx, jz = Jp[p, 0, actuated[u]], Jp[p, 1, actuated[u]]
+                        for j in range(nv):
+                            Tm[u, j] -= jx * fx_share[j] + jz * dz[j]
                     t0 -= Jp[p, 0] * (a[0] / count) + Jp[p, 1] * z0
         kj, dj = params[P_JK], params[P_JD]
         for u in range(nu if in_plan else 0):
             ju = actuated[u]
             lim = limits[u, 0]
-            C[N_INEQ + 2 * u] = -Tm[ju]
+            C[N_INEQ + 2 * u] = -Tm[u]
             c[N_INEQ + 2 * u] = lim - t0[ju]
-            C[N_INEQ + 2 * u + 1] = Tm[ju]
+            C[N_INEQ + 2 * u + 1] = Tm[u]
             c[N_INEQ + 2 * u + 1] = lim + t0[ju]
             # joint stops: the joint may approach its stop (less a margin) no faster than a critically damped
             # spring would, qdd >= -k (q - lo) - d qd: the plan never leans on a stop, whose force it does not
@@ -405,8 +431,11 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
             C[r + 1, ju] = -1.0
             c[r + 1] = -kj * (q[ju] - limits[u, 2]) - dj * qd[ju]
             c_on[N_INEQ + 2 * u] = c_on[N_INEQ + 2 * u + 1] = c_on[r] = c_on[r + 1] = True
+        active = warm_in[row, :nrow].copy() if params[P_WARM] > 0.0 else np.zeros(nrow, np.bool_)
         qdd = solve_qp(Q, g, E[:ne], e[:ne], C, c, c_on, params[P_DUALREG],
-                       MAX_PASSES_LIMITS if in_plan else MAX_PASSES)
+                       MAX_PASSES_LIMITS if in_plan else MAX_PASSES, active)
+        warm_out[row, :nrow] = active
+        warm_out[row, nrow:] = False
 
         # inverse dynamics with the plan's ground forces, split over the loaded points
         w = A @ qdd + a

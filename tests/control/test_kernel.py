@@ -86,3 +86,28 @@ def test_qp_respects_its_constraints():
     lam, *_ = np.linalg.lstsq(np.vstack([E, C[:1]]).T, Q @ x - g, rcond=None)
     assert lam[-1] >= -1e-9
     np.testing.assert_allclose(np.vstack([E, C[:1]]).T @ lam, Q @ x - g, atol=1e-8)
+
+
+def test_a_warm_start_from_the_final_active_set_gives_the_same_solution_in_one_pass():
+    """ControllerConfig.warm_start: solve_qp reports the set it ended on; started from it, one KKT solve gives
+    the cold start's x bit for bit (the solution is computed from the final set alone), while one pass from
+    no rows gives the unconstrained optimum. Rows that are now off are dropped from the warm set."""
+    rng = np.random.default_rng(0)
+    n = 6
+    L = rng.normal(size=(n, n))
+    Q = L @ L.T + np.eye(n)
+    g, E, e, C = rng.normal(size=n), rng.normal(size=(2, n)), rng.normal(size=2), rng.normal(size=(4, n))
+    x_free = kernel.solve_qp(Q, g, E, e, np.zeros((0, n)), np.zeros(0), np.zeros(0, bool), 0.0)
+    c = -(C @ x_free) + np.array([-0.5, -0.3, 1.0, 1.0])  # rows 0 and 1 violated by the unconstrained optimum
+    on = np.ones(4, bool)
+    final = np.zeros(4, bool)
+    x_cold = kernel.solve_qp(Q, g, E, e, C, c, on, 1e-9, 40, final)
+    assert final[:2].any() and not final[2:].any()
+    warm = final.copy()
+    x_warm = kernel.solve_qp(Q, g, E, e, C, c, on, 1e-9, 1, warm)
+    assert np.array_equal(x_warm, x_cold) and np.array_equal(warm, final)
+    one_cold = kernel.solve_qp(Q, g, E, e, C, c, on, 1e-9, 1, np.zeros(4, bool))
+    assert not np.allclose(one_cold, x_cold)
+    off = final.copy()
+    kernel.solve_qp(Q, g, E, e, C, c, np.zeros(4, bool), 1e-9, 1, off)  # every row off now
+    assert not off.any()
