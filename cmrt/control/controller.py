@@ -213,7 +213,8 @@ class MomentumBalanceController:
 
     def torques(self, f: dict[str, np.ndarray], q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x,
                 in_contact: np.ndarray, mass_kg: np.ndarray | None = None, swing_foot: np.ndarray | None = None,
-                swing_target: np.ndarray | None = None, warm: np.ndarray | None = None) -> ControlOutput:
+                swing_target: np.ndarray | None = None, warm: np.ndarray | None = None,
+                load: tuple | None = None) -> ControlOutput:
         """Torques for n simulations. ``f`` holds (n, ...) arrays of the MuJoCo fields at the current state:
         qpos, qvel, cdof, cdof_dot, cvel, cinert, M, qfrc_bias, qfrc_passive, subtree_com, geom_xpos.
         References are (nv,) (shared) or (n, nv) (one per simulation); CoM/CoP targets are (n,);
@@ -237,7 +238,8 @@ class MomentumBalanceController:
             _as_kernel(in_contact, np.bool_), c["mass"] if mass_kg is None else _as_kernel(mass_kg),
             c["no_swing"] if swing_foot is None else _as_kernel(swing_foot),
             c["no_target"] if swing_target is None else _as_kernel(swing_target),
-            c["cold"] if warm is None else warm, c["warm_out"], tau, info,
+            c["cold"] if warm is None else warm, c["warm_out"],
+            *((np.zeros((n, 2)), np.zeros((n, 3)), np.zeros(0, np.int64)) if load is None else load), tau, info,
         )
         if warm is not None:
             np.copyto(warm, c["warm_out"])

@@ -224,7 +224,7 @@ def solve_qp(Q, g, E, e, C, c, c_on, dual_reg, passes=MAX_PASSES, active=None):
 def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, qfrc_passive, com_all, geom_xpos,
                  chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, limits, w2, params,
                  q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, contact, mass_all, swing_foot,
-                 swing_target, warm_in, warm_out, tau_out, info_out):
+                 swing_target, warm_in, warm_out, ext_f, ext_p, ext_bodies, tau_out, info_out):
     """Torques (tau_out, (n, nu)) for n simulations; info_out (n, N_INFO) gets the plan's summary.
 
     Arrays are the batch's bound MuJoCo fields, of which simulation ``i`` reads row ``rows[i]`` (the
@@ -236,7 +236,10 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
     pitch track ``swing_target[i]`` as a weighted objective, and its leg's joint tracking is weakened.
     ``warm_in`` / ``warm_out`` (rows, n_rows(nu)) bool, read / written at row ``rows[i]``: the QP's active set
     to start from (the row's previous control step's) and the one it ended on. The caller keeps ``warm_out``
-    as the next step's ``warm_in`` only once the whole call has succeeded (a singular plan raises)."""
+    as the next step's ``warm_in`` only once the whole call has succeeded (a singular plan raises).
+    ``ext_f[i]`` (x, z) N acting at ``ext_p[i]`` (world, (x, y, z)) on the bodies ``ext_bodies`` (shared equally):
+    a load the character holds (``Prop.hand_load``), known to the plan - the ground gives the momentum rate less
+    it, and the torques take its generalized force out. Zero: the clip is computed as without it, bit for bit."""
     n = rows.shape[0]
     nb, nv = chain.shape
     grav = params[P_G]
@@ -249,6 +252,13 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
         q = qpos[row, :nv]
         com = com_all[row, 1]
         A, a = centroidal(cdof[row], cdof_dot[row], cvel[row], cinert[row], qd, chain)
+        # a known external force on the hands (a held load, ext_f[i] (x, z) N at ext_p[i], shared by the bodies
+        # ext_bodies): the ground gives the momentum rate less it, a_g = a - (f_x, f_z, r x f)
+        a_g = a.copy()
+        fex, fez = ext_f[i, 0], ext_f[i, 1]
+        a_g[0] -= fex
+        a_g[1] -= fez
+        a_g[2] -= (ext_p[i, 2] - com[2]) * fex - (ext_p[i, 0] - com[0]) * fez
 
         # contact points (sphere bottoms) and their foot frames
         pts = np.empty((4, 3))
@@ -354,7 +364,7 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
         C = np.zeros((nrow, nv))
         c = np.empty(nrow)
         C[:N_INEQ] = R @ A
-        c[:N_INEQ] = R @ a + r0
+        c[:N_INEQ] = R @ a_g + r0
         c_on = np.zeros(nrow, np.bool_)
         if grounded:
             c_on[:3] = True
@@ -367,7 +377,7 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
         else:  # airborne: no ground force at all
             for r in range(3):
                 E[ne] = A[r]
-                e[ne] = -a[r] - (mg if r == 1 else 0.0)
+                e[ne] = -a_g[r] - (mg if r == 1 else 0.0)
                 ne += 1
 
         # the torques are affine in the plan, tau = T qdd + t0 (inverse dynamics with the plan's ground
@@ -408,12 +418,18 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
                 if carries[p]:
                     lever = (pts[p, 0] - mean) / spread if spread > 1e-12 else 0.0
                     dz = A[1] / count + lever * ((com[0] - mean) * A[1] + arm * A[0] - A[2])
-                    z0 = (a[1] + mg) / count + lever * ((com[0] - mean) * (a[1] + mg) + arm * a[0] - a[2])
+                    z0 = (a_g[1] + mg) / count + lever * ((com[0] - mean) * (a_g[1] + mg) + arm * a_g[0] - a_g[2])
                     for u in range(nu_rows):  # the same operations as Tm -= outer(Jx, fx_share) + outer(Jz, dz)
                         jx, jz = Jp[p, 0, actuated[u]], Jp[p, 1, actuated[u]]
                         for j in range(nv):
                             Tm[u, j] -= jx * fx_share[j] + jz * dz[j]
-                    t0 -= Jp[p, 0] * (a[0] / count) + Jp[p, 1] * z0
+                    t0 -= Jp[p, 0] * (a_g[0] / count) + Jp[p, 1] * z0
+        if fex != 0.0 or fez != 0.0:  # the load's own generalized force, shared by the hands' bodies
+            nb_e = ext_bodies.size
+            for eb in range(nb_e):
+                Je, _ = point_frame(cdof[row], cdof_dot[row], cvel[row], qd, chain[ext_bodies[eb]], ext_bodies[eb],
+                                    ext_p[i], com)
+                t0 -= Je[0] * (fex / nb_e) + Je[1] * (fez / nb_e)
         kj, dj = params[P_JK], params[P_JD]
         for u in range(nu if in_plan else 0):
             ju = actuated[u]
@@ -438,10 +454,16 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
         warm_out[row, nrow:] = False
 
         # inverse dynamics with the plan's ground forces, split over the loaded points
-        w = A @ qdd + a
+        w = A @ qdd + a_g
         fx, fz = w[0], w[1] + mg
         cop = com[0] + (arm * fx - w[2]) / fz if fz > 1e-9 else com[0]
         gen = M @ qdd + h
+        if fex != 0.0 or fez != 0.0:
+            nb_e = ext_bodies.size
+            for eb in range(nb_e):
+                Je, _ = point_frame(cdof[row], cdof_dot[row], cvel[row], qd, chain[ext_bodies[eb]], ext_bodies[eb],
+                                    ext_p[i], com)
+                gen -= Je[0] * (fex / nb_e) + Je[1] * (fez / nb_e)
         split = ((carries[0] or carries[1]) and (carries[2] or carries[3])
                  and abs(pts[0, 0] - pts[2, 0]) > SPLIT_STANCE_M and fz > 1e-9)
         if split:
