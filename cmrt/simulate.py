@@ -28,6 +28,7 @@ Forces on the hands (a ball, a bag, a slab) never enter it.
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -528,8 +529,10 @@ def _ground_records(rec: _Recorder, touch: np.ndarray, sample_x: np.ndarray, sam
     rec["ffz"][:, samples, 1] = t[:, :, 2:].sum(axis=2)
 
 
+@functools.lru_cache(maxsize=64)
 def _no_load(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """No load on the hands (``Prop.hand_load``), for the compiled tick's arguments."""
+    """No load on the hands (``Prop.hand_load``), for the compiled tick's arguments, made once per n: writable like
+    a prop's load (the kernel only reads them; another array type would compile the tick a second time)."""
     return np.zeros((n, 2)), np.zeros((n, 3)), np.zeros(0, np.int64)
 
 

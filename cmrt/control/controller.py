@@ -202,7 +202,8 @@ class MomentumBalanceController:
                 "refs": [(buf, _read_only(buf)) for buf in bufs],
                 "mass": _read_only(np.full(n, self.mass)), "no_swing": _read_only(np.full(n, -1.0)),
                 "no_target": _read_only(np.zeros((n, kernel.N_SWING))),
-                "cold": _read_only(np.zeros((n, self.n_rows), bool)), "warm_out": np.zeros((n, self.n_rows), bool)}
+                "cold": _read_only(np.zeros((n, self.n_rows), bool)), "warm_out": np.zeros((n, self.n_rows), bool),
+                "no_load": (np.zeros((n, 2)), np.zeros((n, 3)), np.zeros(0, np.int64))}  # read, never written
         return c
 
     @staticmethod
@@ -239,7 +240,7 @@ class MomentumBalanceController:
             c["no_swing"] if swing_foot is None else _as_kernel(swing_foot),
             c["no_target"] if swing_target is None else _as_kernel(swing_target),
             c["cold"] if warm is None else warm, c["warm_out"],
-            *((np.zeros((n, 2)), np.zeros((n, 3)), np.zeros(0, np.int64)) if load is None else load), tau, info,
+            *(c["no_load"] if load is None else load), tau, info,
         )
         if warm is not None:
             np.copyto(warm, c["warm_out"])

@@ -424,12 +424,14 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
                         for j in range(nv):
                             Tm[u, j] -= jx * fx_share[j] + jz * dz[j]
                     t0 -= Jp[p, 0] * (a_g[0] / count) + Jp[p, 1] * z0
-        if fex != 0.0 or fez != 0.0:  # the load's own generalized force, shared by the hands' bodies
-            nb_e = ext_bodies.size
-            for eb in range(nb_e):
-                Je, _ = point_frame(cdof[row], cdof_dot[row], cvel[row], qd, chain[ext_bodies[eb]], ext_bodies[eb],
-                                    ext_p[i], com)
-                t0 -= Je[0] * (fex / nb_e) + Je[1] * (fez / nb_e)
+        loaded = fex != 0.0 or fez != 0.0
+        load_gen = np.zeros((ext_bodies.size if loaded else 0, nv))  # the load's generalized force, per body
+        for eb in range(load_gen.shape[0]):
+            Je, _ = point_frame(cdof[row], cdof_dot[row], cvel[row], qd, chain[ext_bodies[eb]], ext_bodies[eb],
+                                ext_p[i], com)
+            load_gen[eb] = Je[0] * (fex / ext_bodies.size) + Je[1] * (fez / ext_bodies.size)
+        for eb in range(load_gen.shape[0]):
+            t0 -= load_gen[eb]
         kj, dj = params[P_JK], params[P_JD]
         for u in range(nu if in_plan else 0):
             ju = actuated[u]
@@ -458,12 +460,8 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
         fx, fz = w[0], w[1] + mg
         cop = com[0] + (arm * fx - w[2]) / fz if fz > 1e-9 else com[0]
         gen = M @ qdd + h
-        if fex != 0.0 or fez != 0.0:
-            nb_e = ext_bodies.size
-            for eb in range(nb_e):
-                Je, _ = point_frame(cdof[row], cdof_dot[row], cvel[row], qd, chain[ext_bodies[eb]], ext_bodies[eb],
-                                    ext_p[i], com)
-                gen -= Je[0] * (fex / nb_e) + Je[1] * (fez / nb_e)
+        for eb in range(load_gen.shape[0]):
+            gen -= load_gen[eb]
         split = ((carries[0] or carries[1]) and (carries[2] or carries[3])
                  and abs(pts[0, 0] - pts[2, 0]) > SPLIT_STANCE_M and fz > 1e-9)
         if split:
