@@ -373,8 +373,9 @@ def _opt_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--min-evals", type=inputs.arg(inputs.MIN_EVALS), help="no slow-convergence stop before this")
     p.add_argument("--popsize", type=inputs.arg(inputs.POPSIZE))
     p.add_argument("--stall-generations", type=inputs.arg(inputs.STALL_GENERATIONS),
-                   help="a search whose best improved < 0.1%% over this many generations has stalled: it "
-                   "restarts with a doubled population (IPOP) unless it already succeeded past --min-evals")
+                   help="a search whose best and best generation median improved < 0.1%% over this many "
+                   "generations has stalled: it restarts (BIPOP: a doubled population, or a small one around "
+                   "the best success) while budget remains")
     p.add_argument("--sigma0", type=inputs.arg(inputs.SIGMA0))
     p.add_argument("--robust", action="store_true",
                    help="score every candidate on the task's ensemble of perturbed clips ([robust] table)")

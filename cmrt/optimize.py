@@ -1,22 +1,29 @@
 """CMA-ES driver (pycma ask/tell) over the 8 CMRT parameters. Knows nothing of SQLite.
 
-Stopping rules (ABC section 4.1), checked between generations:
+Stopping rules, checked between generations:
 
 * ``threshold``: a *successful* candidate (balance held, motion performed, settled:
-  ``cmrt.objective``) scores below the task's ``stop_threshold``;
+  ``cmrt.objective``) scores below the task's ``stop_threshold`` (ABC section 4.1);
 * ``budget``: the next generation would pass ``max_evals`` evaluations;
-* ``converged``: the search stalled - its best objective improved by less than
-  ``stall_tol`` (relative) over ``stall_generations`` generations, or pycma's own
-  termination criteria fired - after a success was found and ``min_evals`` (700, as in
-  the paper) evaluations were done.
+* ``converged``: the search stalled (below) and no restart fits any more - ``max_restarts`` done, or
+  less budget left than two generations of the run's population - after ``min_evals`` evaluations.
+  A run never stops as converged while budget remains to search: that was the paper's slow-convergence
+  stop (after 700 evaluations), which left budget unused above the threshold (push seed 13 stopped at 700
+  of 1500 evaluations at 0.774, threshold 0.6).
 
-A search that stalls *without* a success (or before ``min_evals``) is not stopped but
-restarted (IPOP-CMA-ES, Auger & Hansen 2005): a fresh CMA-ES from the same start point
-and step size with the population multiplied by ``popsize_factor``: a seed whose first
-search stalls among falls gets further searches inside the same budget, each with a
-larger population (which averages over the rugged landscape that falls make). A run
-whose start came from another CMRT (a warm start) has that CMRT injected as its first
-candidate, so a start that already succeeds is seen.
+A search *stalls* when over ``stall_generations`` generations neither its best objective nor the best
+of its generation medians improved by ``stall_tol`` (relative), or pycma's own termination criteria fire.
+The median matters: a population still closing in on an early lucky candidate is progressing though its
+best sits still, and the best-only rule restarted such searches.
+
+A stalled search is restarted in one of BIPOP-CMA-ES's two regimes (Hansen 2009), whichever has spent
+fewer evaluations: *large* - a fresh CMA-ES from the start point and step size with the population
+multiplied by ``popsize_factor`` (IPOP, Auger & Hansen 2005: it averages over the rugged landscape that
+falls make) - or, once a success exists, *small* - a CMA-ES around the best candidate with a population
+between half the run's and half the largest so far and a step size ``sigma0 * 10**-U`` (U uniform on
+[0, 1], drawn from the run's own generator): the local search that takes a success down to the threshold.
+A run whose start came from another CMRT (a warm start) has that CMRT injected as its first candidate,
+and a small restart its best, so neither is lost.
 
 Determinism: pycma seeds numpy's *global* RNG unless told otherwise; we pass
 ``seed=nan`` and our own ``randn`` drawing from a private ``numpy.random.Generator``
@@ -69,8 +76,9 @@ class OptimizeSettings:
     stall_generations: int = 20
     stall_tol: float = 1e-3
     x0: tuple[float, ...] | None = None  # warm start (parameters of a stored result)
-    max_restarts: int = 9  # IPOP restarts when the search stalls without a success
-    popsize_factor: float = 2.0  # each restart multiplies the population by this
+    max_restarts: int = 30  # restarts of a stalled search (large and small regimes together)
+    popsize_factor: float = 2.0  # each large restart multiplies the population by this
+    bipop: bool = True  # alternate large and small restarts (BIPOP); False: large only (IPOP)
 
 
 class _Randn:
@@ -100,6 +108,10 @@ class CmaState:
     restarts: int = 0
     restart_history: list[float] = field(default_factory=list)  # best of the current restart, per generation
     randn: _Randn | None = None  # the private generator every restart draws from
+    median_history: list[float] = field(default_factory=list)  # the current restart's generation medians
+    large_restarts: int = 0  # restarts in the large-population regime (IPOP's doubling)
+    regime: str = "large"  # of the current (re)start: "large" (the first run too) or "small" (BIPOP)
+    regime_evals: list[int] = field(default_factory=lambda: [0, 0])  # evaluations spent: large, small
 
     def dumps(self) -> bytes:
         """The checkpoint blob stored after every generation (a data-only document, no pickle)."""
@@ -111,6 +123,9 @@ class CmaState:
         of a run with ``settings`` (when given) raises InvalidCheckpoint (a CmrtError) naming run ``run_id``."""
         try:
             state, instances = checkpoint.loads(blob, _CHECKPOINT_CLASSES)
+            if type(state) is CmaState:  # written before BIPOP (v0.3): resumes as its large regime
+                for name, default in _ADDED_FIELDS.items():
+                    vars(state).setdefault(name, default())
             try:
                 _check_state(state, instances, settings)
             except InvalidCheckpoint:
@@ -125,6 +140,8 @@ class CmaState:
 
 
 _CHECKPOINT_CLASSES = (CmaState, _Randn)
+_ADDED_FIELDS = {"median_history": list, "large_restarts": lambda: 0, "regime": lambda: "large",
+                 "regime_evals": lambda: [0, 0]}
 MAX_POPSIZE = 100_000
 
 
@@ -142,9 +159,10 @@ def _cma_options(randn: _Randn, popsize: int) -> dict:
     }
 
 
-def _new_es(settings: OptimizeSettings, randn: _Randn, popsize: int) -> cma.CMAEvolutionStrategy:
+def _new_es(settings: OptimizeSettings, randn: _Randn, popsize: int,
+            sigma: float | None = None) -> cma.CMAEvolutionStrategy:
     x0 = np.zeros(N_PARAMS) if settings.x0 is None else np.asarray(settings.x0, dtype=float)
-    es = cma.CMAEvolutionStrategy(x0, settings.sigma0, _cma_options(randn, popsize))
+    es = cma.CMAEvolutionStrategy(x0, settings.sigma0 if sigma is None else sigma, _cma_options(randn, popsize))
     if settings.x0 is not None:
         es.inject([x0], force=True)  # the warm start itself is the first candidate
     return es
@@ -200,10 +218,17 @@ def _check_state(state, instances: dict, settings: OptimizeSettings | None) -> N
          "bad best_x")
     popsize = es.opts.get("popsize")
     need(type(popsize) is int and 2 <= popsize <= MAX_POPSIZE, f"bad population size {popsize!r}"[:80])
+    need(type(state.large_restarts) is int and 0 <= state.large_restarts <= state.restarts, "bad large_restarts")
+    need(state.regime in REGIMES, "bad regime")
+    need(type(state.regime_evals) is list and len(state.regime_evals) == 2
+         and all(type(n) is int and 0 <= n <= state.evaluations for n in state.regime_evals), "bad regime_evals")
     if settings is not None:
-        want = int(round(settings.popsize * settings.popsize_factor ** state.restarts))
-        need(state.restarts <= settings.max_restarts and popsize == want,
-             f"population {popsize} after {state.restarts} restarts, the run's settings give {want}")
+        large = _large_popsize(settings, state.large_restarts)
+        ok = popsize == large if state.regime == "large" else (
+            settings.popsize // 2 <= popsize <= max(settings.popsize, large // 2))
+        need(state.restarts <= settings.max_restarts and ok,
+             f"population {popsize} in the {state.regime} regime after {state.large_restarts} large restarts, "
+             f"the run's settings give {large}")
     items, attrs = _expected_options(popsize)
     bad = _options_differ(dict(es.opts), items, randn) + _options_differ(vars(es.opts), attrs, randn)
     need(not bad, "CMA-ES options differ from the run's: " + ", ".join(map(str, bad))[:120])
@@ -238,33 +263,62 @@ def step(state: CmaState, evaluate: Callable[[Sequence[np.ndarray]], list[EvalRe
     if wins:
         state.best_success_objective = min(state.best_success_objective, min(wins))
     state.best_history.append(state.best_objective)
+    state.median_history.append(float(np.median(objectives)))
+    state.regime_evals[REGIMES.index(state.regime)] += len(xs)
     gen_best = min(objectives)
     state.restart_history.append(min(gen_best, state.restart_history[-1]) if state.restart_history else gen_best)
     return xs, records
 
 
+def _flat(old: float, new: float, tol: float) -> bool:
+    return old - new <= tol * max(abs(old), 1e-12)
+
+
 def _stalled(state: CmaState, settings: OptimizeSettings) -> str | None:
-    """Why the current (re)start has stopped making progress, or None."""
-    h = state.restart_history
-    if len(h) > settings.stall_generations:
-        old, new = h[-settings.stall_generations - 1], h[-1]
-        if old - new <= settings.stall_tol * max(abs(old), 1e-12):
-            return "converged"
+    """Why the current (re)start has stopped making progress, or None.
+
+    Progress is the search's own: over the last ``stall_generations`` generations neither its best nor
+    the best of its generation *medians* improved by ``stall_tol`` (relative). A best that sits still while
+    the population's median keeps falling is a search closing in on a lucky early candidate, not a stall
+    (on rise seeds 11 and 13 the best-only rule restarted such searches; the search left alone found its
+    first success hundreds of evaluations earlier). pycma's own termination criteria count as a stall too."""
+    h, m, g = state.restart_history, state.median_history, settings.stall_generations
+    if len(h) > g and len(m) > g and _flat(h[-g - 1], h[-1], settings.stall_tol) \
+            and _flat(min(m[:-g]), min(m[-g:]), settings.stall_tol):
+        return "converged"
     cma_stop = {k: v for k, v in state.es.stop().items() if k != "maxfevals"}
     if cma_stop:
         return "converged:" + ",".join(sorted(cma_stop))
     return None
 
 
-def _restart_popsize(state: CmaState, settings: OptimizeSettings) -> int | None:
-    """The population of the next restart, or None when the stalled search should stop instead: it has
-    its success and the paper's minimum effort, or restarts (or budget for two generations) ran out."""
-    if state.best_success_objective < np.inf and state.evaluations >= settings.min_evals:
+REGIMES = ("large", "small")
+
+
+def _large_popsize(settings: OptimizeSettings, large_restarts: int) -> int:
+    return int(round(settings.popsize * settings.popsize_factor ** large_restarts))
+
+
+def _next_regime(state: CmaState, settings: OptimizeSettings) -> str | None:
+    """The regime of the next restart, or None when the stalled search should stop instead.
+
+    BIPOP (Hansen 2009): the regime that has spent fewer evaluations goes next - a large restart (IPOP:
+    the population grows by ``popsize_factor``, which averages over the rugged landscape falls make) or a
+    small one (a small population and step size around the best candidate so far: the local search that
+    takes a success down to the threshold). None when no restart fits: ``max_restarts`` done, or less budget
+    left than two generations of the run's population; only then may a stalled run stop as converged
+    (:func:`stop_reason`), so a run never stops while budget remains to search."""
+    left = settings.max_evals - state.evaluations
+    if state.restarts >= settings.max_restarts or left < 2 * settings.popsize:
         return None
-    popsize = int(round(settings.popsize * settings.popsize_factor ** (state.restarts + 1)))
-    if state.restarts >= settings.max_restarts or state.evaluations + 2 * popsize > settings.max_evals:
-        return None
-    return popsize
+    large_fits = left >= 2 * _large_popsize(settings, state.large_restarts + 1)
+    if not settings.bipop:
+        return "large" if large_fits else None
+    # a small restart refines a success (around the best one); before the first success there is nothing to refine
+    small_turn = state.best_success_objective < np.inf and state.regime_evals[1] < state.regime_evals[0]
+    if small_turn or (not large_fits and state.best_success_objective < np.inf):
+        return "small"
+    return "large" if large_fits else None
 
 
 def stop_reason(state: CmaState, settings: OptimizeSettings) -> str | None:
@@ -275,23 +329,42 @@ def stop_reason(state: CmaState, settings: OptimizeSettings) -> str | None:
             state.evaluations and state.evaluations + popsize_of(state) > settings.max_evals):
         return "budget"  # never past max_evals, but at least one generation
     why = _stalled(state, settings)
-    if why and _restart_popsize(state, settings) is None:
-        return why
+    if why and state.evaluations >= settings.min_evals and _next_regime(state, settings) is None:
+        return why  # the paper's slow-convergence stop, only once no restart fits (never before min_evals)
     return None
 
 
 def restart_if_stalled(state: CmaState, settings: OptimizeSettings) -> bool:
-    """After a generation: restart a stalled search with a larger population (IPOP) unless it should stop.
-    Called before the checkpoint is written, so a resumed run sees the restart as it happened."""
+    """After a generation: restart a stalled search (BIPOP regimes, :func:`_next_regime`) unless it should
+    stop. Called before the checkpoint is written, so a resumed run sees the restart as it happened."""
     if state.best_success_objective < settings.stop_threshold or not _stalled(state, settings):
         return False
-    popsize = _restart_popsize(state, settings)
-    if popsize is None:
+    regime = _next_regime(state, settings)
+    if regime is None:
         return False
-    state.es = _new_es(settings, state.randn, popsize)
+    if regime == "large":
+        state.large_restarts += 1
+        state.es = _new_es(settings, state.randn, _large_popsize(settings, state.large_restarts))
+    else:  # Hansen's small regime, drawn from the run's own generator (checkpointed: a resume draws the same)
+        u = float(state.randn.rng.random())
+        large = _large_popsize(settings, state.large_restarts)
+        popsize = max(settings.popsize // 2, int(settings.popsize * (0.5 * large / settings.popsize) ** (u * u)))
+        sigma = settings.sigma0 * 10.0 ** (-u)
+        state.es = _new_small_es(settings, state, popsize, sigma)
+    state.regime = regime
     state.restarts += 1
     state.restart_history = []
+    state.median_history = []
     return True
+
+
+def _new_small_es(settings: OptimizeSettings, state: CmaState, popsize: int,
+                  sigma: float) -> cma.CMAEvolutionStrategy:
+    """A small-regime CMA-ES around the best candidate so far (injected as its first candidate)."""
+    x = np.asarray(state.best_x, dtype=float)
+    es = cma.CMAEvolutionStrategy(x, sigma, _cma_options(state.randn, popsize))
+    es.inject([x], force=True)
+    return es
 
 
 def best_cmrt(state: CmaState, clip_s: float) -> Cmrt:

@@ -341,7 +341,8 @@ def test_options_are_checked_against_the_runs_settings():
         drive(state, RUGGED, 1)
     blob = state.dumps()
     assert CmaState.loads(blob, RUGGED).es.popsize == 20
-    with pytest.raises(InvalidCheckpoint, match="population 20 after 1 restarts, the run's settings give 30"):
+    with pytest.raises(InvalidCheckpoint, match="population 20 in the large regime after 1 large restarts, "
+                       "the run.s settings give 30"):
         CmaState.loads(blob, OptimizeSettings(**{**RUGGED.__dict__, "popsize": 15}))
 
 

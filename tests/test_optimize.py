@@ -56,20 +56,58 @@ def test_stop_rules():
         step(state, sphere)
     assert stop_reason(state, budget) == "budget" and state.evaluations == 30
     # a flat objective that never succeeds: stalls restart with a growing population until restarts run out
+    # (with no success there is nothing for BIPOP's small regime to refine: every restart is a large one)
     flat = OptimizeSettings(seed=1, min_evals=200, max_evals=10_000, stall_generations=5, max_restarts=3)
     state = new_state(flat)
     while stop_reason(state, flat) is None:
         step(state, lambda xs: [EvalRecord(1.0, True, 0.0) for _ in xs])
         restart_if_stalled(state, flat)
-    assert state.restarts == 3 and popsize_of(state) == 80
+    assert state.restarts == 3 and popsize_of(state) == 80 and state.large_restarts == 3
     assert stop_reason(state, flat).startswith("converged")
-    # a success past min_evals: a stall stops the run instead of restarting it
-    done = OptimizeSettings(seed=1, min_evals=50, max_evals=10_000, stall_generations=5)
+    # a success above the threshold: a stall restarts (the regimes alternate) while budget remains, and the
+    # run ends on its budget, never "converged" with evaluations left
+    done = OptimizeSettings(seed=1, min_evals=50, max_evals=2_000, stall_generations=5, stop_threshold=0.5,
+                            max_restarts=1_000)
     state = new_state(done)
-    while stop_reason(state, done) is None:
+    regimes = []
+    while (reason := stop_reason(state, done)) is None:
         step(state, lambda xs: [EvalRecord(1.0, False, 0.0, success=True) for _ in xs])
-        assert not restart_if_stalled(state, done) or state.evaluations < 50
-    assert stop_reason(state, done).startswith("converged") and state.evaluations >= 50
+        if restart_if_stalled(state, done):
+            regimes.append(state.regime)
+    assert reason == "budget" and state.evaluations + popsize_of(state) > done.max_evals
+    assert regimes[0] == "small" and "large" in regimes  # the first success is refined first (BIPOP)
+    assert sum(state.regime_evals) == state.evaluations
+
+
+def test_a_best_that_sits_still_while_the_median_improves_is_not_a_stall():
+    """The population closing in on an early lucky candidate: its median falls, its best does not."""
+    s = OptimizeSettings(seed=1, stall_generations=5, max_evals=10_000)
+    state = new_state(s)
+    for g in range(12):
+        step(state, lambda xs, g=g: [EvalRecord(0.5 if i == 0 and g == 0 else 10.0 - g + 0.01 * i, False, 0.0, True)
+                                     for i, _ in enumerate(xs)])
+        assert not restart_if_stalled(state, s)
+    still = new_state(s)
+    for _ in range(12):
+        step(still, lambda xs: [EvalRecord(10.0 + 0.01 * i if i else 0.5, False, 0.0, True)
+                                for i, _ in enumerate(xs)])
+    assert restart_if_stalled(still, s) and still.regime == "small"
+
+
+def test_a_small_restart_searches_around_the_best_success():
+    s = OptimizeSettings(seed=7, stall_generations=3, max_evals=10_000)
+    state = new_state(s)
+    target = np.linspace(-1, 1, 8)
+    while not restart_if_stalled(state, s):
+        step(state, lambda xs: [EvalRecord(float(np.sum((x - target) ** 2) > 100) + 1.0, False, 0.0, True)
+                                for x in xs])
+    assert state.regime == "small" and state.restarts == 1
+    assert s.popsize // 2 <= popsize_of(state) <= s.popsize and s.sigma0 / 10 <= state.es.sigma <= s.sigma0
+    best = state.best_x.copy()
+    xs, _ = step(state, sphere)
+    assert np.array_equal(xs[0], best) and not np.array_equal(xs[1], best)  # the best is injected first
+    resumed = CmaState.loads(state.dumps(), s)  # a small regime's population passes the checkpoint checks
+    assert resumed.regime == "small" and resumed.regime_evals == state.regime_evals
 
 
 def test_budget_is_never_exceeded_by_a_grown_population():

@@ -135,6 +135,43 @@ def test_success_rate_bad_seeds_exit_2():
     assert r.returncode == 2 and r.stderr.startswith("error: ")
 
 
+# --- tools/peer_benchmark.py ---------------------------------------------------------------------
+
+def test_peer_benchmark_counts_the_first_success_and_the_first_under_the_threshold():
+    from cmrt.task import load_task
+
+    tool = load_tool("peer_benchmark.py")
+    budget = tool.Budget(load_task("bend").with_speed(0.4), evaluator=None, max_evals=5)  # threshold 0.7
+    for objective, success in ((9.0, False), (0.9, True), (0.5, False), (0.6, True), (0.1, True)):
+        budget.note(objective, success)
+    assert budget.first_success == 2 and budget.first_under == 4 and budget.done
+    assert budget.best_objective == 0.1 and budget.best_success
+
+
+def test_peer_benchmark_tool_runs_every_optimizer_on_the_same_budget():
+    """A real run of every optimizer (optuna and cmaes are test extras) on a tiny budget."""
+    r = _ok(run_tool("peer_benchmark.py", "--tasks", "bend:1.2", "--seeds", "1-2", "--max-evals", "12",
+                     "--json", "--quiet"))
+    out = json.loads(r.stdout)
+    assert [row["optimizer"] for row in out["rows"]] == ["cmrt", "optuna", "cmaes", "random"]
+    for row in out["rows"]:
+        assert len(row["runs"]) == 2 and all(run["evaluations"] <= 12 for run in row["runs"])
+        assert row["under_threshold_rate"] <= row["success_rate"]
+        firsts = [run["first_success_evals"] for run in row["runs"]]
+        assert row["success_rate"] == sum(f is not None for f in firsts) / 2
+    # the slow bend's flat start is a success below its threshold: every optimizer that samples the flat
+    # CMRT first stops there; the project's driver always evaluates its mean's neighbourhood
+    assert out["rows"][0]["success_rate"] == 1.0
+    text = _ok(run_tool("peer_benchmark.py", "--tasks", "bend:1.2", "--optimizers", "random", "--seeds", "1",
+                        "--max-evals", "10", "--quiet"))
+    assert "random" in text.stdout and "1/1" in text.stdout
+
+
+def test_peer_benchmark_bad_input_exit_2():
+    r = run_tool("peer_benchmark.py", "--optimizers", "nelder-mead", "--quiet")
+    assert r.returncode == 2 and r.stderr.startswith("error: ") and len(r.stderr.splitlines()) == 1
+
+
 # --- every other tool: run once as its docstring says, on the cheapest arguments -----------------
 # Each checks exit status 0 and the keys or columns the tool promises: a refactor of cmrt that breaks a
 # tool fails here rather than the next time someone measures with it.
