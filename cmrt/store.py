@@ -29,6 +29,7 @@ import sqlite3
 import stat
 import tempfile
 import time
+import urllib.parse
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -120,10 +121,19 @@ def resolve_path(path: str | os.PathLike | None) -> Path:
     return Path(path or os.environ.get("CMRT_STORE") or DEFAULT_STORE)
 
 
+def _readonly_uri(path: Path, immutable: bool = False) -> str:
+    """The ``file:`` URI of ``path`` opened read-only. Every character SQLite's URI parser gives a meaning
+    (``?`` starts the query, ``#`` the fragment, ``%`` an escape) is percent-encoded: a store named
+    ``a?b.sqlite`` is that file, not ``a`` with a query (which once made a read see an "empty" store that
+    the caller then replaced)."""
+    quoted = urllib.parse.quote(os.fsencode(path.absolute()), safe="/")
+    return f"file:{quoted}?mode=ro" + ("&immutable=1" if immutable else "")
+
+
 def _connect_readonly(path: Path) -> sqlite3.Connection:
     """A connection that cannot write a byte. A WAL store in a directory we cannot write to cannot get its
     shared-memory file: it is then read as immutable (no writer can be working in such a directory)."""
-    con = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=BUSY_TIMEOUT_MS / 1000)
+    con = sqlite3.connect(_readonly_uri(path), uri=True, timeout=BUSY_TIMEOUT_MS / 1000)
     try:
         con.execute("SELECT 1 FROM sqlite_master LIMIT 1").fetchall()
         return con
@@ -131,7 +141,7 @@ def _connect_readonly(path: Path) -> sqlite3.Connection:
         con.close()
         if "unable to open" not in str(exc) or os.access(path.parent, os.W_OK):
             raise
-    return sqlite3.connect(f"file:{path}?mode=ro&immutable=1", uri=True, timeout=BUSY_TIMEOUT_MS / 1000)
+    return sqlite3.connect(_readonly_uri(path, immutable=True), uri=True, timeout=BUSY_TIMEOUT_MS / 1000)
 
 
 def _inspect(path: Path) -> str:
@@ -649,6 +659,18 @@ def _is_full(exc: BaseException) -> bool:
     return "full" in str(exc) or getattr(exc, "errno", None) in (errno.ENOSPC, errno.EDQUOT)
 
 
+def _check_replaceable(path: Path) -> None:
+    """Refuse to replace anything but an empty file or an SQLite file of one page (no table in it): the last
+    guard that a creation never destroys a store, whatever made the caller think it empty."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(100)
+    except FileNotFoundError:
+        return
+    if head and not (head.startswith(SQLITE_MAGIC) and len(head) == 100 and int.from_bytes(head[28:32]) <= 1):
+        raise CmrtError(f"cannot create store {path}: a non-empty file is there")
+
+
 def _create(path: Path, replace: bool) -> None:
     """Create a store atomically: built in a temporary file beside ``path`` and moved into place only when
     complete, so a failure (a full disk) leaves nothing behind. ``replace``: ``path`` is an empty file (or a
@@ -658,7 +680,8 @@ def _create(path: Path, replace: bool) -> None:
         raise CmrtError(f"cannot create store {path}: directory {path.parent} does not exist")
     tmp = None
     try:
-        fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".creating")
+        # the name's head only: a 251-byte store name (its "-wal" then fills NAME_MAX) still gets a temp file
+        fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name[:64]}.", suffix=".creating")
         os.close(fd)
         tmp = Path(name)
         store = Store(tmp)
@@ -667,6 +690,7 @@ def _create(path: Path, replace: bool) -> None:
         finally:
             store.close()
         if replace:
+            _check_replaceable(path)
             os.replace(tmp, path)
         else:
             with contextlib.suppress(FileExistsError):

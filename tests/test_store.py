@@ -1,10 +1,13 @@
 import hashlib
+import json
 import sqlite3
 
 import pytest
 
 from cmrt.errors import CmrtError
 from cmrt.store import SCHEMA_VERSION, open_store
+
+from .service_helpers import cmrt
 
 
 def digest(path):
@@ -53,3 +56,63 @@ def test_transaction_rolls_back_on_error(tmp_path):
                 conn.execute("INSERT INTO meta (key, value) VALUES ('x', 'y')")
                 raise RuntimeError("boom")
         assert store.conn.execute("SELECT COUNT(*) FROM meta WHERE key = 'x'").fetchone()[0] == 0
+
+
+# A store path is a file name, never a URI: SQLite's URI parser gives ``?``, ``#`` and ``%`` a meaning. These
+# once made a read see an "empty" store that the caller then replaced (`cmrt submit` on ``a?b.sqlite`` lost
+# its two runs). Every name a Linux file system allows must work, as created and as copied in.
+ODD_NAMES = ["a?b.sqlite", "a#b.sqlite", "x%41y.sqlite", "%3F.sqlite", "with space.sqlite", "ünï cødé ☃.sqlite",
+             "-lead.sqlite", "semi;colon&amp=1.sqlite", "q" * 244 + ".sqlite"]  # 251 bytes: with "-wal", NAME_MAX
+
+
+def _queue(path, n):
+    from cmrt import load_task
+    from cmrt.jobs import submit
+
+    with open_store(path) as store:
+        for _ in range(n):
+            submit(store, load_task("bend").with_speed(0.4), init="none")
+
+
+@pytest.mark.parametrize("name", ODD_NAMES, ids=range(len(ODD_NAMES)))
+def test_a_store_path_of_any_shape_is_that_file(tmp_path, name):
+    plain = tmp_path / "plain.sqlite"
+    _queue(plain, 2)
+    odd = tmp_path / name
+    odd.write_bytes(plain.read_bytes())  # a store copied in under the odd name (no WAL side files)
+    _queue(odd, 1)  # added to the existing store, not a new one in its place
+    with open_store(odd, readonly=True) as store:
+        assert len(store.runs()) == 3
+    fresh = tmp_path / ("new " + name)[:251]
+    _queue(fresh, 1)  # created under the odd name
+    with open_store(fresh, readonly=True) as store:
+        assert len(store.runs()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir() if "creating" in p.name) == []
+
+
+def test_creation_never_replaces_a_non_empty_file(tmp_path):
+    """The last guard: whatever made open_store think a file empty, _create refuses to replace a store."""
+    from cmrt.store import _create
+
+    path = tmp_path / "s.sqlite"
+    _queue(path, 2)
+    before = digest(path)
+    with pytest.raises(CmrtError, match="a non-empty file is there"):
+        _create(path, replace=True)
+    assert digest(path) == before
+    empty = tmp_path / "empty.sqlite"
+    empty.write_bytes(b"")
+    _create(empty, replace=True)  # an empty file is what replace is for
+    with open_store(empty, readonly=True) as store:
+        assert store.runs() == []
+
+
+def test_cli_submit_on_an_odd_store_name_adds_to_it(tmp_path):
+    plain = tmp_path / "s.sqlite"
+    _queue(plain, 2)
+    odd = tmp_path / "a?b.sqlite"
+    odd.write_bytes(plain.read_bytes())
+    r = cmrt("submit", "bend", "--store", str(odd))
+    assert r.returncode == 0, r.stderr
+    r = cmrt("runs", "--json", "--store", str(odd))
+    assert r.returncode == 0 and len(json.loads(r.stdout)) == 3
