@@ -315,6 +315,20 @@ def _dof_names(task: Task) -> np.ndarray:
     return np.array([m.joint(int(m.dof_jntid[i])).name for i in range(m.nv)])
 
 
+def _force_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing output file (never a store, a TOML file or a file this command reads)")
+
+
+def _check_out(args, value: str, flag: str, suffixes: tuple[str, ...] = ()) -> None:
+    """An output path checked before any work: an existing file only with ``--force``, and never one the
+    command reads (its store, task, sequence or curve file) or a store or TOML file."""
+    reading = [resolve_path(getattr(args, "store", None))]
+    reading += [v for k in ("task", "curve", "compare", "sequence", "family", "file")
+                if isinstance(v := getattr(args, k, None), str) and os.path.isfile(v)]
+    inputs.check_output(value, flag, suffixes, replace=args.force, reading=reading)
+
+
 def _save_npz(path: str, arrays: dict, flag: str = "--trace") -> None:
     """Write atomically (``cmrt.inputs.atomic_output``): a failed write never leaves a half-written file."""
     import numpy as np
@@ -461,8 +475,11 @@ class Simulate(Command):
         p.add_argument("--curve", default="zero", help="zero | library (the paper's plain CMRT) | library-robust "
                        "| RUN | FILE.json (default zero)")
         p.add_argument("--trace", metavar="FILE.npz", help="save the trajectories")
+        _force_arg(p)
 
     def run(self, args):
+        if args.trace is not None:
+            _check_out(args, args.trace, "--trace")
         task = resolve_task(args.task, args.speed, args.set, args.reference)
         curve, name = resolve_curve(args.curve, task, args.store)
         return Output(simulate_report(task, curve, name, args.trace), _report_text)
@@ -669,12 +686,13 @@ class Export(Command):
         p.add_argument("run", type=inputs.run_id_arg)
         p.add_argument("--format", choices=("json", "csv"), default="json")
         p.add_argument("--out", metavar="FILE")
+        _force_arg(p)
 
     def run(self, args):
         from cmrt import query
 
         if args.out is not None:
-            inputs.check_output(args.out, "--out")
+            _check_out(args, args.out, "--out")
         with _store(args.store, readonly=True) as store:
             text = query.export_run(store, args.run, args.format)
         if args.out is not None:
@@ -691,6 +709,7 @@ class Interpolate(Command):
         p.add_argument("--param", help="the parameter to interpolate over (default: the task's speed)")
         p.add_argument("--from", dest="source", choices=("library", "store"), default="library")
         p.add_argument("--out", metavar="FILE.json", help="write the CMRT (usable as --curve FILE.json)")
+        _force_arg(p)
 
     def run(self, args):
         from cmrt.interpolate import interpolate, to_json
@@ -698,7 +717,7 @@ class Interpolate(Command):
         if args.param is not None:
             inputs.param_name(args.param, "--param")
         if args.out is not None:
-            inputs.check_output(args.out, "--out")
+            _check_out(args, args.out, "--out")
         task = resolve_task(args.task, args.speed, args.set, args.reference)
         store = _store(args.store, readonly=True) if args.source == "store" else None
         try:
@@ -730,6 +749,7 @@ class Sequence(Command):
         p.add_argument("file", help="a shipped sequence's name (four-poses) or the path of a .toml sequence file")
         p.add_argument("--curve", choices=("superposed", "zero"), default="superposed")
         p.add_argument("--trace", metavar="FILE.npz")
+        _force_arg(p)
 
     def run(self, args):
         from cmrt.curve import Cmrt
@@ -739,7 +759,7 @@ class Sequence(Command):
         from cmrt.simulate import simulate
 
         if args.trace is not None:
-            inputs.check_output(args.trace, "--trace")
+            _check_out(args, args.trace, "--trace")
         seq = load_sequence(args.file)
         curve = superpose(seq) if args.curve == "superposed" else Cmrt.zero(seq.clip_s)
         t0 = time.perf_counter()
@@ -770,6 +790,7 @@ class Plot(Command):
         p.add_argument("--family", metavar="TASK", help="the task's speed family from the library (ABC Fig. 5)")
         p.add_argument("--sequence", metavar="FILE", help="a sequence's superposed CMRTs (ABC Fig. 6)")
         p.add_argument("--out", default="plots", metavar="DIR")
+        _force_arg(p)
 
     def run(self, args):
         from cmrt import plot  # matplotlib: only this verb pays for it
@@ -777,15 +798,20 @@ class Plot(Command):
         if args.run is None and not args.family and not args.sequence:
             raise CmrtError("plot what? give a RUN, --family TASK or --sequence FILE")
         out = inputs.output_dir(args.out, "--out")  # created and checked before anything is simulated
+        family = out / f"{Path(args.family).stem}_family.png" if args.family else None
+        sequence = out / f"{Path(args.sequence).stem}_sequence.png" if args.sequence else None
+        targets = (plot.run_figure_paths(args.run, out) if args.run is not None else []) + [
+            t for t in (family, sequence) if t is not None]
+        for target in targets:  # every file it would write, before anything is simulated
+            _check_out(args, str(target), "--out")
         paths = []
         if args.run is not None:
             with _store(args.store, readonly=True) as store:
                 paths += [str(p) for p in plot.plot_run(store, args.run, out)]
-        if args.family:
-            paths.append(str(plot.plot_family(args.family, out / f"{Path(args.family).stem}_family.png")))
-        if args.sequence:
-            name = Path(args.sequence).stem
-            paths.append(str(plot.plot_sequence(args.sequence, out / f"{name}_sequence.png")))
+        if family:
+            paths.append(str(plot.plot_family(args.family, family)))
+        if sequence:
+            paths.append(str(plot.plot_sequence(args.sequence, sequence)))
         return Output({"run_id": args.run, "files": paths}, "\n".join(map(escape, paths)))
 
 
@@ -799,11 +825,12 @@ class Render(Command):
         p.add_argument("--out", required=True, metavar="FILE.png|FILE.mp4")
         p.add_argument("--frames", type=inputs.arg(inputs.FRAMES), default=8, help="filmstrip frames (PNG)")
         p.add_argument("--fps", type=inputs.arg(inputs.FPS), default=30, help="video frame rate (MP4)")
+        _force_arg(p)
 
     def run(self, args):
         from cmrt.render import OUT_SUFFIXES, render  # OpenGL: only this verb pays for it
 
-        inputs.check_output(args.out, "--out", OUT_SUFFIXES)  # before anything is simulated
+        _check_out(args, args.out, "--out", OUT_SUFFIXES)  # before anything is simulated
         task = resolve_task(args.task, args.speed, args.set, args.reference)
         curve, name = resolve_curve(args.curve, task, args.store)
         compare, cname = resolve_curve(args.compare, task, args.store, "--compare") if args.compare else (None, "")

@@ -55,7 +55,7 @@ import re
 import stat
 import tempfile
 import tomllib
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -394,10 +394,38 @@ def dumps(value, indent: int | None = None) -> str:
 
 
 # --- output files -----------------------------------------------------------------------------
-def check_output(path: str | os.PathLike, flag: str, suffixes: tuple[str, ...] = ()) -> Path:
+_SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+def _never_replaced(target: Path, reading: Iterable[str | os.PathLike]) -> str | None:
+    """Why an existing ``target`` may never be written over, even with ``--force``, or None: it is a file the
+    command reads, an SQLite database (a store, whatever its name) or a TOML file (a task or sequence file:
+    cmrt never writes TOML, so such a target is a user's own file given by mistake)."""
+    for other in reading:
+        with contextlib.suppress(OSError):
+            if os.path.samefile(target, other):
+                return "it is a file this command reads"
+    try:
+        with open(target, "rb") as fh:
+            head = fh.read(len(_SQLITE_MAGIC))
+    except OSError:
+        head = b""
+    if head == _SQLITE_MAGIC:
+        return "it is an SQLite database (a store?)"
+    if target.suffix.lower() == ".toml":
+        return "it is a TOML file (a task or sequence file?)"
+    return None
+
+
+def check_output(path: str | os.PathLike, flag: str, suffixes: tuple[str, ...] = (), *, replace: bool = True,
+                 reading: Iterable[str | os.PathLike] = ()) -> Path:
     """Where ``path`` will be written, checked before any work: a usable name, an existing directory in which
     a file can be created, and no existing target that is not a regular file (a directory, a device, a FIFO,
-    a symlink to one). Symlinks to regular files are followed: the file they point to is replaced."""
+    a symlink to one). Symlinks to regular files are followed: the file they point to is replaced.
+
+    An existing regular file is replaced only with ``replace`` (the CLI passes ``--force``; the Python API
+    replaces, as ``savefig`` does), and never when :func:`_never_replaced` says why not (``reading``: the
+    files the command reads)."""
     raw = os.fspath(path)
     where = f"{flag} {shown(raw)}"
     if not raw or "\0" in raw or len(raw) > 4096:
@@ -415,6 +443,12 @@ def check_output(path: str | os.PathLike, flag: str, suffixes: tuple[str, ...] =
         raise CmrtError(f"cannot write {where}: it is a directory")
     if st is not None and not stat.S_ISREG(st.st_mode):
         raise CmrtError(f"cannot write {where}: not a regular file")
+    if st is not None:
+        why = _never_replaced(target, reading)
+        if why:
+            raise CmrtError(f"will not write {where}: {why}")
+        if not replace:
+            raise CmrtError(f"will not write {where}: it exists (add --force to replace it)")
     parent = target.parent
     if not parent.is_dir():
         raise CmrtError(f"cannot write {where}: directory {shown(str(parent))} does not exist")

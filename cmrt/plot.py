@@ -114,6 +114,11 @@ def plot_convergence(evaluations: list[StoredEvaluation], threshold: float, out:
     return _save(fig, out)
 
 
+def run_figure_paths(run_id: int, out_dir: str | Path) -> list[Path]:
+    """The files :func:`plot_run` writes for ``run_id`` (so a caller can check them before any work)."""
+    return [Path(out_dir) / f"run{run_id}_{kind}.png" for kind in ("cop_error", "cmrt", "convergence")]
+
+
 def plot_run(store: Store, run_id: int, out_dir: str | Path) -> list[Path]:
     """Write the run's figures to ``out_dir``; returns their paths."""
     run = store.run(run_id)
@@ -123,18 +128,18 @@ def plot_run(store: Store, run_id: int, out_dir: str | Path) -> list[Path]:
     task = task_of(run)
     best = Cmrt.from_dict(run.best_cmrt)
     speed = f" T = {task.speed:g} s" if task.speed is not None else ""
-    prefix = f"run{run_id}_"
+    cop_path, cmrt_path, convergence_path = run_figure_paths(run_id, out)
     return [
         plot_cop_error(
             task,
             [("zero CMRT", Cmrt.zero(task.clip_s)), (f"run {run_id} best CMRT", best)],
-            out / f"{prefix}cop_error.png",
+            cop_path,
         ),
-        plot_cmrt(task, best, out / f"{prefix}cmrt.png", f"run {run_id}: {task.name}{speed}"),
+        plot_cmrt(task, best, cmrt_path, f"run {run_id}: {task.name}{speed}"),
         plot_convergence(
             store.evaluations(run_id),
             run.stop_threshold or 0.0,
-            out / f"{prefix}convergence.png",
+            convergence_path,
             f"run {run_id}: {task.name}{speed}, {run.evaluations} evaluations ({run.stop_reason})",
         ),
     ]
