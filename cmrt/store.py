@@ -22,7 +22,9 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import functools
 import json
+import math
 import os
 import random
 import sqlite3
@@ -135,13 +137,16 @@ def _connect_readonly(path: Path) -> sqlite3.Connection:
     shared-memory file: it is then read as immutable (no writer can be working in such a directory)."""
     con = sqlite3.connect(_readonly_uri(path), uri=True, timeout=BUSY_TIMEOUT_MS / 1000)
     try:
+        con.execute("PRAGMA trusted_schema = OFF")  # no SQL function runs from a schema we did not write
         con.execute("SELECT 1 FROM sqlite_master LIMIT 1").fetchall()
         return con
     except sqlite3.OperationalError as exc:
         con.close()
         if "unable to open" not in str(exc) or os.access(path.parent, os.W_OK):
             raise
-    return sqlite3.connect(_readonly_uri(path, immutable=True), uri=True, timeout=BUSY_TIMEOUT_MS / 1000)
+    con = sqlite3.connect(_readonly_uri(path, immutable=True), uri=True, timeout=BUSY_TIMEOUT_MS / 1000)
+    con.execute("PRAGMA trusted_schema = OFF")
+    return con
 
 
 def _inspect(path: Path) -> str:
@@ -173,7 +178,10 @@ def _inspect(path: Path) -> str:
         try:
             tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
             version = con.execute("PRAGMA user_version").fetchone()[0]
-            row = con.execute("SELECT value FROM meta WHERE key = 'app'").fetchone() if "meta" in tables else None
+            schema = _schema(con)  # before any row is read: no view, trigger or foreign column is ever touched
+            row = None
+            if "meta" in tables and schema.get(("table", "meta")) == _expected_schema(1)[("table", "meta")]:
+                row = con.execute("SELECT value FROM meta WHERE key = 'app'").fetchone()
         finally:
             con.close()
     except sqlite3.DatabaseError as exc:
@@ -190,7 +198,48 @@ def _inspect(path: Path) -> str:
         raise CmrtError(f"{path} is not a CMRT store (no cmrt metadata)")
     if version > SCHEMA_VERSION:
         raise CmrtError(f"{path} has schema version {version}, newer than this cmrt ({SCHEMA_VERSION})")
+    if schema != _expected_schema(version):
+        raise CmrtError(f"{path} is not a store cmrt wrote: {_schema_difference(schema, _expected_schema(version))}")
     return "store"
+
+
+def _schema(con: sqlite3.Connection) -> dict:
+    """Every schema object of a database - (type, name) -> its table and, for a table, its columns as
+    ``PRAGMA table_xinfo`` gives them (hidden = generated) and its foreign keys - read from ``sqlite_master``
+    and pragmas only, so a hostile view or trigger is listed, never run."""
+    out = {}
+    for kind, name, table in con.execute("SELECT type, name, tbl_name FROM sqlite_master").fetchall():
+        entry: tuple = (table,)
+        if kind == "table":
+            cols = con.execute("SELECT name, type, \"notnull\", dflt_value, pk, hidden FROM pragma_table_xinfo(?)",
+                               (name,)).fetchall()
+            fks = con.execute('SELECT "table", "from", "to" FROM pragma_foreign_key_list(?)', (name,)).fetchall()
+            entry = (table, tuple(map(tuple, cols)), tuple(sorted(map(tuple, fks))))
+        out[(kind, name)] = entry
+    return out
+
+
+@functools.cache
+def _expected_schema(version: int) -> dict:
+    """The schema cmrt's own migrations give a store of ``version`` (built in memory once per process)."""
+    con = sqlite3.connect(":memory:")
+    try:
+        db = sqlite_utils.Database(con)
+        for step in MIGRATIONS[:version]:
+            step(db)
+        return _schema(con)
+    finally:
+        con.close()
+
+
+def _schema_difference(have: dict, want: dict) -> str:
+    """What a foreign schema has that cmrt's does not (or lacks), in a few words."""
+    extra = sorted(f"{k} {n}" for k, n in set(have) - set(want))
+    missing = sorted(f"{k} {n}" for k, n in set(want) - set(have))
+    changed = sorted(f"{k} {n}" for k, n in set(have) & set(want) if have[(k, n)] != want[(k, n)])
+    parts = [f"unexpected {', '.join(extra)}"] * bool(extra) + [f"missing {', '.join(missing)}"] * bool(missing)
+    parts += [f"different columns or keys in {', '.join(changed)}"] * bool(changed)
+    return "; ".join(parts)[:200]
 
 
 def _json(text, where: str, kind: type = object):
@@ -299,6 +348,7 @@ class Run:
             d[key] = _json(d[key], f"{where}: {key}") if d[key] else None
         for key in ("best_params", "init_params"):
             d[key] = tuple(_json(d[key], f"{where}: {key}", list)) if d[key] else None
+        _check_run_types(d, where)
         for key in ("best_fell", "baseline_fell", "best_success", "baseline_success"):
             d[key] = None if d[key] is None else bool(d[key])
         d["reference"] = d.get("reference") or "center"
@@ -307,6 +357,45 @@ class Run:
     def to_dict(self) -> dict:
         """The run as JSON-ready values (what ``cmrt show --json`` prints, with derived figures)."""
         return asdict(self)
+
+
+#: The Python types a ``runs`` column may hold (SQLite stores any value in any column: a store from someone
+#: else may hold text where a number belongs). NULL is allowed where the schema allows it.
+_RUN_INTS = ("id", "seed", "max_evals", "popsize", "min_evals", "init_run", "attempt", "evaluations", "generations",
+             "restarts", "stall_generations", "retries")
+_RUN_FLOATS = ("speed", "sigma0", "stop_threshold", "heartbeat_at", "created_at", "started_at", "finished_at",
+               "best_objective", "baseline_objective", "wall_s", "eval_s")
+_RUN_TEXTS = ("task", "task_hash", "backend", "status", "worker", "stop_reason", "error", "init_source",
+              "reference")
+_RUN_FLAGS = ("best_fell", "baseline_fell", "best_success", "baseline_success")
+_RUN_NOT_NULL = ("id", "task", "seed", "status", "created_at")
+
+
+def _check_run_types(d: dict, where: str) -> None:
+    """Refuse (one-line CmrtError) a run row whose values are not of their column's kind, or a status cmrt
+    never writes: every read decodes through here, so a hostile value is a message, not a traceback."""
+    def bad(key: str, kind: str) -> CmrtError:
+        return CmrtError(f"the store is damaged: {where}: {key} is not {kind}")
+
+    for key in _RUN_NOT_NULL:
+        if d.get(key) is None:
+            raise bad(key, "set")
+    for key in _RUN_INTS:
+        v = d.get(key)
+        if v is not None and (type(v) is not int or v < 0):
+            raise bad(key, "a non-negative integer")
+    for key in _RUN_FLOATS:
+        v = d.get(key)
+        if v is not None and (type(v) not in (int, float) or not math.isfinite(v)):
+            raise bad(key, "a finite number")
+    for key in _RUN_TEXTS:
+        if d.get(key) is not None and type(d[key]) is not str:
+            raise bad(key, "text")
+    for key in _RUN_FLAGS:
+        if d.get(key) not in (None, 0, 1):
+            raise bad(key, "0 or 1")
+    if d["status"] not in RUN_STATUSES:
+        raise bad("status", "one of " + ", ".join(RUN_STATUSES))
 
 
 @dataclass(frozen=True)
@@ -362,6 +451,7 @@ class Store:
         else:
             conn = sqlite3.connect(str(path), timeout=BUSY_TIMEOUT_MS / 1000)
         conn.execute(f"PRAGMA busy_timeout = {BUSY_TIMEOUT_MS}")
+        conn.execute("PRAGMA trusted_schema = OFF")  # schema checked by _inspect; this is the second line
         if not readonly:
             if conn.execute("PRAGMA journal_mode").fetchone()[0] != "wal":
                 conn.execute("PRAGMA journal_mode = WAL")

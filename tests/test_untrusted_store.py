@@ -1,0 +1,97 @@
+"""A store from anyone: schema objects cmrt did not create are refused before any row is read or written,
+and hostile values in rows are one line, never a traceback. Real SQLite files, real ``cmrt`` processes."""
+
+import hashlib
+import sqlite3
+import subprocess
+import sys
+import time
+
+import pytest
+
+from cmrt import load_task
+from cmrt.errors import CmrtError
+from cmrt.jobs import submit
+from cmrt.store import open_store
+
+PLANTS = {
+    "trigger": "CREATE TRIGGER wipe AFTER UPDATE ON runs BEGIN DELETE FROM evaluations; END",
+    "insert trigger": "CREATE TRIGGER junk AFTER INSERT ON runs BEGIN INSERT INTO meta VALUES (hex(randomblob(9)), "
+                      "zeroblob(1000000)); END",
+    "recursive view": "CREATE VIEW loop AS WITH RECURSIVE r(x) AS (SELECT 1 UNION ALL SELECT x + 1 FROM r) "
+                      "SELECT x FROM r",
+    "runs as a view": "ALTER TABLE runs RENAME TO runs_real; CREATE VIEW runs AS WITH RECURSIVE r(x) AS "
+                      "(SELECT 1 UNION ALL SELECT x + 1 FROM r) SELECT x AS id FROM r",
+    "extra column": "ALTER TABLE runs ADD COLUMN evil TEXT",
+    "generated column": "ALTER TABLE runs ADD COLUMN g INTEGER GENERATED ALWAYS AS (seed * 2) VIRTUAL",
+    "extra table": "CREATE TABLE notes (x)",
+    "extra index": "CREATE INDEX idx_evil ON evaluations (objective)",
+    "missing column": "ALTER TABLE runs DROP COLUMN error",
+}
+VERBS = [["runs"], ["show", "1"], ["best", "bend", "--speed", "0.4"], ["export", "1"], ["jobs"],
+         ["submit", "bend"], ["worker", "--until-idle"], ["requeue", "1"]]
+
+
+def digest(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def cmrt(*args, timeout=60):
+    return subprocess.run([sys.executable, "-m", "cmrt.cli", *args], capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture
+def store(tmp_path):
+    path = tmp_path / "s.sqlite"
+    with open_store(path) as s:
+        submit(s, load_task("bend").with_speed(0.4), init="none")
+    return path
+
+
+def _plant(path, sql):
+    con = sqlite3.connect(path)
+    con.executescript(sql)
+    con.commit()
+    con.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+    con.close()
+
+
+@pytest.mark.parametrize("plant", sorted(PLANTS))
+def test_a_store_with_foreign_schema_objects_is_refused_by_the_api_untouched(store, plant):
+    _plant(store, PLANTS[plant])
+    before = digest(store)
+    for readonly in (True, False):
+        t0 = time.perf_counter()
+        with pytest.raises(CmrtError, match="not a store cmrt wrote"):
+            open_store(store, readonly=readonly)
+        assert time.perf_counter() - t0 < 5
+    assert digest(store) == before
+
+
+@pytest.mark.slow  # one cmrt process per verb
+@pytest.mark.parametrize("plant", ["trigger", "runs as a view", "generated column"])
+def test_every_verb_refuses_a_planted_store_in_one_line_within_5_s(store, plant):
+    _plant(store, PLANTS[plant])
+    before = digest(store)
+    for verb in VERBS:
+        t0 = time.perf_counter()
+        r = cmrt(*verb, "--store", str(store))
+        assert time.perf_counter() - t0 < 5 + 3  # 5 s, plus the interpreter's start on a loaded machine
+        assert r.returncode == 2, (verb, r.stderr)
+        assert len(r.stderr.strip().splitlines()) == 1 and "not a store cmrt wrote" in r.stderr, (verb, r.stderr)
+    assert digest(store) == before
+
+
+@pytest.mark.parametrize("column, value", [
+    ("retries", "'x'"), ("wall_s", "'fast'"), ("evaluations", "-3"), ("evaluations", "2.5"), ("status", "'zombie'"),
+    ("best_fell", "7"), ("popsize", "'ten'"), ("task", "x'00'"), ("speed", "'quick'"), ("created_at", "1e999"),
+])
+def test_hostile_values_in_a_run_row_are_one_line(store, column, value):
+    con = sqlite3.connect(store)
+    con.execute(f"UPDATE runs SET {column} = {value}")
+    con.commit()
+    con.close()
+    with open_store(store, readonly=True) as s, pytest.raises(CmrtError, match=f"run 1: {column} is not"):
+        s.runs()
+    r = cmrt("show", "1", "--store", str(store))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and column in r.stderr, r.stderr
