@@ -85,7 +85,18 @@ def claim(store: Store, worker: str, stale_after_s: float = DEFAULT_STALE_AFTER_
 
 
 def settings_for(run: Run, x0: tuple[float, ...] | None = None) -> OptimizeSettings:
-    """The optimizer settings a stored run was queued with."""
+    """The optimizer settings a stored run was queued with; a row outside the ranges ``submit`` accepts (a
+    store edited by someone else: a popsize of 20000) is refused with one line (the worker fails that run)."""
+    for value, where, allowed in ((run.seed, "seed", inputs.SEED), (run.max_evals, "max_evals", inputs.MAX_EVALS),
+                                  (run.popsize, "popsize", inputs.POPSIZE), (run.sigma0, "sigma0", inputs.SIGMA0),
+                                  (run.min_evals, "min_evals", inputs.MIN_EVALS)):
+        try:
+            if value is not None:
+                allowed.check(value, where, text=False)
+        except CmrtError as exc:
+            raise CmrtError(f"run {run.id} is outside what submit accepts: {exc}") from None
+    if run.stall_generations is not None:
+        inputs.STALL_GENERATIONS.check(run.stall_generations, "stall_generations", text=False)
     return OptimizeSettings(
         seed=run.seed, max_evals=run.max_evals, min_evals=run.min_evals, popsize=run.popsize,
         sigma0=run.sigma0, stop_threshold=run.stop_threshold or 0.0, x0=x0,

@@ -570,7 +570,17 @@ class Store:
                                            "ORDER BY id LIMIT 1", (now - stale_after_s,)).fetchone()
                 if row is None:
                     return None
-                rid, retries = int(row[0]), (row[2] or 0) + (row[1] == "running")
+                rid = row[0]
+                full = conn.execute("SELECT * FROM runs WHERE id = ?", (rid,)).fetchone()
+                try:  # one bad row (a hostile or damaged value) fails that run, never the worker or the queue
+                    Run.from_row(full)
+                except CmrtError as exc:
+                    conn.execute("UPDATE runs SET status = 'failed', finished_at = ?, error = ? WHERE id = ?",
+                                 (now, f"refused: {exc}"[:500], rid))
+                    if run_id is not None:
+                        return None
+                    continue
+                retries = (row[2] or 0) + (row[1] == "running")
                 if retries <= MAX_RETRIES:
                     break
                 conn.execute("UPDATE runs SET status = 'failed', finished_at = ?, error = ? WHERE id = ?",

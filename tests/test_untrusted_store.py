@@ -95,3 +95,23 @@ def test_hostile_values_in_a_run_row_are_one_line(store, column, value):
         s.runs()
     r = cmrt("show", "1", "--store", str(store))
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and column in r.stderr, r.stderr
+
+
+@pytest.mark.slow  # optimizes a run
+@pytest.mark.parametrize("column, value", [("retries", "'x'"), ("popsize", "20000"), ("max_evals", "-1")])
+def test_one_bad_queued_row_fails_that_run_and_the_worker_runs_the_others(tmp_path, column, value):
+    from cmrt.jobs import work
+
+    path = tmp_path / "s.sqlite"
+    with open_store(path) as s:
+        bad = submit(s, load_task("bend").with_speed(1.2), init="none", max_evals=10)
+        good = submit(s, load_task("bend").with_speed(1.2), init="none", max_evals=10)
+    con = sqlite3.connect(path)
+    con.execute(f"UPDATE runs SET {column} = {value} WHERE id = ?", (bad,))
+    con.commit()
+    con.close()
+    with open_store(path) as s:
+        work(s, until_idle=True)
+        assert s.run(good).status == "done"
+        row = sqlite3.connect(path).execute("SELECT status, error FROM runs WHERE id = ?", (bad,)).fetchone()
+    assert row[0] == "failed" and column in row[1] and "\n" not in row[1]
