@@ -114,8 +114,19 @@ class CmaState:
     regime_evals: list[int] = field(default_factory=lambda: [0, 0])  # evaluations spent: large, small
 
     def dumps(self) -> bytes:
-        """The checkpoint blob stored after every generation (a data-only document, no pickle)."""
-        return checkpoint.dumps(self, _CHECKPOINT_CLASSES)
+        """The checkpoint blob stored after every generation (a data-only document, no pickle). It carries
+        nothing of the machine that wrote it: pycma keeps the worker's absolute working directory (its
+        logger's file prefix) and wall-clock timers, which a shared store would otherwise hand to anyone; they
+        are written as a fixed relative prefix and zeros (no cmrt option reads them: ``timeout`` is inf)."""
+        saved = []
+        try:
+            for obj, name, value in _machine_fields(self.es):
+                saved.append((obj, name, getattr(obj, name)))
+                setattr(obj, name, value)
+            return checkpoint.dumps(self, _CHECKPOINT_CLASSES)
+        finally:
+            for obj, name, value in reversed(saved):
+                setattr(obj, name, value)
 
     @staticmethod
     def loads(blob: bytes, settings: OptimizeSettings | None = None, *, run_id: int | None = None) -> CmaState:
@@ -137,6 +148,19 @@ class CmaState:
             why = " ".join(str(exc).split())
             raise InvalidCheckpoint(f"checkpoint{of} is not a valid cmrt checkpoint: {why}") from None
         return state
+
+
+def _machine_fields(es) -> list[tuple[object, str, object]]:
+    """(object, attribute, neutral value) of what pycma records about the host: paths and wall-clock times."""
+    out = []
+    logger = getattr(es, "logger", None)
+    if logger is not None and isinstance(getattr(logger, "name_prefix", None), str):
+        out.append((logger, "name_prefix", "outcmaes/"))
+    for timer in (getattr(es, "timer", None), getattr(logger, "timer_plot", None), getattr(logger, "timer_all", None)):
+        for name in ("paused", "last_tic", "_last_toc", "_time_at_reset", "_time_at_creation"):
+            if isinstance(getattr(timer, name, None), float):
+                out.append((timer, name, 0.0))
+    return out
 
 
 _CHECKPOINT_CLASSES = (CmaState, _Randn)

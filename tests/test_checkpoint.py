@@ -514,3 +514,22 @@ def test_pycma_is_imported_without_matplotlib_and_scipy_stats():
     assert (got_lean, no_pyplot) == ("True", "True")
     assert (got_plain, no_pyplot_plain) == ("False", "False")
     assert x_lean == x_plain
+
+
+def test_a_checkpoint_carries_no_machine_paths_or_wall_clock_times(tmp_path, monkeypatch):
+    """A shared store must not tell where (the worker's working directory) or when its workers ran."""
+    import re
+    import time
+    import zlib
+
+    from cmrt.objective import EvalRecord
+    from cmrt.optimize import step
+
+    monkeypatch.chdir(tmp_path)
+    state = new_state(OptimizeSettings(seed=3))
+    step(state, lambda xs: [EvalRecord(1.0 + i, False, 0.0) for i, _ in enumerate(xs)])
+    text = zlib.decompress(state.dumps()[len(b"CMRT-CKPT-1\n"):]).decode()
+    assert str(tmp_path) not in text and "outcmaes/" in text
+    epoch = str(int(time.time()))[:4]  # the leading digits of any wall-clock time written now
+    assert not re.search(rf"\b{epoch}\d{{6}}\.\d+", text)
+    assert state.es.logger.name_prefix.startswith(str(tmp_path))  # the live state is left as it was
