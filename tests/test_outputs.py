@@ -9,11 +9,8 @@ import sys
 
 import pytest
 
-from cmrt import load_task
 from cmrt.errors import CmrtError
 from cmrt.inputs import check_output
-from cmrt.jobs import submit
-from cmrt.store import open_store
 
 
 def run(*args):
@@ -25,11 +22,8 @@ def digest(path):
 
 
 @pytest.fixture
-def store(tmp_path):
-    path = tmp_path / "s.sqlite"
-    with open_store(path) as s:
-        submit(s, load_task("bend").with_speed(0.4), init="none")
-    return path
+def store(queued_store):
+    return queued_store
 
 
 def _refused(r, target, before, words):

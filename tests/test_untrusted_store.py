@@ -41,11 +41,8 @@ def cmrt(*args, timeout=60):
 
 
 @pytest.fixture
-def store(tmp_path):
-    path = tmp_path / "s.sqlite"
-    with open_store(path) as s:
-        submit(s, load_task("bend").with_speed(0.4), init="none")
-    return path
+def store(queued_store):
+    return queued_store
 
 
 def _plant(path, sql):
