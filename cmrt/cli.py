@@ -977,7 +977,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run one verb; exit status 0, 2 for bad input (one line on stderr), 130 on Ctrl-C."""
     args = None
-    previous = signal.signal(signal.SIGTERM, _terminate)  # a worker gives its run back, as on Ctrl-C
+    # a worker gives its run back, as on Ctrl-C: a closed terminal (SIGHUP) and SIGQUIT too, not only SIGTERM
+    previous = {sig: signal.signal(sig, _terminate) for sig in TERMINATING_SIGNALS}
     try:
         args = build_parser().parse_args(argv)
         out = args.command.run(args)
@@ -994,9 +995,9 @@ def main(argv: list[str] | None = None) -> int:
     except TransientFault as exc:
         print(f"cmrt: error: {exc}", file=sys.stderr)
         return EXIT_TEMPFAIL
-    except Terminated:
-        print("cmrt: terminated", file=sys.stderr)
-        return 143
+    except Terminated as exc:
+        print(f"cmrt: terminated ({signal.Signals(exc.signum).name})", file=sys.stderr)
+        return 128 + exc.signum
     except KeyboardInterrupt:
         print("cmrt: interrupted", file=sys.stderr)
         return 130
@@ -1004,11 +1005,15 @@ def main(argv: list[str] | None = None) -> int:
         sys.stderr.close()
         return 0
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+TERMINATING_SIGNALS = (signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 
 
 def _terminate(signum, frame) -> None:
-    raise Terminated()
+    raise Terminated(signum)
 
 
 if __name__ == "__main__":

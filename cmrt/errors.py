@@ -16,4 +16,9 @@ class TransientFault(RuntimeError):
 
 
 class Terminated(KeyboardInterrupt):
-    """SIGTERM, turned into an exception so that a worker gives its run back before exiting (like Ctrl-C)."""
+    """SIGTERM, SIGHUP or SIGQUIT, turned into an exception so that a worker gives its run back before exiting
+    (like Ctrl-C); ``signum`` is the signal (the exit status is 128 + it)."""
+
+    def __init__(self, signum: int = 15):
+        super().__init__(signum)
+        self.signum = signum
