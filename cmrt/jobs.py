@@ -112,8 +112,16 @@ def run_claimed(
     claim: Claim,
     evaluator: Evaluator,
     on_generation: ProgressFn | None = None,
+    heartbeat_s: float = DEFAULT_STALE_AFTER_S / 4,
 ) -> Run:
-    """Optimize a claimed run to its end (or until the claim is lost: LostClaim). Returns the finished run."""
+    """Optimize a claimed run to its end (or until the claim is lost: LostClaim). Returns the finished run.
+    ``heartbeat_s``: how often the run's heartbeat is refreshed while a generation runs (a quarter of the
+    workers' ``stale_after_s``, so a healthy worker is never taken for dead)."""
+    with store.heartbeat(claim, heartbeat_s):
+        return _run_claimed(store, claim, evaluator, on_generation)
+
+
+def _run_claimed(store: Store, claim: Claim, evaluator: Evaluator, on_generation: ProgressFn | None) -> Run:
     run = store.run(claim.run_id)
     task = task_from_dict(run.task_definition, source=f"run {run.id}")
     x0 = run.init_params
@@ -263,7 +271,7 @@ def work(
             if on_claim:
                 on_claim(c)
             try:
-                run_claimed(store, c, ev, on_generation)
+                run_claimed(store, c, ev, on_generation, heartbeat_s=stale_after_s / 4)
                 finished.append(c.run_id)
             except LostClaim:
                 pass

@@ -30,6 +30,7 @@ import random
 import sqlite3
 import stat
 import tempfile
+import threading
 import time
 import urllib.parse
 from collections.abc import Callable, Iterator, Sequence
@@ -595,6 +596,10 @@ class Store:
             attempt = conn.execute("SELECT attempt FROM runs WHERE id = ?", (rid,)).fetchone()[0]
         return Claim(rid, worker, int(attempt))
 
+    def heartbeat(self, claim: Claim, every_s: float) -> Heartbeat:
+        """``with store.heartbeat(claim, every_s):`` keeps the claimed run's heartbeat fresh meanwhile."""
+        return Heartbeat(self.path, claim, every_s)
+
     def record_baseline(self, claim: Claim, objective: float, fell: bool, success: bool) -> None:
         """The zero CMRT's score (what the reactive controller alone does), once per run."""
         with self.transaction() as conn:
@@ -743,6 +748,43 @@ class Store:
             "SELECT gen, checkpoint FROM generations WHERE run_id = ? ORDER BY gen DESC LIMIT 1", (run_id,)
         ).fetchone()
         return (int(row["gen"]), bytes(row["checkpoint"])) if row else None
+
+
+class Heartbeat:
+    """Refreshes a claimed run's heartbeat every ``every_s`` from a thread and a connection of its own, while
+    the worker's main thread evaluates a generation: a generation longer than ``--stale-after`` no longer makes
+    a healthy worker look dead (two such workers used to take one run from each other until it failed). The
+    update is fenced on (worker, attempt) like every other write, so it never revives a run taken over; a
+    failed beat is skipped (the main thread's next commit reports a real fault)."""
+
+    def __init__(self, path: Path, claim: Claim, every_s: float):
+        self.path, self.claim, self.every_s = path, claim, every_s
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._beat, name=f"heartbeat-run-{claim.run_id}", daemon=True)
+
+    def __enter__(self) -> Heartbeat:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def _beat(self) -> None:
+        try:
+            conn = sqlite3.connect(str(self.path), timeout=BUSY_TIMEOUT_MS / 1000)
+        except sqlite3.Error:
+            return
+        try:
+            conn.execute("PRAGMA trusted_schema = OFF")
+            while not self._stop.wait(self.every_s):
+                with contextlib.suppress(sqlite3.Error):
+                    conn.execute("UPDATE runs SET heartbeat_at = ? WHERE id = ? AND worker = ? AND attempt = ? "
+                                 "AND status = 'running'",
+                                 (time.time(), self.claim.run_id, self.claim.worker, self.claim.attempt))
+                    conn.commit()
+        finally:
+            conn.close()
 
 
 def _fenced_update(conn: sqlite3.Connection, claim: Claim, sets: str, args: tuple) -> None:

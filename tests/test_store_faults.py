@@ -258,3 +258,32 @@ def test_ctrl_c_during_start_up_is_one_line(tmp_path):
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 130 and err == "cmrt: interrupted\n", err
+
+
+@pytest.mark.slow  # two worker processes
+def test_two_workers_with_a_stale_time_shorter_than_a_generation_never_take_a_run_from_each_other(tmp_path):
+    """The heartbeat is refreshed while a generation runs, not only at commits. With --stale-after 0.3 s and
+    generations of ~1 s (40 clips, serial backend), a second worker polling the queue (every 2 s) would find
+    the run stale mid-generation and take it over; it never does. (Checked: with the in-generation heartbeat
+    switched off, this test fails.)"""
+    path = tmp_path / "s.sqlite"
+    with open_store(path) as store:
+        rid = submit(store, TASK, seed=3, max_evals=400, popsize=40, init="none", min_evals=400)
+    first = spawn_worker(path, "--until-idle", "--stale-after", "0.3", backend="serial")
+    deadline = time.time() + 300
+    while time.time() < deadline:
+        with open_store(path, readonly=True) as store:
+            if store.run(rid).generations >= 1:
+                break
+        time.sleep(0.05)
+    second = spawn_worker(path, "--once", "--stale-after", "0.3", backend="serial")
+    try:
+        first.communicate(timeout=300)
+    finally:
+        second.kill()
+        second.communicate()
+    with open_store(path, readonly=True) as store:
+        run, gens = store.run(rid), store.generations(rid)
+    assert run.retries == 0 and run.attempt == 1, (run.status, run.retries, run.attempt, run.error)
+    assert first.returncode == 0 and run.status == "done"
+    assert len(gens) >= 5 and max(b.created_at - a.created_at for a, b in zip(gens, gens[1:], strict=False)) > 0.3
