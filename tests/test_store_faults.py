@@ -183,6 +183,17 @@ def test_a_full_disk_mid_run_puts_the_run_back_and_it_resumes_bit_identical(tmp_
     assert [(e.params, e.objective) for e in evals] == [(e.params, e.objective) for e in ref_evals]
 
 
+def _wait_for_a_generation(path, rid, timeout_s=300.0):
+    """Until run ``rid`` has committed its first generation (a worker process is working on it)."""
+    deadline = time.time() + timeout_s
+    while time.time() < deadline:
+        with open_store(path, readonly=True) as store:
+            if store.run(rid).generations >= 1:
+                return
+        time.sleep(0.05)
+    raise AssertionError(f"run {rid} committed no generation in {timeout_s} s")
+
+
 @pytest.mark.slow  # a worker process
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT], ids=lambda s: s.name)
 def test_a_terminating_signal_gives_the_run_back_at_once(tmp_path, sig):
@@ -191,12 +202,7 @@ def test_a_terminating_signal_gives_the_run_back_at_once(tmp_path, sig):
     with open_store(path) as store:
         rid = submit(store, TASK, seed=2, max_evals=60, popsize=6, init="none")
     worker = spawn_worker(path, "--once", backend="serial")
-    deadline = time.time() + 300
-    while time.time() < deadline:
-        with open_store(path, readonly=True) as store:
-            if store.run(rid).generations >= 1:
-                break
-        time.sleep(0.05)
+    _wait_for_a_generation(path, rid)
     sent = time.time()
     worker.send_signal(sig)
     _, err = worker.communicate(timeout=120)
@@ -270,12 +276,7 @@ def test_two_workers_with_a_stale_time_shorter_than_a_generation_never_take_a_ru
     with open_store(path) as store:
         rid = submit(store, TASK, seed=3, max_evals=400, popsize=40, init="none", min_evals=400)
     first = spawn_worker(path, "--until-idle", "--stale-after", "0.3", backend="serial")
-    deadline = time.time() + 300
-    while time.time() < deadline:
-        with open_store(path, readonly=True) as store:
-            if store.run(rid).generations >= 1:
-                break
-        time.sleep(0.05)
+    _wait_for_a_generation(path, rid)
     second = spawn_worker(path, "--once", "--stale-after", "0.3", backend="serial")
     try:
         first.communicate(timeout=300)
