@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from cmrt import inputs
-from cmrt.errors import CmrtError, Terminated, TransientFault
+from cmrt.errors import CmrtError, Terminated, TransientFault, clear_signals, note_signal, pending_termination
 from cmrt.inputs import BACKENDS, REFERENCE_MODES, escape, shown
 from cmrt.store import DEFAULT_STORE, RUN_STATUSES, Run, Store, open_store, resolve_path
 
@@ -977,11 +977,19 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run one verb; exit status 0, 2 for bad input (one line on stderr), 130 on Ctrl-C."""
     args = None
+    clear_signals()
     # a worker gives its run back, as on Ctrl-C: a closed terminal (SIGHUP) and SIGQUIT too, not only SIGTERM
     previous = {sig: signal.signal(sig, _terminate) for sig in TERMINATING_SIGNALS}
     try:
-        args = build_parser().parse_args(argv)
-        out = args.command.run(args)
+        try:
+            args = build_parser().parse_args(argv)
+            _check_environment()
+            out = args.command.run(args)
+        except (CmrtError, sqlite3.DatabaseError) as exc:  # a signal inside an SQLite step ends as "interrupted"
+            terminated = pending_termination()
+            if terminated is not None:
+                raise terminated from exc
+            raise
         if out is not None:
             print(format_output(out, getattr(args, "json", False)))
         return 0
@@ -1010,9 +1018,22 @@ def main(argv: list[str] | None = None) -> int:
 
 
 TERMINATING_SIGNALS = (signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
+THREADS = inputs.Range(1, 256, integer=True)
+
+
+def _check_environment() -> None:
+    """The environment variables cmrt reads, checked before anything runs (one line, exit 2), not deep
+    inside a worker's first generation."""
+    from cmrt.memory import memory_share
+
+    memory_share()
+    text = os.environ.get("CMRT_THREADS", "").strip()
+    if text:
+        THREADS.check(text, "$CMRT_THREADS")
 
 
 def _terminate(signum, frame) -> None:
+    note_signal(signum)  # seen even where sqlite3 swallows the exception (a signal inside an SQLite step)
     raise Terminated(signum)
 
 

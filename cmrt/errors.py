@@ -22,3 +22,22 @@ class Terminated(KeyboardInterrupt):
     def __init__(self, signum: int = 15):
         super().__init__(signum)
         self.signum = signum
+
+
+_received: list[int] = []  # terminating signals received by this process (cmrt.cli's handler notes them)
+
+
+def note_signal(signum: int) -> None:
+    """Record a terminating signal before its handler raises :class:`Terminated`: raised inside an SQLite
+    progress callback, the exception is swallowed by sqlite3 and the step fails as "interrupted"; whoever
+    catches that failure asks :func:`pending_termination` and stops as the signal asked."""
+    _received.append(signum)
+
+
+def pending_termination() -> Terminated | None:
+    """The termination a received signal asked for (None if none arrived)."""
+    return Terminated(_received[-1]) if _received else None
+
+
+def clear_signals() -> None:
+    _received.clear()

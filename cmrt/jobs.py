@@ -22,7 +22,7 @@ from collections.abc import Callable, Iterator, Sequence
 
 from cmrt import inputs
 from cmrt.curve import Cmrt
-from cmrt.errors import CmrtError, TransientFault
+from cmrt.errors import CmrtError, TransientFault, pending_termination
 from cmrt.objective import evaluate
 from cmrt.optimize import CmaState, OptimizeSettings, best_cmrt, new_state, restart_if_stalled, step, stop_reason
 from cmrt.parallel import Evaluator
@@ -190,6 +190,9 @@ def optimize_now(
             store.retry_later(c, str(exc))
             raise TransientFault(f"run {run_id} is back in the queue ('cmrt worker' resumes it): {exc}") from exc
         except Exception as exc:  # never leave the run 'running' until its heartbeat goes stale
+            if (terminated := pending_termination()) is not None:  # a signal inside an SQLite step
+                store.release(c)
+                raise terminated from exc
             store.mark_failed(c, str(exc) if isinstance(exc, CmrtError) else f"{type(exc).__name__}: {exc}")
             raise
 
@@ -283,6 +286,9 @@ def work(
                 if on_failure:
                     on_failure(c.run_id, f"transient fault, back in the queue: {exc}")
             except Exception as exc:  # a bug or a bad stored run must not take the worker (and the queue) down
+                if (terminated := pending_termination()) is not None:  # a signal inside an SQLite step
+                    store.release(c)
+                    raise terminated from exc
                 message = str(exc) if isinstance(exc, CmrtError) else f"{type(exc).__name__}: {exc}"
                 store.mark_failed(c, message)
                 if on_failure:

@@ -11,10 +11,13 @@ Stopping rules, checked between generations:
   stop (after 700 evaluations), which left budget unused above the threshold (push seed 13 stopped at 700
   of 1500 evaluations at 0.774, threshold 0.6).
 
-A search *stalls* when over ``stall_generations`` generations neither its best objective nor the best
-of its generation medians improved by ``stall_tol`` (relative), or pycma's own termination criteria fire.
-The median matters: a population still closing in on an early lucky candidate is progressing though its
-best sits still, and the best-only rule restarted such searches.
+A search *stalls* when over ``stall_generations`` generations its best objective did not improve by
+``stall_tol`` (relative) and - until the run's first success - neither did the best of its generation
+medians, or when pycma's own termination criteria fire (``stall_rule="hybrid"``). Before a success the
+median matters: a population still closing in on an early lucky candidate is progressing though its best
+sits still, and the best-only rule restarted such searches. After it, a success the search no longer
+improves is what a small restart is for, whatever the rest of the population does; waiting for the median
+too (``"median"``, v0.4) kept warm-started rise runs and push runs sliding for their whole budget.
 
 A stalled search is restarted in one of BIPOP-CMA-ES's two regimes (Hansen 2009), whichever has spent
 fewer evaluations: *large* - a fresh CMA-ES from the start point and step size with the population
@@ -23,7 +26,7 @@ falls make) - or, once a success exists, *small* - a CMA-ES around the best cand
 between half the run's and half the largest so far and a step size ``sigma0 * 10**-U`` (U uniform on
 [0, 1], drawn from the run's own generator): the local search that takes a success down to the threshold.
 A run whose start came from another CMRT (a warm start) has that CMRT injected as its first candidate,
-and a small restart its best, so neither is lost.
+and a small restart its best, so neither is lost. IPOP's doubling stops at ``MAX_RESTART_POPSIZE`` (1280).
 
 Determinism: pycma seeds numpy's *global* RNG unless told otherwise; we pass
 ``seed=nan`` and our own ``randn`` drawing from a private ``numpy.random.Generator``
@@ -49,6 +52,7 @@ current directory on every ``stop()`` and evaluate the options it finds there.
 from __future__ import annotations
 
 import functools
+import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields
@@ -61,6 +65,7 @@ from cmrt.curve import N_KNOTS, Cmrt
 from cmrt.objective import EvalRecord
 
 N_PARAMS = 2 * N_KNOTS
+_log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -79,6 +84,9 @@ class OptimizeSettings:
     max_restarts: int = 30  # restarts of a stalled search (large and small regimes together)
     popsize_factor: float = 2.0  # each large restart multiplies the population by this
     bipop: bool = True  # alternate large and small restarts (BIPOP); False: large only (IPOP)
+    # "hybrid": the median test (below) only until the run's first success, the best alone after it;
+    # "median": the median test throughout (v0.4); "best": the best alone throughout (v0.3)
+    stall_rule: str = "hybrid"
 
 
 class _Randn:
@@ -193,10 +201,83 @@ def _new_es(settings: OptimizeSettings, randn: _Randn, popsize: int,
 
 
 @functools.lru_cache(maxsize=16)
+def _fresh_es(popsize: int) -> cma.CMAEvolutionStrategy:
+    """A CMA-ES of ``popsize`` as cmrt builds it (never stepped): what a loaded one's constants must equal."""
+    return cma.CMAEvolutionStrategy(np.zeros(N_PARAMS), 1.0, _cma_options(_Randn(0), popsize))
+
+
 def _expected_options(popsize: int) -> tuple[dict, dict]:
     """(items, attributes) of the CMAOptions a CMA-ES of ``popsize`` has after construction."""
-    opts = cma.CMAEvolutionStrategy(np.zeros(N_PARAMS), 1.0, _cma_options(_Randn(0), popsize)).opts
+    opts = _fresh_es(popsize).opts
     return dict(opts), dict(vars(opts))
+
+
+#: the parts of a CMA-ES that depend only on its dimension and population: in a checkpoint their scalar
+#: attributes (and the recombination weights) must equal a fresh CMA-ES's. A forged constant is how a
+#: checkpoint that passes the structural checks exhausts memory (``_stoptolxstagnation.time_delta_expo =
+#: 10**18`` grows an integer without bound at the first ``stop()``).
+_CONSTANT_PARTS = ("sp", "sp0", "sp.weights", "const", "_stoptolxstagnation", "adapt_sigma", "sm", "gp",
+                   "boundary_handler", "sigma_vec")
+#: scalar attributes of those parts that are state, not constants (counters and iteration marks)
+_STATE_SCALARS = {"_stoptolxstagnation": {"count", "count_x"}, "adapt_sigma": {"_ps_updated_iteration", "delta"},
+                  "sm": {"count_eigen", "count_tell", "last_update"}}
+#: pycma's own cap on its long fitness histories (``fit.histbest``, ``fit.histmedian``: 2e4 entries)
+_HISTORY_CAP = 20_000
+_MAX_COUNTER = 2**40
+
+
+def _part(es, dotted: str):
+    for name in dotted.split("."):
+        es = getattr(es, name)
+    return es
+
+
+def _scalars(obj) -> dict:
+    return {k: v for k, v in vars(obj).items() if type(v) in (bool, int, float)}
+
+
+def _bounds_broken(state: CmaState, popsize: int) -> str | None:
+    """Why the loaded CMA-ES implies more work or memory than a run of ``popsize`` ever has, or None.
+
+    Checked: its constants against a fresh CMA-ES's (:data:`_CONSTANT_PARTS`); every list, tuple, dict and
+    array reachable from it against what ``popsize`` needs (a generation's candidates, N x N matrices,
+    pycma's capped histories) - 6,000 references in ``pop_injection_solutions`` would ask for 6,000 clips
+    in one batch, 300,000 archive entries make every ``tell`` quadratic; and its iteration and evaluation
+    counters against the run's own."""
+    es, fresh = state.es, _fresh_es(popsize)
+    for dotted in _CONSTANT_PARTS:
+        have, want = _scalars(_part(es, dotted)), _scalars(_part(fresh, dotted))
+        skip = _STATE_SCALARS.get(dotted, set())
+        bad = sorted(k for k in set(have) | set(want) if k not in skip and not _same(have.get(k), want.get(k)))
+        if bad:
+            return f"CMA-ES constant {dotted}.{bad[0]} is not a population-{popsize} CMA-ES's"
+    if list(es.sp.weights) != list(fresh.sp.weights):
+        return f"CMA-ES recombination weights are not a population-{popsize} CMA-ES's"
+    if not (es.countiter <= state.generation and es.countevals <= state.evaluations):
+        return "CMA-ES counters exceed the run's generations or evaluations"
+    limit = N_PARAMS * max(popsize, N_PARAMS) + 256
+    seen: set[int] = set()
+    todo: list[tuple[object, str]] = [(es, "es")]
+    while todo:
+        obj, path = todo.pop()
+        if id(obj) in seen:
+            continue
+        seen.add(id(obj))
+        if type(obj) is int and not -_MAX_COUNTER <= obj <= _MAX_COUNTER:
+            return f"CMA-ES integer {path} is out of range"
+        if isinstance(obj, np.ndarray):
+            if obj.size > limit:
+                return f"CMA-ES array {path} has {obj.size} entries, more than a population-{popsize} run holds"
+            continue
+        if isinstance(obj, (list, tuple, dict)):
+            cap = _HISTORY_CAP if path in ("es.fit.histbest", "es.fit.histmedian") else limit
+            if len(obj) > cap:
+                return f"CMA-ES container {path} has {len(obj)} entries, more than a population-{popsize} run holds"
+            items = obj.items() if isinstance(obj, dict) else enumerate(obj)
+            todo.extend((v, f"{path}[]") for _, v in items)
+        if type(obj).__module__.startswith("cma") and hasattr(obj, "__dict__"):
+            todo.extend((v, f"{path}.{k}") for k, v in vars(obj).items())
+    return None
 
 
 def _same(a, b) -> bool:
@@ -253,6 +334,8 @@ def _check_state(state, instances: dict, settings: OptimizeSettings | None) -> N
         need(state.restarts <= settings.max_restarts and ok,
              f"population {popsize} in the {state.regime} regime after {state.large_restarts} large restarts, "
              f"the run's settings give {large}")
+    broken = _bounds_broken(state, popsize)
+    need(broken is None, broken or "")
     items, attrs = _expected_options(popsize)
     bad = _options_differ(dict(es.opts), items, randn) + _options_differ(vars(es.opts), attrs, randn)
     need(not bad, "CMA-ES options differ from the run's: " + ", ".join(map(str, bad))[:120])
@@ -301,14 +384,19 @@ def _flat(old: float, new: float, tol: float) -> bool:
 def _stalled(state: CmaState, settings: OptimizeSettings) -> str | None:
     """Why the current (re)start has stopped making progress, or None.
 
-    Progress is the search's own: over the last ``stall_generations`` generations neither its best nor
-    the best of its generation *medians* improved by ``stall_tol`` (relative). A best that sits still while
-    the population's median keeps falling is a search closing in on a lucky early candidate, not a stall
-    (on rise seeds 11 and 13 the best-only rule restarted such searches; the search left alone found its
-    first success hundreds of evaluations earlier). pycma's own termination criteria count as a stall too."""
+    Progress is the search's own: over the last ``stall_generations`` generations its best did not improve
+    by ``stall_tol`` (relative) and, while the run has no success yet (``stall_rule="hybrid"``), neither did
+    the best of its generation *medians*. Before a success, a best that sits still while the median keeps
+    falling is a search closing in on a lucky early candidate, not a stall (on rise seeds 11 and 13 the
+    best-only rule restarted such searches). After one, a best that sits still is a success to refine by a
+    small restart: with the median test kept (``"median"``), push seeds 13 and 14 and rise warm start 14
+    (tuning seeds) slid to the end of their budget above the threshold; refined, all three reach it.
+    pycma's own termination criteria count as a stall too."""
     h, m, g = state.restart_history, state.median_history, settings.stall_generations
+    rule = settings.stall_rule
+    median_counts = rule == "median" or (rule == "hybrid" and state.best_success_objective == np.inf)
     if len(h) > g and len(m) > g and _flat(h[-g - 1], h[-1], settings.stall_tol) \
-            and _flat(min(m[:-g]), min(m[-g:]), settings.stall_tol):
+            and (not median_counts or _flat(min(m[:-g]), min(m[-g:]), settings.stall_tol)):
         return "converged"
     cma_stop = {k: v for k, v in state.es.stop().items() if k != "maxfevals"}
     if cma_stop:
@@ -319,8 +407,15 @@ def _stalled(state: CmaState, settings: OptimizeSettings) -> str | None:
 REGIMES = ("large", "small")
 
 
+#: the largest population IPOP's doubling reaches (10 x 2**7; ``--popsize`` above it is kept as given). Past it a
+#: generation costs more than the default budget and averages no better; it also bounds a generation's
+#: optimizer memory (a batch's clips are bounded separately: :mod:`cmrt.memory`).
+MAX_RESTART_POPSIZE = 1280
+
+
 def _large_popsize(settings: OptimizeSettings, large_restarts: int) -> int:
-    return int(round(settings.popsize * settings.popsize_factor ** large_restarts))
+    grown = int(round(settings.popsize * settings.popsize_factor ** min(large_restarts, 64)))
+    return grown if large_restarts == 0 else min(grown, max(settings.popsize, MAX_RESTART_POPSIZE))
 
 
 def _next_regime(state: CmaState, settings: OptimizeSettings) -> str | None:
@@ -368,7 +463,10 @@ def restart_if_stalled(state: CmaState, settings: OptimizeSettings) -> bool:
         return False
     if regime == "large":
         state.large_restarts += 1
-        state.es = _new_es(settings, state.randn, _large_popsize(settings, state.large_restarts))
+        popsize = _large_popsize(settings, state.large_restarts)
+        if popsize < settings.popsize * settings.popsize_factor ** min(state.large_restarts, 64):
+            _log.info("large restart %d: population capped at %d (MAX_RESTART_POPSIZE)", state.large_restarts, popsize)
+        state.es = _new_es(settings, state.randn, popsize)
     else:  # Hansen's small regime, drawn from the run's own generator (checkpointed: a resume draws the same)
         u = float(state.randn.rng.random())
         large = _large_popsize(settings, state.large_restarts)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 
 import joblib
 import numpy as np
@@ -27,6 +28,7 @@ from cmrt.curve import Cmrt
 from cmrt.ensemble import combine, training_members
 from cmrt.errors import CmrtError, TransientFault
 from cmrt.inputs import BACKENDS
+from cmrt.memory import bound_heap_growth, clips_per_batch
 from cmrt.objective import EvalRecord, evaluate
 from cmrt.props import prop_class
 from cmrt.simulate import simulate_batch
@@ -42,24 +44,34 @@ def evaluate_batch(task: Task, xs: Sequence[np.ndarray], threads: int | None = N
     """Simulate and score candidates in lockstep; seconds are the batch's wall time shared equally.
 
     A robust task (``task.robust.enabled``) runs every candidate's ensemble members in the same batch and
-    scores each candidate by ``ensemble.combine``: a success only if every member is one."""
+    scores each candidate by ``ensemble.combine``: a success only if every member is one. The candidates
+    are simulated in batches of at most ``memory.clips_per_batch`` clips (a candidate's members stay
+    together), each scored and dropped before the next: memory is bounded whatever the population."""
     t0 = time.perf_counter()
+    bound_heap_growth()
+    members = training_members(task, task.robust, prop_class(task.prop).mass_body is not None) \
+        if task.robust.enabled else [None]
+    per_batch = max(1, clips_per_batch(task) // len(members))
+    out: list[EvalRecord] = []
+    for a in range(0, len(xs), per_batch):
+        out += _score_batch(task, xs[a : a + per_batch], members, threads)
+    each = (time.perf_counter() - t0) / max(len(xs), 1)
+    return [replace(r, seconds=each) for r in out]
+
+
+def _score_batch(task: Task, xs: Sequence[np.ndarray], members: list, threads: int | None) -> list[EvalRecord]:
     curves = [Cmrt.from_params(x, task.clip_s) for x in xs]
-    if not task.robust.enabled:
-        scores = [evaluate(task, tr) for tr in simulate_batch(task, curves, threads=threads)]
-        each = (time.perf_counter() - t0) / max(len(xs), 1)
-        return [EvalRecord(objective=float(e.objective), fell=bool(e.fell), seconds=each, success=bool(e.success))
-                for e in scores]
-    members = training_members(task, task.robust, prop_class(task.prop).mass_body is not None)
+    if members == [None]:
+        return [EvalRecord(objective=float(e.objective), fell=bool(e.fell), seconds=0.0, success=bool(e.success))
+                for e in (evaluate(task, tr) for tr in simulate_batch(task, curves, threads=threads))]
     trajs = simulate_batch(task, [c for c in curves for _ in members], threads=threads,
                            perturbations=members * len(curves))
     scores = [evaluate(members[j % len(members)].task_variant(task), tr) for j, tr in enumerate(trajs)]
-    each = (time.perf_counter() - t0) / max(len(xs), 1)
     out = []
     for i in range(len(curves)):
         group = scores[i * len(members) : (i + 1) * len(members)]
         out.append(EvalRecord(objective=combine([float(e.objective) for e in group], task.robust),
-                              fell=any(e.fell for e in group), seconds=each, success=all(e.success for e in group)))
+                              fell=any(e.fell for e in group), seconds=0.0, success=all(e.success for e in group)))
     return out
 
 

@@ -27,6 +27,7 @@ import json
 import math
 import os
 import random
+import shutil
 import sqlite3
 import stat
 import tempfile
@@ -133,6 +134,14 @@ def _readonly_uri(path: Path, immutable: bool = False) -> str:
     return f"file:{quoted}?mode=ro" + ("&immutable=1" if immutable else "")
 
 
+PROGRESS_EVERY_OPS = 10_000  # SQLite VM instructions between calls of the progress callback (~1 % overhead)
+
+
+def _let_signals_in() -> int:
+    """The progress callback: a Python call, so the interpreter runs a pending signal handler (0: go on)."""
+    return 0
+
+
 def _connect_readonly(path: Path) -> sqlite3.Connection:
     """A connection that cannot write a byte. A WAL store in a directory we cannot write to cannot get its
     shared-memory file: it is then read as immutable (no writer can be working in such a directory)."""
@@ -150,28 +159,73 @@ def _connect_readonly(path: Path) -> sqlite3.Connection:
     return con
 
 
-def _inspect(path: Path) -> str:
+def _wal_at_rest(path: Path) -> bool:
+    """A WAL-mode SQLite file with neither ``-wal`` nor ``-shm`` beside it: no connection is open on it, and a
+    reader would create both (SQLite's WAL readers need the shared-memory file) and leave them behind."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(20)
+    except OSError:
+        return False
+    return head[:16] == SQLITE_MAGIC and head[18:20] == b"\x02\x02" and not any(
+        os.path.lexists(f"{path}{side}") for side in ("-wal", "-shm"))
+
+
+def _fingerprint(path: Path) -> tuple[int, int, int]:
+    st = path.stat()
+    return st.st_size, st.st_mtime_ns, st.st_ino
+
+
+def _private_copy(path: Path) -> tempfile.TemporaryDirectory | None:
+    """A private copy of a WAL store at rest, for a read verb to read (``store.sqlite`` in the returned
+    directory), so that reading creates no byte beside the user's file; None when the store is not at rest
+    (a writer's side files are there: reading them creates nothing new) or no copy can be made.
+
+    The copy is consistent: at rest the main file holds every committed transaction, and a writer that starts
+    during the copy writes to a new ``-wal`` (the main file changes only at a checkpoint, after it). So the copy
+    is kept only if, after it, the store is still at rest and its size, mtime and inode are unchanged."""
+    for _ in range(3):
+        if not _wal_at_rest(path):
+            return None
+        try:
+            before = _fingerprint(path)
+            scratch = tempfile.TemporaryDirectory(prefix="cmrt-read-")
+        except OSError:
+            return None
+        try:
+            shutil.copyfile(path, Path(scratch.name) / "store.sqlite")
+            if _wal_at_rest(path) and _fingerprint(path) == before:
+                return scratch
+        except OSError:
+            pass
+        scratch.cleanup()
+    return None
+
+
+def _inspect(path: Path, label: Path | None = None) -> str:
     """What is at ``path``, without writing a byte: "missing", "empty" (no bytes, or an SQLite file without a
-    single table: a creation that failed) or "store"; CmrtError for anything else."""
+    single table: a creation that failed) or "store"; CmrtError for anything else. Messages name ``label``
+    (the user's path when ``path`` is a private copy of it)."""
+    label = label or path
     try:
         st = path.stat()
     except FileNotFoundError:
         return "missing"
     except OSError as exc:
-        raise CmrtError(f"cannot read store {path}: {exc.strerror}") from None
+        raise CmrtError(f"cannot read store {label}: {exc.strerror}") from None
     if stat.S_ISDIR(st.st_mode):
-        raise CmrtError(f"{path} is a directory, not a CMRT store")
+        raise CmrtError(f"{label} is a directory, not a CMRT store")
     if not stat.S_ISREG(st.st_mode):
-        raise CmrtError(f"{path} is not a regular file, not a CMRT store")
+        raise CmrtError(f"{label} is not a regular file, not a CMRT store")
     if st.st_size == 0:
         return "empty"
     try:
         with open(path, "rb") as fh:
             head = fh.read(16)
     except OSError as exc:
-        raise CmrtError(f"cannot read store {path}: {exc.strerror}") from None
+        raise CmrtError(f"cannot read store {label}: {exc.strerror}") from None
     if head != SQLITE_MAGIC:
-        raise CmrtError(f"{path} is not a CMRT store (not an SQLite database)")
+        raise CmrtError(f"{label} is not a CMRT store (not an SQLite database)")
     side = [Path(f"{path}-wal"), Path(f"{path}-shm")]
     existed = [p.exists() for p in side]
     try:
@@ -191,16 +245,16 @@ def _inspect(path: Path) -> str:
                 with contextlib.suppress(OSError):
                     p.unlink()
         if isinstance(exc, sqlite3.OperationalError) and "unable to open" in str(exc):
-            raise CmrtError(f"cannot open store {path} (permissions?)") from None
-        raise CmrtError(f"{path} is a corrupted SQLite file ({' '.join(str(exc).split())[:120]})") from None
+            raise CmrtError(f"cannot open store {label} (permissions?)") from None
+        raise CmrtError(f"{label} is a corrupted SQLite file ({' '.join(str(exc).split())[:120]})") from None
     if not tables and version == 0:
         return "empty"
     if not row or row[0] != APP_ID:
-        raise CmrtError(f"{path} is not a CMRT store (no cmrt metadata)")
+        raise CmrtError(f"{label} is not a CMRT store (no cmrt metadata)")
     if version > SCHEMA_VERSION:
-        raise CmrtError(f"{path} has schema version {version}, newer than this cmrt ({SCHEMA_VERSION})")
+        raise CmrtError(f"{label} has schema version {version}, newer than this cmrt ({SCHEMA_VERSION})")
     if schema != _expected_schema(version):
-        raise CmrtError(f"{path} is not a store cmrt wrote: {_schema_difference(schema, _expected_schema(version))}")
+        raise CmrtError(f"{label} is not a store cmrt wrote: {_schema_difference(schema, _expected_schema(version))}")
     return "store"
 
 
@@ -444,15 +498,20 @@ class RunProgress:
 class Store:
     """One connection to a CMRT store; open with :func:`open_store`."""
 
-    def __init__(self, path: Path, readonly: bool = False):
+    def __init__(self, path: Path, readonly: bool = False, read_from: Path | None = None):
         self.path = path
         self.readonly = readonly
+        self._scratch: tempfile.TemporaryDirectory | None = None  # a private copy read instead (open_store)
         if readonly:
-            conn = _connect_readonly(path)
+            conn = _connect_readonly(read_from or path)
         else:
             conn = sqlite3.connect(str(path), timeout=BUSY_TIMEOUT_MS / 1000)
         conn.execute(f"PRAGMA busy_timeout = {BUSY_TIMEOUT_MS}")
         conn.execute("PRAGMA trusted_schema = OFF")  # schema checked by _inspect; this is the second line
+        # Python runs a signal handler only between bytecodes: without a callback, SIGTERM waits for a long
+        # SQLite step to end. With one, the handler runs inside it and the step fails as "interrupted" (the
+        # CLI and the worker then stop as the signal asked: cmrt.errors.pending_termination)
+        conn.set_progress_handler(_let_signals_in, PROGRESS_EVERY_OPS)
         if not readonly:
             if conn.execute("PRAGMA journal_mode").fetchone()[0] != "wal":
                 conn.execute("PRAGMA journal_mode = WAL")
@@ -463,8 +522,11 @@ class Store:
         self.db = sqlite_utils.Database(conn)
 
     def close(self) -> None:
-        """Close the connection (``with open_store(...)`` does it)."""
+        """Close the connection (``with open_store(...)`` does it) and delete a private copy read instead."""
         self.conn.close()
+        if self._scratch is not None:
+            self._scratch.cleanup()
+            self._scratch = None
 
     def __enter__(self) -> Store:
         return self
@@ -801,6 +863,15 @@ def _is_full(exc: BaseException) -> bool:
     return "full" in str(exc) or getattr(exc, "errno", None) in (errno.ENOSPC, errno.EDQUOT)
 
 
+def _nearly_full(directory: Path, margin_bytes: int = 1 << 20) -> bool:
+    """Whether the file system of ``directory`` has less than ``margin_bytes`` free (a new store needs ~100 kB)."""
+    try:
+        st = os.statvfs(directory)
+    except OSError:
+        return False
+    return st.f_bavail * st.f_frsize < margin_bytes
+
+
 def _check_replaceable(path: Path) -> None:
     """Refuse to replace anything but an empty file or an SQLite file of one page (no table in it): the last
     guard that a creation never destroys a store, whatever made the caller think it empty."""
@@ -838,13 +909,35 @@ def _create(path: Path, replace: bool) -> None:
             with contextlib.suppress(FileExistsError):
                 os.link(tmp, path)
     except (sqlite3.Error, OSError, TransientFault) as exc:
-        reason = "disk full" if _is_full(exc) else getattr(exc, "strerror", None) or str(exc)
-        raise CmrtError(f"cannot create store {path}: {reason}") from None
+        if _is_full(exc) or _nearly_full(path.parent):  # SQLite says "disk I/O error" when its -shm cannot grow
+            raise TransientFault(f"cannot create store {path}: disk full (free some space and run it again)") from None
+        raise CmrtError(f"cannot create store {path}: {getattr(exc, 'strerror', None) or exc}") from None
     finally:
         if tmp is not None:
             for leftover in (tmp, Path(f"{tmp}-wal"), Path(f"{tmp}-shm")):
                 with contextlib.suppress(OSError):
                     leftover.unlink()
+
+
+def _open_readonly(p: Path) -> Store:
+    """A read verb's store: never a byte written beside it. A WAL store at rest is read from a private copy
+    (:func:`_private_copy`); any other store through a read-only connection."""
+    scratch = _private_copy(p)
+    source = p if scratch is None else Path(scratch.name) / "store.sqlite"
+    try:
+        kind = _inspect(source, label=p)
+        if kind != "store":
+            raise CmrtError(f"no CMRT store at {p}" + (" (the file is empty)" if kind == "empty" else ""))
+        try:
+            store = Store(p, readonly=True, read_from=source)
+        except sqlite3.Error as exc:
+            raise CmrtError(f"cannot open store {p}: {exc}") from None
+    except BaseException:
+        if scratch is not None:
+            scratch.cleanup()
+        raise
+    store._scratch = scratch
+    return store
 
 
 def open_store(path: str | os.PathLike | None = None, *, create: bool = True, readonly: bool = False) -> Store:
@@ -854,6 +947,8 @@ def open_store(path: str | os.PathLike | None = None, *, create: bool = True, re
     store is opened for writing: created atomically if missing (``create``), integrity-checked, migrated.
     A foreign, corrupted or newer file is refused untouched, with a one-line CmrtError."""
     p = resolve_path(path)
+    if readonly:
+        return _open_readonly(p)
     kind = _inspect(p)
     if kind != "store" and (readonly or not create):
         raise CmrtError(f"no CMRT store at {p}" + (" (the file is empty)" if kind == "empty" else ""))

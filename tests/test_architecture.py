@@ -18,7 +18,7 @@ LAYERS: list[tuple[str, set[str]]] = [
                     "control.stepping"}),
     ("physics", {"props", "reference", "task", "sequence", "library", "tick", "simulate", "objective", "validate",
                  "render"}),
-    ("optimizer", {"checkpoint", "optimize", "parallel", "bench"}),
+    ("optimizer", {"checkpoint", "optimize", "memory", "parallel", "bench"}),
     ("store", {"store"}),
     ("service", {"warmstart", "jobs", "query", "interpolate", "plot"}),
     ("shell", {"cli", "launch"}),

@@ -533,3 +533,61 @@ def test_a_checkpoint_carries_no_machine_paths_or_wall_clock_times(tmp_path, mon
     epoch = str(int(time.time()))[:4]  # the leading digits of any wall-clock time written now
     assert not re.search(rf"\b{epoch}\d{{6}}\.\d+", text)
     assert state.es.logger.name_prefix.startswith(str(tmp_path))  # the live state is left as it was
+
+
+# --- checkpoints that pass the structure checks but imply unbounded work (issue 27) --------------------
+
+def _forge(mutate):
+    """A real mid-run state of a population-4 run, changed by ``mutate(state)``, as a checkpoint blob."""
+    settings = OptimizeSettings(seed=2, popsize=4, stall_generations=3, max_evals=500)
+    state = new_state(settings)
+    drive(state, settings, 6, sphere)
+    mutate(state)
+    return settings, state.dumps()
+
+
+def _set(path, value):
+    def mutate(state):
+        obj = state.es
+        *parents, last = path.split(".")
+        for name in parents:
+            obj = getattr(obj, name)
+        setattr(obj, last, value(state) if callable(value) else value)
+    return mutate
+
+
+FORGED = {
+    # each of these loaded and then exhausted memory or time in pycma (the red-team findings)
+    "stagnation exponent 10**18": (_set("_stoptolxstagnation.time_delta_expo", 10**18), "time_delta_expo"),
+    "6,000 injected solutions": (_set("pop_injection_solutions", lambda s: [s.es.mean.copy()] * 6000),
+                                 "pop_injection_solutions has 6000 entries"),
+    "300,000 fitness-history entries": (_set("fit.hist", [1.0] * 300_000), "fit.hist has 300000"),
+    "history past pycma's own cap": (_set("fit.histbest", [1.0] * 20_001), "fit.histbest has 20001"),
+    "a population-40 weight vector": (_set("sp.weights", lambda s: type(s.es.sp.weights)(40)),
+                                      "recombination weights|sp.weights"),
+    "damping changed": (_set("adapt_sigma.damps", 1e-9), "adapt_sigma.damps"),
+    "iteration counter past the run's": (_set("countiter", 10**6), "counters exceed"),
+    "a counter past 2**40": (_set("number_of_solutions_asked", 2**62), "out of range"),
+}
+
+
+@pytest.mark.parametrize("case", list(FORGED))
+def test_checkpoints_implying_unbounded_work_are_refused(case):
+    mutate, why = FORGED[case]
+    settings, blob = _forge(mutate)
+    t0 = time.perf_counter()
+    with pytest.raises(InvalidCheckpoint, match=why):
+        CmaState.loads(blob, settings)
+    assert time.perf_counter() - t0 < 5.0  # refused, not worked through
+
+
+def test_the_bounds_admit_every_real_checkpoint():
+    """The bounds are not tighter than pycma: histories at pycma's own cap (2e4 entries, ~1e5 generations
+    of a population-2 run) and a population-100 run after a large restart load."""
+    settings, blob = _forge(_set("fit.histbest", [1.0] * 20_000))
+    CmaState.loads(blob, settings)
+    wide = OptimizeSettings(seed=6, popsize=100, stall_generations=2, max_evals=10**5, min_evals=0)
+    state = new_state(wide)
+    drive(state, wide, 8, rugged)
+    assert state.large_restarts >= 1
+    CmaState.loads(state.dumps(), wide)

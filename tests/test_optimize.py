@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from cmrt.optimize import (
     CmaState,
@@ -79,19 +80,38 @@ def test_stop_rules():
     assert sum(state.regime_evals) == state.evaluations
 
 
-def test_a_best_that_sits_still_while_the_median_improves_is_not_a_stall():
-    """The population closing in on an early lucky candidate: its median falls, its best does not."""
-    s = OptimizeSettings(seed=1, stall_generations=5, max_evals=10_000)
-    state = new_state(s)
+def _closing_in(state, settings, success):
+    """12 generations of a population closing in on an early lucky candidate: its median falls, its best
+    (0.5, the first candidate) does not. Returns whether any generation restarted the search."""
+    restarted = False
     for g in range(12):
-        step(state, lambda xs, g=g: [EvalRecord(0.5 if i == 0 and g == 0 else 10.0 - g + 0.01 * i, False, 0.0, True)
-                                     for i, _ in enumerate(xs)])
-        assert not restart_if_stalled(state, s)
-    still = new_state(s)
+        step(state, lambda xs, g=g: [EvalRecord(0.5 if i == 0 and g == 0 else 10.0 - g + 0.01 * i, False, 0.0,
+                                                success) for i, _ in enumerate(xs)])
+        restarted |= restart_if_stalled(state, settings)
+    return restarted
+
+
+@pytest.mark.parametrize("rule", ["hybrid", "median"])
+def test_a_best_that_sits_still_while_the_median_improves_is_not_a_stall_before_a_success(rule):
+    s = OptimizeSettings(seed=1, stall_generations=5, max_evals=10_000, stall_rule=rule)
+    assert not _closing_in(new_state(s), s, success=False)
+    still = new_state(s)  # best and median both still: a stall under every rule
     for _ in range(12):
         step(still, lambda xs: [EvalRecord(10.0 + 0.01 * i if i else 0.5, False, 0.0, True)
                                 for i, _ in enumerate(xs)])
     assert restart_if_stalled(still, s) and still.regime == "small"
+
+
+def test_once_a_success_exists_a_best_that_sits_still_is_a_stall():
+    """The hybrid rule (default): a success that the search no longer improves is refined by a small restart,
+    even while the rest of the population still closes in on it (warm starts: a success from the first
+    candidate on); the median rule of v0.4 waited for the median too."""
+    hybrid = OptimizeSettings(seed=1, stall_generations=5, max_evals=10_000)
+    assert hybrid.stall_rule == "hybrid"
+    state = new_state(hybrid)
+    assert _closing_in(state, hybrid, success=True) and state.regime == "small"
+    median = OptimizeSettings(seed=1, stall_generations=5, max_evals=10_000, stall_rule="median")
+    assert not _closing_in(new_state(median), median, success=True)
 
 
 def test_a_small_restart_searches_around_the_best_success():

@@ -9,6 +9,7 @@ import sqlite3
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -53,11 +54,13 @@ def fill(directory, leave_bytes: int) -> None:
 
 
 @pytest.mark.slow  # cmrt processes or two optimizations
-def test_failed_creation_leaves_nothing_and_the_next_command_creates_it(tmp_path):
+@pytest.mark.parametrize("free_bytes", [4096, 24576])  # 24 kB: SQLite says "disk I/O error", not "full"
+def test_failed_creation_leaves_nothing_and_the_next_command_creates_it(tmp_path, free_bytes):
+    """A full disk is a fault of the machine: exit 75 (retry later), said as "disk full", nothing left."""
     with tiny_disk(tmp_path) as disk:
-        fill(disk, 4096)
+        fill(disk, free_bytes)
         r = cmrt("submit", "bend", "--store", str(disk / "new.sqlite"))
-        assert r.returncode == 2 and r.stderr.count("\n") == 1 and "disk full" in r.stderr, r.stderr
+        assert r.returncode == 75 and r.stderr.count("\n") == 1 and "disk full" in r.stderr, r.stderr
         assert sorted(p.name for p in disk.iterdir()) == ["filler"]  # no half-made store, no temp file
         (disk / "filler").unlink()  # space returns
         r = cmrt("submit", "bend", "--json", "--store", str(disk / "new.sqlite"))
@@ -288,3 +291,91 @@ def test_two_workers_with_a_stale_time_shorter_than_a_generation_never_take_a_ru
     assert run.retries == 0 and run.attempt == 1, (run.status, run.retries, run.attempt, run.error)
     assert first.returncode == 0 and run.status == "done"
     assert len(gens) >= 5 and max(b.created_at - a.created_at for a, b in zip(gens, gens[1:], strict=False)) > 0.3
+
+
+LONG_STEP = ("WITH RECURSIVE r(i) AS (SELECT 1 UNION ALL SELECT i + 1 FROM r) "
+             "SELECT count(*) FROM (SELECT i FROM r LIMIT 3000000000)")  # minutes in one SQLite step
+
+
+@contextlib.contextmanager
+def hangup_after(seconds: float):
+    """SIGHUP to this process after ``seconds``, handled as the CLI handles it (noted, then Terminated)."""
+    import threading
+
+    from cmrt import cli
+    from cmrt.errors import clear_signals
+
+    clear_signals()
+    previous = signal.signal(signal.SIGHUP, cli._terminate)
+    timer = threading.Timer(seconds, os.kill, (os.getpid(), signal.SIGHUP))
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
+        signal.signal(signal.SIGHUP, previous)
+        clear_signals()
+
+
+def test_a_signal_inside_one_long_sqlite_step_ends_it_at_once(tmp_path):
+    """Python runs signal handlers between bytecodes only; the store's progress callback lets one in."""
+    from cmrt.errors import pending_termination
+
+    with open_store(tmp_path / "s.sqlite") as store, hangup_after(0.3):
+        t0 = time.perf_counter()
+        with pytest.raises(sqlite3.OperationalError, match="interrupted"):
+            store.conn.execute(LONG_STEP).fetchall()
+        assert time.perf_counter() - t0 < 5.0
+        assert pending_termination().signum == signal.SIGHUP
+
+
+def test_a_worker_signalled_inside_a_long_sqlite_step_gives_its_run_back(tmp_path):
+    """Not failed as "interrupted": the run goes back to the queue with its checkpoint, and the worker
+    stops as SIGHUP asked (Terminated, exit 129 from the CLI)."""
+    from cmrt.errors import Terminated
+
+    path = tmp_path / "s.sqlite"
+    with open_store(path) as store:
+        rid = submit(store, TASK, **SMALL)
+    calls = []
+
+    class StuckInSqlite(Evaluator):
+        """The second generation's evaluation waits on one long SQLite step of the worker's store."""
+
+        def __call__(self, task, xs):
+            calls.append(len(xs))
+            if len(calls) == 2:
+                worker_store.conn.execute(LONG_STEP).fetchall()
+            return super().__call__(task, xs)
+
+    with open_store(path) as worker_store, StuckInSqlite("batch") as ev:
+        with hangup_after(3.0), pytest.raises(Terminated):
+            work(worker_store, evaluator=ev, once=True)
+        run = worker_store.run(rid)
+        assert run.status == "queued" and run.generations == 1, (run.status, run.error)
+        assert worker_store.last_checkpoint(rid) is not None
+
+
+def test_read_verbs_on_a_wal_store_at_rest_leave_no_side_files(tmp_path, capsys):
+    """A WAL store copied without its -wal/-shm (how stores are shared) is read from a private copy:
+    reading creates no byte beside it, and the copy is gone afterwards."""
+    import tempfile
+
+    path = tmp_path / "s.sqlite"
+    with open_store(path) as store:
+        rid = submit(store, TASK, init="none")
+    assert path.read_bytes()[18:20] == b"\x02\x02" and sorted(p.name for p in tmp_path.iterdir()) == ["s.sqlite"]
+    before, scratch_before = digest(path), set(Path(tempfile.gettempdir()).glob("cmrt-read-*"))
+    for verb in (["runs", "--json"], ["jobs", "--json"], ["show", str(rid), "--json"], ["best", "bend", "--json"],
+                 ["export", str(rid)]):
+        assert main([*verb, "--store", str(path)]) in (0, 2), verb  # export of an unfinished run may refuse
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["s.sqlite"], verb
+    capsys.readouterr()
+    assert digest(path) == before
+    assert set(Path(tempfile.gettempdir()).glob("cmrt-read-*")) == scratch_before  # the copies are deleted
+    # with a writer's side files present (a worker at work), a read goes through them and sees its commits
+    with open_store(path) as writer:
+        rid2 = submit(writer, TASK, init="none")
+        assert (tmp_path / "s.sqlite-wal").exists()
+        with open_store(path, readonly=True) as reader:
+            assert [r.id for r in reader.runs()] == [rid, rid2] and reader._scratch is None

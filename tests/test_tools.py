@@ -233,6 +233,16 @@ def test_bench_checkpoint_tool():
         assert all(r[f"{fmt}_{op}_ms"] >= 0 for fmt in ("cmrt", "pickle") for op in ("dumps", "loads"))
 
 
+def test_bench_memory_tool():
+    """The memory model the batch size is chosen by must not undercount a clip: measured on this machine,
+    at the task's own clip and a 20 s one (per-step records dominate there)."""
+    out = json.loads(_ok(run_tool("bench_memory.py", "--clips", "12", "--clip-s", "20", "--json")).stdout)
+    assert [r["clip_s"] for r in out["rows"]] == [2.6, 20.0]
+    for r in out["rows"]:
+        assert r["measured_bytes_per_clip"] > 0 and r["model_over_measured"] >= 1.0, r
+    assert out["rows"][1]["measured_bytes_per_clip"] > 4 * out["rows"][0]["measured_bytes_per_clip"]
+
+
 def test_bench_clip_tool():
     out = json.loads(_ok(run_tool("bench_clip.py", "--repeat", "1", "--json")).stdout)
     assert out["task"] == "bend" and out["speed"] == 0.4 and out["steps"] == 1550  # (2.6 + 0.5) s / 2 ms

@@ -112,3 +112,26 @@ def test_one_bad_queued_row_fails_that_run_and_the_worker_runs_the_others(tmp_pa
         assert s.run(good).status == "done"
         row = sqlite3.connect(path).execute("SELECT status, error FROM runs WHERE id = ?", (bad,)).fetchone()
     assert row[0] == "failed" and column in row[1] and "\n" not in row[1]
+
+
+META_ONLY = {  # files that claim to be cmrt stores through their meta table alone (red team h5 corpus)
+    "meta, app row, version 0": ("INSERT INTO meta VALUES ('app', 'cmrt')", 0),
+    "meta, app row, version 1": ("INSERT INTO meta VALUES ('app', 'cmrt')", 1),
+    "meta, app row, version 3": ("INSERT INTO meta VALUES ('app', 'cmrt')", 3),
+    "meta, no rows": ("SELECT 1", 0),
+}
+
+
+@pytest.mark.parametrize("case", sorted(META_ONLY))
+def test_a_meta_only_file_is_refused_before_any_write(tmp_path, case):
+    sql, version = META_ONLY[case]
+    path = tmp_path / "meta.sqlite"
+    con = sqlite3.connect(path)
+    con.executescript(f"CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT); {sql}; PRAGMA user_version = {version}")
+    con.commit()
+    con.close()
+    before = digest(path)
+    for readonly in (True, False):
+        with pytest.raises(CmrtError, match="not a store cmrt wrote|not a CMRT store"):
+            open_store(path, readonly=readonly)
+    assert digest(path) == before and sorted(p.name for p in tmp_path.iterdir()) == ["meta.sqlite"]
