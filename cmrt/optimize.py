@@ -62,10 +62,14 @@ import numpy as np
 from cmrt import checkpoint
 from cmrt.checkpoint import InvalidCheckpoint, cma  # pycma, imported without matplotlib (import_cma)
 from cmrt.curve import N_KNOTS, Cmrt
+from cmrt.errors import CmrtError
 from cmrt.objective import EvalRecord
 
 N_PARAMS = 2 * N_KNOTS
 _log = logging.getLogger(__name__)
+
+
+STALL_RULES = ("hybrid", "median", "best")
 
 
 @dataclass(frozen=True)
@@ -87,6 +91,10 @@ class OptimizeSettings:
     # "hybrid": the median test (below) only until the run's first success, the best alone after it;
     # "median": the median test throughout (v0.4); "best": the best alone throughout (v0.3)
     stall_rule: str = "hybrid"
+
+    def __post_init__(self) -> None:
+        if self.stall_rule not in STALL_RULES:
+            raise CmrtError(f"stall_rule must be one of {', '.join(STALL_RULES)}, got {self.stall_rule!r}"[:200])
 
 
 class _Randn:

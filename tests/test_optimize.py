@@ -199,3 +199,10 @@ def test_threshold_stop_needs_a_success():
     while (reason := stop_reason(state, never)) is None:
         step(state, lambda xs: [EvalRecord(1.0, False, 0.0, success=False) for _ in xs])
     assert reason != "threshold"  # budget, or a flat stall with no budget left to restart
+
+
+def test_an_unknown_stall_rule_is_refused():
+    from cmrt.errors import CmrtError
+
+    with pytest.raises(CmrtError, match="stall_rule must be one of hybrid, median, best"):
+        OptimizeSettings(stall_rule="patience")

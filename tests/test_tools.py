@@ -233,6 +233,21 @@ def test_bench_checkpoint_tool():
         assert all(r[f"{fmt}_{op}_ms"] >= 0 for fmt in ("cmrt", "pickle") for op in ("dumps", "loads"))
 
 
+def test_bit_identity_tool(tmp_path):
+    """Two runs of the same code are identical; a changed array is named."""
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    _ok(run_tool("bit_identity.py", "--quick", "--out", str(a)))
+    doc = json.loads(a.read_text())
+    assert {"bend-0.4/recorded", "catch/scored", "catch/robust-ensemble", "bend-0.4/yu"} <= set(doc)
+    assert doc["bend-0.4/recorded"][1]["fell"] is False  # the library CMRT keeps its balance
+    same = json.loads(_ok(run_tool("bit_identity.py", "--compare", str(a), str(a))).stdout)
+    assert same["identical"] and same["values"] > 500
+    doc["catch/scored"][0]["cop_x_m"] = "changed"
+    b.write_text(json.dumps(doc))
+    r = run_tool("bit_identity.py", "--compare", str(a), str(b))
+    assert r.returncode == 1 and json.loads(r.stdout)["differences"] == ["catch/scored[0].cop_x_m"]
+
+
 def test_bench_memory_tool():
     """The memory model the batch size is chosen by must not undercount a clip: measured on this machine,
     at the task's own clip and a 20 s one (per-step records dominate there)."""
