@@ -43,8 +43,8 @@ def clips(quick: bool):
     """(name, list of Trajectory) for the fixed set."""
     from cmrt import library_curve, load_task
     from cmrt.ensemble import training_members
-    from cmrt.props import prop_class
     from cmrt.interpolate import superpose
+    from cmrt.props import prop_class
     from cmrt.sequence import load_sequence
     from cmrt.simulate import simulate, simulate_batch
 
