@@ -137,6 +137,13 @@ def _readonly_uri(path: Path, immutable: bool = False) -> str:
 PROGRESS_EVERY_OPS = 10_000  # SQLite VM instructions between calls of the progress callback (~1 % overhead)
 
 
+def _defensive(conn: sqlite3.Connection) -> None:
+    """SQLite's defensive mode (no writable schema, no shadow-table writes), where Python exposes it: the
+    ``setconfig`` of Python 3.12+. On 3.11 the schema check and ``trusted_schema = OFF`` stand alone."""
+    if hasattr(conn, "setconfig") and hasattr(sqlite3, "SQLITE_DBCONFIG_DEFENSIVE"):
+        conn.setconfig(sqlite3.SQLITE_DBCONFIG_DEFENSIVE, True)
+
+
 def _let_signals_in() -> int:
     """The progress callback: a Python call, so the interpreter runs a pending signal handler (0: go on)."""
     return 0
@@ -512,6 +519,7 @@ class Store:
         # SQLite step to end. With one, the handler runs inside it and the step fails as "interrupted" (the
         # CLI and the worker then stop as the signal asked: cmrt.errors.pending_termination)
         conn.set_progress_handler(_let_signals_in, PROGRESS_EVERY_OPS)
+        _defensive(conn)
         if not readonly:
             if conn.execute("PRAGMA journal_mode").fetchone()[0] != "wal":
                 conn.execute("PRAGMA journal_mode = WAL")
