@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 
-from cmrt.balance import REASONS, BalanceLimits, FallReason, capture_point_x, check_balance
+from cmrt.sim.balance import REASONS, BalanceLimits, FallReason, capture_point_x, check_balance
 
 LIMITS = BalanceLimits()
 

@@ -3,11 +3,11 @@ import json
 import numpy as np
 import pytest
 
-from cmrt.bench import record_replay, replay_physics
-from cmrt.cli import main
-from cmrt.curve import Cmrt
-from cmrt.simulate import simulate_batch
-from cmrt.task import load_task
+from cmrt.cli.commands import main
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.task import load_task
+from cmrt.optimize.bench import record_replay, replay_physics
+from cmrt.sim.simulate import simulate_batch
 
 from .service_helpers import cmrt
 

@@ -1,7 +1,7 @@
 import mujoco
 import numpy as np
 
-from cmrt.character import character, feet_flat_qpos, joint_angles_from_pose, support_interval_x
+from cmrt.body.character import character, feet_flat_qpos, joint_angles_from_pose, support_interval_x
 
 
 def test_dimensions_mass_and_height():

@@ -1,4 +1,4 @@
-"""The optimizer checkpoint (cmrt.checkpoint): bit-identical resume, and nothing in a store runs."""
+"""The optimizer checkpoint (cmrt.optimize.checkpoint): bit-identical resume, and nothing in a store runs."""
 
 import base64
 import copy
@@ -10,19 +10,28 @@ import subprocess
 import sys
 import time
 import zlib
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from cmrt import checkpoint
-from cmrt.checkpoint import MAGIC, InvalidCheckpoint, pack_document, unpack_document
 from cmrt.errors import CmrtError
-from cmrt.jobs import claim, submit, work
-from cmrt.objective import EvalRecord
-from cmrt.optimize import CmaState, OptimizeSettings, best_cmrt, new_state, restart_if_stalled, step, stop_reason
-from cmrt.parallel import Evaluator
-from cmrt.store import Generation, RunProgress, StoredEvaluation, open_store
-from cmrt.task import load_task
+from cmrt.motion.task import load_task
+from cmrt.optimize.checkpoint import MAGIC, InvalidCheckpoint, pack_document, unpack_document
+from cmrt.optimize.driver import (
+    CmaState,
+    OptimizeSettings,
+    best_cmrt,
+    checkpoint,
+    new_state,
+    restart_if_stalled,
+    step,
+    stop_reason,
+)
+from cmrt.optimize.parallel import Evaluator
+from cmrt.service.jobs import claim, submit, work
+from cmrt.service.store import Generation, RunProgress, StoredEvaluation, open_store
+from cmrt.sim.objective import EvalRecord
 
 from .service_helpers import spawn_worker
 
@@ -121,6 +130,52 @@ def test_one_generator_after_loading():
     assert es.opts["randn"] is not state.randn  # a copy, not the live object
 
 
+OLD_CHECKPOINT = Path(__file__).resolve().parent / "data" / "checkpoint_flat_modules.bin"
+
+
+def test_a_checkpoint_naming_the_old_module_paths_resumes():
+    """Runs in flight when cmrt's modules moved into layer packages (issue 28) hold checkpoints that name
+    ``cmrt.optimize:CmaState`` and ``cmrt.optimize:_Randn``; they resume at the classes' new home, exactly
+    as a checkpoint with the new names, and are written back with the new names."""
+    state = new_state(RUGGED)
+    drive(state, RUGGED, 3)
+    doc = unpack_document(state.dumps())
+    for new in ("cmrt.optimize.driver:CmaState", "cmrt.optimize.driver:_Randn"):
+        rename(new, new.replace("cmrt.optimize.driver:", "cmrt.optimize:"))(doc, None)
+    old_blob = pack_document(doc)
+    assert b"cmrt.optimize.driver" not in zlib.decompress(old_blob[len(MAGIC):])
+    resumed = CmaState.loads(old_blob, RUGGED, run_id=1)
+    assert resumed.dumps() == state.dumps()  # written back with the current names, otherwise the same
+    a, b = drive(state, RUGGED, 10), drive(resumed, RUGGED, 10)
+    assert all(x[0].tobytes() == y[0].tobytes() and x[1] == y[1] for x, y in zip(a, b, strict=True))
+
+
+@pytest.mark.skipif(checkpoint.cma.__version__ != "4.5.0", reason="the stored blob was written with pycma 4.5.0")
+def test_a_checkpoint_written_by_the_flat_layout_resumes():
+    """``tests/data/checkpoint_flat_modules.bin``: written by cmrt at 06b4c87 (flat ``cmrt/optimize.py``) after
+    three generations of ``rugged`` from ``new_state(RUGGED)``; it resumes where today's code would be."""
+    blob = OLD_CHECKPOINT.read_bytes()
+    assert b"cmrt.optimize:CmaState" in zlib.decompress(blob[len(MAGIC):])
+    resumed = CmaState.loads(blob, RUGGED, run_id=1)
+    assert b"cmrt.optimize.driver:CmaState" in zlib.decompress(resumed.dumps()[len(MAGIC):])
+    state = new_state(RUGGED)
+    drive(state, RUGGED, 3)
+    for attr in ("mean", "C", "pc", "D", "B"):  # (pycma's timers differ: the blob is not the same bytes)
+        assert getattr(state.es, attr).tobytes() == getattr(resumed.es, attr).tobytes(), attr
+    a, b = drive(state, RUGGED, 10), drive(resumed, RUGGED, 10)
+    assert all(x[0].tobytes() == y[0].tobytes() and x[1] == y[1] for x, y in zip(a, b, strict=True))
+
+
+def test_moved_names_reach_only_allowlisted_classes():
+    """The alias table renames module paths; it does not widen the allowlist."""
+    assert checkpoint.current_name("cmrt.optimize:CmaState") == "cmrt.optimize.driver:CmaState"
+    assert checkpoint.current_name("cmrt.optimize.driver:_Randn") == "cmrt.optimize.driver:_Randn"
+    doc = valid_doc()
+    rename("cmrt.optimize.driver:_Randn", "cmrt.optimize:OptimizeSettings")(doc, None)
+    with pytest.raises(InvalidCheckpoint, match="is not allowlisted"):
+        CmaState.loads(pack_document(doc))
+
+
 def test_the_allowlist_is_what_pycma_really_holds():
     """Every allowlisted class occurs in a real state, and a real state needs nothing else
     (``dumps`` raises TypeError on anything outside the allowlists: a bug, caught here)."""
@@ -137,8 +192,8 @@ def test_the_allowlist_is_what_pycma_really_holds():
 
     for _, _, state in snapshots():
         walk(unpack_document(state.dumps())["root"])
-    allowed = {checkpoint._name(c) for c in checkpoint.PYCMA_CLASSES} | {"cmrt.optimize:CmaState",
-                                                                         "cmrt.optimize:_Randn"}
+    allowed = {checkpoint._name(c) for c in checkpoint.PYCMA_CLASSES} | {"cmrt.optimize.driver:CmaState",
+                                                                         "cmrt.optimize.driver:_Randn"}
     assert used == allowed
     assert functions == set(checkpoint.FUNCTIONS)
     for cls in checkpoint.PYCMA_CLASSES:  # the rebuild (builtin __new__ + __dict__) fits every one of them
@@ -242,7 +297,7 @@ def set_header(key, value):
 
 
 def reference_ahead(doc, marker):
-    attr(obj(doc, "cmrt.optimize:CmaState"), "randn")[1] = ["R", 10**6]
+    attr(obj(doc, "cmrt.optimize.driver:CmaState"), "randn")[1] = ["R", 10**6]
 
 
 def renumber(doc):
@@ -284,7 +339,7 @@ def renumber(doc):
 
 def second_generator(doc, marker):
     """The ES's sampler draws from a generator of its own (a copy of the state's)."""
-    randn = copy.deepcopy(obj(doc, "cmrt.optimize:_Randn"))
+    randn = copy.deepcopy(obj(doc, "cmrt.optimize.driver:_Randn"))
     for node in [randn, *nodes(randn[3], "G"), *nodes(randn[3], "D")]:
         node[1] = ("copy", node[1])  # ids of its own until renumbered
     attr(obj(doc, "cma.sampler:GaussFullSampler"), "randn")[1] = randn
@@ -293,7 +348,7 @@ def second_generator(doc, marker):
 
 CODE = "__import__('os').system('touch {marker}')"
 CRAFTED = {  # case: (edit of a valid document, why it must be refused)
-    "class os._wrap_close": (rename("cmrt.optimize:_Randn", "os:_wrap_close"), "class 'os:_wrap_close' is not"),
+    "class os._wrap_close": (rename("cmrt.optimize.driver:_Randn", "os:_wrap_close"), "class 'os:_wrap_close' is not"),
     "class subprocess.Popen": (rename("cma.utilities.utils:BlancClass", "subprocess:Popen"), "class 'subprocess:P"),
     "class builtins.eval": (rename("cma.boundary_handler:BoundNone", "builtins:eval"), "class 'builtins:eval' is not"),
     "function os.system": (rename("cma.evolution_strategy:_pass", "os:system"), "function 'os:system' is not"),
@@ -311,10 +366,10 @@ CRAFTED = {  # case: (edit of a valid document, why it must be refused)
     "array not base64": (set_array(data="$$$$"), "array data is not base64"),
     "attribute shadowing a method": (add_attr("cma.evolution_strategy:CMAEvolutionStrategy", "tell",
                                               ["F", "numpy.linalg:eigh"]), "attribute 'tell' would shadow a method"),
-    "dunder attribute": (add_attr("cmrt.optimize:_Randn", "__class__", ["F", "numpy.linalg:eigh"]),
+    "dunder attribute": (add_attr("cmrt.optimize.driver:_Randn", "__class__", ["F", "numpy.linalg:eigh"]),
                          "attribute '__class__'"),
-    "unknown node": (add_attr("cmrt.optimize:CmaState", "extra", ["X", 1]), "unknown node"),
-    "extra state field": (add_attr("cmrt.optimize:CmaState", "extra", 1), "CmaState fields differ"),
+    "unknown node": (add_attr("cmrt.optimize.driver:CmaState", "extra", ["X", 1]), "unknown node"),
+    "extra state field": (add_attr("cmrt.optimize.driver:CmaState", "extra", 1), "CmaState fields differ"),
     "reference ahead": (reference_ahead, "reference to unknown object"),
     "second generator": (second_generator, "not exactly one _Randn"),
     "other pycma version": (set_header("pycma", "3.0.0"), "written with pycma '3.0.0'"),
@@ -493,10 +548,10 @@ def test_a_real_worker_process_refuses_a_pickle_checkpoint(tmp_path):
 
 _LEAN_IMPORT = """
 import sys
-import cmrt.optimize
+import cmrt.optimize.driver
 lean = "matplotlib" not in sys.modules and "scipy.stats" not in sys.modules
 import matplotlib.pyplot, scipy.stats  # importable as usual afterwards
-from cmrt.checkpoint import cma
+from cmrt.optimize.checkpoint import cma
 es = cma.CMAEvolutionStrategy([0.0] * 8, 0.5, {"verbose": -9, "seed": 3})
 print(lean, cma.s._pyplot is None, es.ask()[0][0])
 """
@@ -522,8 +577,8 @@ def test_a_checkpoint_carries_no_machine_paths_or_wall_clock_times(tmp_path, mon
     import time
     import zlib
 
-    from cmrt.objective import EvalRecord
-    from cmrt.optimize import step
+    from cmrt.optimize.driver import step
+    from cmrt.sim.objective import EvalRecord
 
     monkeypatch.chdir(tmp_path)
     state = new_state(OptimizeSettings(seed=3))

@@ -107,7 +107,7 @@ def test_bad_curve_file_content(tmp_path):
 _HEAVY = ("mujoco", "numba", "scipy", "cma", "dask", "matplotlib")
 _VERBS_WITHOUT_PHYSICS = """
 import sys
-from cmrt.cli import main
+from cmrt.cli.commands import main
 store = sys.argv[1]
 codes = [main(["runs", "--store", store, "--json"]), main(["jobs", "--store", store, "--json"]),
          main(["show", "1", "--store", store, "--json"]), main(["export", "1", "--store", store])]
@@ -118,8 +118,9 @@ print(codes, sorted(m for m in {HEAVY} if m in sys.modules))
 def test_verbs_that_only_read_the_store_load_no_physics(tmp_path):
     """Start-up: listing, showing and exporting runs import neither MuJoCo, numba, scipy, pycma, dask nor
     matplotlib (~4 s together); the parser itself (``--help``) neither. Checked on a store holding a run."""
-    from cmrt import jobs, load_task
-    from cmrt.store import open_store
+    from cmrt import load_task
+    from cmrt.service import jobs
+    from cmrt.service.store import open_store
 
     path = tmp_path / "s.sqlite"
     with open_store(path) as store:
@@ -128,7 +129,7 @@ def test_verbs_that_only_read_the_store_load_no_physics(tmp_path):
                        timeout=120)
     assert r.returncode == 0, r.stderr
     assert r.stdout.splitlines()[-1] == "[0, 0, 0, 0] []"
-    r = subprocess.run([sys.executable, "-c", "import sys\nfrom cmrt.cli import build_parser\nbuild_parser()\n"
+    r = subprocess.run([sys.executable, "-c", "import sys\nfrom cmrt.cli.commands import build_parser\nbuild_parser()\n"
                         f"print(sorted(m for m in {_HEAVY!r} if m in sys.modules))"],
                        capture_output=True, text=True, timeout=120)
     assert r.stdout.strip() == "[]", r.stderr
@@ -136,11 +137,11 @@ def test_verbs_that_only_read_the_store_load_no_physics(tmp_path):
 
 def test_optimizer_defaults_come_from_optimize_settings(tmp_path):
     """The optimizer's options default to OptimizeSettings' values, filled in after parsing."""
-    from cmrt.optimize import OptimizeSettings
+    from cmrt.optimize.driver import OptimizeSettings
 
     r = run("submit", "bend", "--speed", "0.4", "--store", str(tmp_path / "s.sqlite"), "--json")
     assert r.returncode == 0, r.stderr
-    from cmrt.store import open_store
+    from cmrt.service.store import open_store
 
     with open_store(tmp_path / "s.sqlite", readonly=True) as store:
         run_ = store.run(json.loads(r.stdout)["run_id"])

@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from cmrt.cli import main
+from cmrt.cli.commands import main
 
 from .service_helpers import FAST_BEND, cmrt
 

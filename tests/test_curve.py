@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from cmrt.curve import MIN_GAP_S, Cmrt
 from cmrt.errors import CmrtError
+from cmrt.motion.curve import MIN_GAP_S, Cmrt
 
 L = 2.6
 

@@ -3,14 +3,14 @@
 import numpy as np
 import pytest
 
-from cmrt.curve import Cmrt
-from cmrt.ensemble import NOMINAL, Perturbation, RobustSpec, combine, training_members, validation_members
 from cmrt.errors import CmrtError
-from cmrt.library import library_curve
-from cmrt.objective import evaluate
-from cmrt.parallel import evaluate_batch
-from cmrt.simulate import simulate_batch
-from cmrt.task import load_task, task_from_dict
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.ensemble import NOMINAL, Perturbation, RobustSpec, combine, training_members, validation_members
+from cmrt.motion.library import library_curve
+from cmrt.motion.task import load_task, task_from_dict
+from cmrt.optimize.parallel import evaluate_batch
+from cmrt.sim.objective import evaluate
+from cmrt.sim.simulate import simulate_batch
 
 BEND = load_task("bend").with_speed(0.4)
 
@@ -94,8 +94,8 @@ def test_robust_score_is_the_combined_ensemble():
 
 
 def test_library_ships_plain_and_robust_cmrts_and_keeps_them_apart():
-    from cmrt.interpolate import candidates
-    from cmrt.library import load_entries
+    from cmrt.motion.library import load_entries
+    from cmrt.service.interpolate import candidates
 
     entries = [e for e in load_entries() if e.get("reference", "center") == "center"]  # yu: plain CMRTs only
     plain = {(e["task"], e["speed"], e["params"].get("ball_mass_kg")) for e in entries if not e.get("robust")}

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from cmrt import Cmrt, evaluate, load_task, simulate
-from cmrt.curve import MIN_GAP_S
 from cmrt.errors import CmrtError
-from cmrt.interpolate import blend, interpolate, superpose
-from cmrt.library import load_entries
-from cmrt.sequence import Motion, SequenceTask, load_sequence
+from cmrt.motion.curve import MIN_GAP_S
+from cmrt.motion.library import load_entries
+from cmrt.motion.sequence import Motion, SequenceTask, load_sequence
+from cmrt.service.interpolate import blend, interpolate, superpose
 
 from .service_helpers import cmrt
 

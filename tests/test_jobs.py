@@ -8,10 +8,10 @@ import time
 import pytest
 
 from cmrt.errors import CmrtError
-from cmrt.jobs import claim, optimize_family, run_claimed, submit, work
-from cmrt.parallel import Evaluator
-from cmrt.store import open_store
-from cmrt.task import load_task
+from cmrt.motion.task import load_task
+from cmrt.optimize.parallel import Evaluator
+from cmrt.service.jobs import claim, optimize_family, run_claimed, submit, work
+from cmrt.service.store import open_store
 
 from .service_helpers import spawn_worker
 
@@ -98,7 +98,7 @@ def test_four_workers_eight_jobs_each_done_exactly_once(tmp_path):
 
 
 def test_lost_claim_stops_the_old_worker(tmp_path):
-    from cmrt.jobs import LostClaim
+    from cmrt.service.jobs import LostClaim
 
     with open_store(tmp_path / "s.sqlite") as store:
         rid = submit(store, TASK, seed=1, max_evals=10, popsize=5, init="none")

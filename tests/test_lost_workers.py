@@ -10,8 +10,8 @@ import time
 import numpy as np
 import pytest
 
-from cmrt.parallel import LOST_WORKER_ERRORS, Evaluator
-from cmrt.task import load_task
+from cmrt.motion.task import load_task
+from cmrt.optimize.parallel import LOST_WORKER_ERRORS, Evaluator
 
 TASK = load_task("bend").with_speed(0.4)
 

@@ -1,12 +1,12 @@
-"""The memory model (cmrt/memory.py) and the batches it cuts a generation into."""
+"""The memory model (cmrt/optimize/memory.py) and the batches it cuts a generation into."""
 
 import numpy as np
 import pytest
 
 from cmrt.errors import CmrtError
-from cmrt.memory import MEMORY_SHARE_ENV, clip_bytes, clips_per_batch, memory_share, physical_memory_bytes
-from cmrt.parallel import evaluate_batch
-from cmrt.task import load_task
+from cmrt.motion.task import load_task
+from cmrt.optimize.memory import MEMORY_SHARE_ENV, clip_bytes, clips_per_batch, memory_share, physical_memory_bytes
+from cmrt.optimize.parallel import evaluate_batch
 
 BEND = load_task("bend").with_speed(0.4)
 
@@ -45,8 +45,8 @@ def test_one_clip_per_batch_scores_exactly_as_one_batch(robust, monkeypatch):
 HEAP_CHILD = r"""
 import json, resource, sys
 import numpy as np
-from cmrt.parallel import evaluate_batch
-from cmrt.task import load_task
+from cmrt.optimize.parallel import evaluate_batch
+from cmrt.motion.task import load_task
 task = load_task("bend").with_speed(0.4)
 rng = np.random.default_rng(0)
 peaks = []

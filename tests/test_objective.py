@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from cmrt import evaluate, load_task, simulate
-from cmrt.character import character
-from cmrt.objective import TRACE_ONLY_FIELDS, timing_lag_s
-from cmrt.simulate import Trajectory
+from cmrt.body.character import character
+from cmrt.sim.objective import TRACE_ONLY_FIELDS, timing_lag_s
+from cmrt.sim.simulate import Trajectory
 
 DT = 0.002
 
@@ -109,8 +109,8 @@ def test_a_push_falls_the_way_it_pushes_and_the_topple_is_measured(force_n, dire
 def test_the_on_time_rule_when_enforced(monkeypatch):
     """With ``ENFORCE_TIMING`` a pose change done within the RMS bound but late is not performed, and its
     penalty grows with the lag; off (today), the lag is only reported."""
-    import cmrt.objective as objective
-    from cmrt.objective import evaluate
+    import cmrt.sim.objective as objective
+    from cmrt.sim.objective import evaluate
 
     slow = load_task("bend").with_speed(1.2)  # RMS bound: the reference 120 ms late; lag bound: 50 ms
     t = clip_times(slow)

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from cmrt.optimize import (
+from cmrt.optimize.driver import (
     CmaState,
     EvalRecord,
     OptimizeSettings,

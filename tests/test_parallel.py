@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from cmrt.errors import CmrtError
-from cmrt.jobs import claim, run_claimed, submit
-from cmrt.parallel import Evaluator
-from cmrt.store import open_store
-from cmrt.task import load_task
+from cmrt.motion.task import load_task
+from cmrt.optimize.parallel import Evaluator
+from cmrt.service.jobs import claim, run_claimed, submit
+from cmrt.service.store import open_store
 
 
 def optimize_with(tmp_path, backend):

@@ -3,10 +3,10 @@
 import mujoco
 import numpy as np
 
-from cmrt.character import character
+from cmrt.body.character import character
 from cmrt.control.momentum import KinematicsScratch, centroidal_momentum_matrix
-from cmrt.simulate import simulate
-from cmrt.task import load_task
+from cmrt.motion.task import load_task
+from cmrt.sim.simulate import simulate
 
 
 def contact_forces(m, d):
@@ -62,7 +62,7 @@ def test_planned_ground_force_is_feasible_and_is_what_mujoco_applies():
     plan's vertical force and CoP equal the contact forces MuJoCo then applies, the CoP is inside the
     feet, every heel/toe point is pressed and the friction cone holds."""
     from cmrt.control import ControllerConfig, MomentumBalanceController
-    from cmrt.simulate import CONTROL_FIELDS, _in_contact
+    from cmrt.sim.simulate import CONTROL_FIELDS, _in_contact
 
     ch = character()
     m = ch.model

@@ -3,10 +3,10 @@ import json
 import matplotlib.image as mpimg
 import pytest
 
-from cmrt.cli import main
-from cmrt.jobs import submit
-from cmrt.store import open_store
-from cmrt.task import load_task
+from cmrt.cli.commands import main
+from cmrt.motion.task import load_task
+from cmrt.service.jobs import submit
+from cmrt.service.store import open_store
 
 from .service_helpers import FAST_BEND, cmrt
 

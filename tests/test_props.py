@@ -7,8 +7,7 @@ import numpy as np
 import pytest
 
 from cmrt import CmrtError, evaluate, library_curve, load_model, load_task, simulate
-from cmrt.curve import Cmrt
-from cmrt.props import (
+from cmrt.body.props import (
     BAG_DAMPING_RATIO,
     BALL_RADIUS_M,
     FOREARM_RADIUS_M,
@@ -21,7 +20,8 @@ from cmrt.props import (
     prop_class,
     strike_success,
 )
-from cmrt.task import task_from_dict
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.task import task_from_dict
 
 from .test_simulate import assert_plausible
 

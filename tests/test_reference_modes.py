@@ -13,14 +13,14 @@ import numpy as np
 import pytest
 
 from cmrt import Cmrt, CmrtError, evaluate, library_curve, load_task, open_store, simulate
-from cmrt.character import character
-from cmrt.cli import main
+from cmrt.body.character import character
+from cmrt.cli.commands import main
 from cmrt.control.references import motion_com
-from cmrt.interpolate import interpolate
-from cmrt.library import load_entries
-from cmrt.simulate import simulate_batch
-from cmrt.task import task_from_dict
-from cmrt.warmstart import nearest_start
+from cmrt.motion.library import load_entries
+from cmrt.motion.task import task_from_dict
+from cmrt.service.interpolate import interpolate
+from cmrt.service.warmstart import nearest_start
+from cmrt.sim.simulate import simulate_batch
 from tests.input_helpers import make_old_store
 
 PUSH = dict(clip_s=3.0, push_force_n=150.0, push_start_s=1.0, push_duration_s=0.1)

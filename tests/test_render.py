@@ -6,10 +6,10 @@ import matplotlib.image as mpimg
 import numpy as np
 import pytest
 
-from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
-from cmrt.render import render as render_clip
-from cmrt.task import load_task
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.task import load_task
+from cmrt.viz.render import render as render_clip
 
 from .service_helpers import FAST_BEND, cmrt
 
@@ -54,6 +54,6 @@ def test_bad_output_name(tmp_path):
 
 
 def test_bad_output_name_in_process(tmp_path):
-    """The same refusal by ``cmrt.render.render`` in this process, before anything is simulated or drawn."""
+    """The same refusal by ``cmrt.viz.render.render`` in this process, before anything is simulated or drawn."""
     with pytest.raises(CmrtError, match=r"\.png or \.mp4"):
         render_clip(load_task("bend").with_speed(0.4), Cmrt.zero(2.6), tmp_path / "clip.gif")

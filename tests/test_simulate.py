@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from cmrt import Cmrt, evaluate, library_curve, load_task, simulate
-from cmrt.balance import FallReason
-from cmrt.simulate import POST_FALL_S, simulate_batch
+from cmrt.sim.balance import FallReason
+from cmrt.sim.simulate import POST_FALL_S, simulate_batch
 
 # What a researcher would accept as plausible motion before any fall (issue: physically credible balance).
 MAX_AIRBORNE_S = 0.01
@@ -154,8 +154,8 @@ def test_a_trace_covers_the_clip_and_its_standing_tail():
 def test_compiled_control_step_geometry_equals_the_numpy_it_replaced():
     """``_Geometry.at_control`` (one compiled pass per control step) against the numpy expressions the
     loop used before, bit for bit, on random states with NaNs (a diverged row) and feet off the floor."""
-    from cmrt.character import character
-    from cmrt.simulate import _Geometry, _ground_support, _in_contact
+    from cmrt.body.character import character
+    from cmrt.sim.simulate import _Geometry, _ground_support, _in_contact
 
     geo, m = _Geometry(), character().model
     act = np.array(character().actuated_dofs)

@@ -16,7 +16,7 @@ from cmrt.control.stepping import (
     desired_cop_x,
     swing_profile,
 )
-from cmrt.task import available_tasks, load_task
+from cmrt.motion.task import available_tasks, load_task
 
 HEEL_TO_CENTER_M, FOOT_M = 0.12, 0.24
 FEET_TOGETHER_X = np.array([[-0.06, 0.18, -0.06, 0.18]])  # heel_r, toe_r, heel_l, toe_l
@@ -129,7 +129,7 @@ def test_stepping_values_and_several_pushes():
 
 @pytest.mark.slow
 def test_quiet_standing_is_unchanged_by_a_supervisor_that_never_steps():
-    from cmrt.simulate import simulate
+    from cmrt.sim.simulate import simulate
 
     task = load_task("stand").with_params(clip_s=1.0)
     a = simulate(task, None, record=False)
@@ -140,8 +140,8 @@ def test_quiet_standing_is_unchanged_by_a_supervisor_that_never_steps():
 def _recovered_by_a_step(force_n: float):
     """A 0.1 s push of ``force_n`` on push-recovery: planted feet fall, stepping=1 succeeds with at least one
     step and stands still; returns the stepping clip's recorded trajectory and its evaluation."""
-    from cmrt.objective import evaluate
-    from cmrt.simulate import simulate
+    from cmrt.sim.objective import evaluate
+    from cmrt.sim.simulate import simulate
 
     task = load_task("push-recovery").with_params(push_force_n=force_n, push_duration_s=0.1)
     planted = evaluate(task.with_params(stepping=0), simulate(task.with_params(stepping=0), None, record=False))
@@ -171,7 +171,7 @@ def test_a_step_saves_a_push_standing_cannot(force_n):
 
 @pytest.mark.slow
 def test_a_real_topple_is_still_a_fall_with_stepping():
-    from cmrt.simulate import simulate
+    from cmrt.sim.simulate import simulate
 
     task = load_task("push-recovery").with_params(push_force_n=700.0, push_duration_s=0.1, stepping=1)
     traj = simulate(task, None, record=False)
@@ -203,9 +203,9 @@ def test_a_known_push_neither_a_cmrt_nor_a_step_saves_alone_is_saved_by_both():
     stepping=0 found no CMRT that saves -600 N: docs/stepping.md); together the CMRT's lean triggers a
     backward step *before* the push, and from the wide stance two more steps back take it (controller v0.3:
     with the balance feedback 0.1 s late, v0.2's single brace step no longer absorbs 60 N s)."""
-    from cmrt.curve import Cmrt
-    from cmrt.objective import evaluate
-    from cmrt.simulate import simulate
+    from cmrt.motion.curve import Cmrt
+    from cmrt.sim.objective import evaluate
+    from cmrt.sim.simulate import simulate
 
     curve = Cmrt.load(BRACE_CMRT)
     task = load_task("push-recovery").with_params(push_force_n=-600.0, push_duration_s=0.1)

@@ -5,7 +5,7 @@ import sqlite3
 import pytest
 
 from cmrt.errors import CmrtError
-from cmrt.store import SCHEMA_VERSION, open_store
+from cmrt.service.store import SCHEMA_VERSION, open_store
 
 from .service_helpers import cmrt
 
@@ -67,7 +67,7 @@ ODD_NAMES = ["a?b.sqlite", "a#b.sqlite", "x%41y.sqlite", "%3F.sqlite", "with spa
 
 def _queue(path, n):
     from cmrt import load_task
-    from cmrt.jobs import submit
+    from cmrt.service.jobs import submit
 
     with open_store(path) as store:
         for _ in range(n):
@@ -92,7 +92,7 @@ def test_a_store_path_of_any_shape_is_that_file(tmp_path, name):
 
 def test_creation_never_replaces_a_non_empty_file(tmp_path):
     """The last guard: whatever made open_store think a file empty, _create refuses to replace a store."""
-    from cmrt.store import _create
+    from cmrt.service.store import _create
 
     path = tmp_path / "s.sqlite"
     _queue(path, 2)

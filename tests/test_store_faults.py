@@ -13,12 +13,12 @@ from pathlib import Path
 
 import pytest
 
-from cmrt.cli import main
+from cmrt.cli.commands import main
 from cmrt.errors import CmrtError
-from cmrt.jobs import claim, run_claimed, submit, work
-from cmrt.parallel import Evaluator
-from cmrt.store import MAX_RETRIES, open_store
-from cmrt.task import load_task
+from cmrt.motion.task import load_task
+from cmrt.optimize.parallel import Evaluator
+from cmrt.service.jobs import claim, run_claimed, submit, work
+from cmrt.service.store import MAX_RETRIES, open_store
 
 from .service_helpers import cmrt, spawn_worker
 
@@ -254,8 +254,8 @@ def test_stale_after_must_be_a_positive_finite_time(tmp_path, capsys):
 
 
 def test_ctrl_c_during_start_up_is_one_line(tmp_path):
-    """The console script's entry point (``cmrt.launch``) imports the heavy CLI with Ctrl-C handled."""
-    proc = subprocess.Popen([sys.executable, "-m", "cmrt.launch", "tasks"], stdout=subprocess.PIPE,
+    """The console script's entry point (``cmrt.cli.launch``) imports the heavy CLI with Ctrl-C handled."""
+    proc = subprocess.Popen([sys.executable, "-m", "cmrt.cli.launch", "tasks"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     maps = f"/proc/{proc.pid}/maps"
     deadline = time.time() + 30
@@ -302,7 +302,7 @@ def hangup_after(seconds: float):
     """SIGHUP to this process after ``seconds``, handled as the CLI handles it (noted, then Terminated)."""
     import threading
 
-    from cmrt import cli
+    from cmrt.cli import commands as cli
     from cmrt.errors import clear_signals
 
     clear_signals()

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from cmrt.character import character
+from cmrt.body.character import character
 from cmrt.errors import CmrtError
-from cmrt.task import DEFAULT_PARAMS, Task, available_tasks, load_task, task_from_dict
+from cmrt.motion.task import DEFAULT_PARAMS, Task, available_tasks, load_task, task_from_dict
 
 
 def test_shipped_tasks_load():

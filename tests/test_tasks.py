@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from cmrt import CmrtError, available_tasks, evaluate, library_curve, load_task, simulate
-from cmrt.character import character
+from cmrt.body.character import character
 
 TASKS = available_tasks()
 

@@ -1,21 +1,19 @@
-"""The compiled control step (cmrt.tick) is the Python path's arithmetic: trajectories bit for bit."""
+"""The compiled control step (cmrt.sim.tick) is the Python path's arithmetic: trajectories bit for bit."""
 
 import dataclasses
-import sys
 
 import mujoco.batch
 import numpy as np
 import pytest
 
 from cmrt import Cmrt, library_curve, load_task
+from cmrt.body.props import prop_class
 from cmrt.control import ControllerConfig
 from cmrt.control.planar import PlanarKinematics
-from cmrt.ensemble import training_members
-from cmrt.props import prop_class
-from cmrt.simulate import simulate_batch
-from cmrt.tick import linear_momentum
-
-simulate_module = sys.modules["cmrt.simulate"]  # the module (cmrt.simulate is also a function's name)
+from cmrt.motion.ensemble import training_members
+from cmrt.sim import simulate as simulate_module  # noqa: E402
+from cmrt.sim.simulate import simulate_batch
+from cmrt.sim.tick import linear_momentum
 
 
 def _fields(trajectory) -> dict:
@@ -132,7 +130,7 @@ def test_the_direct_step_is_taken_and_equals_batch_step(monkeypatch):
 def test_a_changed_inlined_module_drops_the_compiled_ticks_cache(tmp_path):
     """numba keys a cache by the function's own file: when kernel.py or balance.py change, the tick's cached
     machine code (which compiled them in) must go, or the compiled path runs the old controller."""
-    from cmrt.tick import drop_stale_cache
+    from cmrt.sim.tick import drop_stale_cache
 
     here = tmp_path / "tick.py"
     here.write_text("")

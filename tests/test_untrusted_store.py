@@ -11,8 +11,8 @@ import pytest
 
 from cmrt import load_task
 from cmrt.errors import CmrtError
-from cmrt.jobs import submit
-from cmrt.store import open_store
+from cmrt.service.jobs import submit
+from cmrt.service.store import open_store
 
 PLANTS = {
     "trigger": "CREATE TRIGGER wipe AFTER UPDATE ON runs BEGIN DELETE FROM evaluations; END",
@@ -97,7 +97,7 @@ def test_hostile_values_in_a_run_row_are_one_line(store, column, value):
 @pytest.mark.slow  # optimizes a run
 @pytest.mark.parametrize("column, value", [("retries", "'x'"), ("popsize", "20000"), ("max_evals", "-1")])
 def test_one_bad_queued_row_fails_that_run_and_the_worker_runs_the_others(tmp_path, column, value):
-    from cmrt.jobs import work
+    from cmrt.service.jobs import work
 
     path = tmp_path / "s.sqlite"
     with open_store(path) as s:

@@ -5,13 +5,13 @@ import json
 import numpy as np
 import pytest
 
-from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
-from cmrt.jobs import submit
-from cmrt.library import load_entries
-from cmrt.store import open_store
-from cmrt.task import load_task
-from cmrt.warmstart import COLD, nearest_start, resolve_init, task_distance
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.library import load_entries
+from cmrt.motion.task import load_task
+from cmrt.service.jobs import submit
+from cmrt.service.store import open_store
+from cmrt.service.warmstart import COLD, nearest_start, resolve_init, task_distance
 
 BEND = load_task("bend")
 
@@ -71,8 +71,8 @@ def test_bad_init_is_refused(tmp_path):
 
 
 def test_warm_started_run_evaluates_its_start_first(tmp_path):
-    from cmrt.jobs import claim, run_claimed
-    from cmrt.parallel import Evaluator
+    from cmrt.optimize.parallel import Evaluator
+    from cmrt.service.jobs import claim, run_claimed
 
     task = BEND.with_speed(0.4)
     with open_store(tmp_path / "s.sqlite") as store, Evaluator("batch") as ev:

@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from cmrt import library_curve, load_task
-from cmrt.parallel import Evaluator
+from cmrt.optimize.parallel import Evaluator
 
 
 def main() -> None:

@@ -29,8 +29,8 @@ import numpy as np
 
 from cmrt import CmrtError, Evaluator, evaluate, library_curve, load_task, open_store, optimize_now, run_curve
 from cmrt.control.references import REFERENCE_MODES
-from cmrt.ensemble import Perturbation
-from cmrt.simulate import simulate, simulate_batch
+from cmrt.motion.ensemble import Perturbation
+from cmrt.sim.simulate import simulate, simulate_batch
 
 TASKS = {
     "fast-bend": ("bend", {"duration_s": 0.4}),

@@ -15,7 +15,7 @@ import tempfile
 from pathlib import Path
 
 from cmrt import Evaluator, evaluate, load_task, open_store, optimize_now, simulate
-from cmrt.interpolate import interpolate
+from cmrt.service.interpolate import interpolate
 
 
 def main() -> None:

@@ -4,7 +4,7 @@ Alternates, in one process, the physics floor (``cmrt bench``'s: the same clips'
 open loop, as many steps as each was evaluated, ``bench.replay_physics``) with ``simulate_batch`` of N
 candidates, both on ONE thread (one ``Batch`` thread; one group of clips), timing the physics steps
 (``Batch.step``, or the scoring loop's direct step, ``simulate._direct_step``) and
-``cmrt.tick.control_tick`` (the controller kernel, the monitor and the records of a control step) inside
+``cmrt.sim.tick.control_tick`` (the controller kernel, the monitor and the records of a control step) inside
 the latter; "rest" is the evaluator's own Python (the loop, CoP samples, setup). On one thread the parts
 add up to the wall time; the default evaluator runs one such group per core in parallel threads, and
 the last column is that: its wall time against the floor on all cores' threads (``cmrt bench``'s ratio).
@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 
 import mujoco
@@ -25,11 +24,10 @@ import mujoco.batch
 import numpy as np
 
 from cmrt import load_task
-from cmrt.bench import _candidates, record_replay, replay_physics
-from cmrt.curve import Cmrt
-from cmrt.simulate import simulate_batch
-
-simulate_module = sys.modules["cmrt.simulate"]  # the module: ``cmrt.simulate`` is also a function's name
+from cmrt.motion.curve import Cmrt
+from cmrt.optimize.bench import _candidates, record_replay, replay_physics
+from cmrt.sim import simulate as simulate_module  # noqa: E402
+from cmrt.sim.simulate import simulate_batch
 
 
 def main() -> None:

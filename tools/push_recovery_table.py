@@ -17,9 +17,9 @@ import json
 import time
 
 from cmrt.control.stepping import RULES
-from cmrt.objective import evaluate
-from cmrt.simulate import simulate
-from cmrt.task import load_task
+from cmrt.motion.task import load_task
+from cmrt.sim.objective import evaluate
+from cmrt.sim.simulate import simulate
 
 SUPERVISORS = {0: "standing (no stepping)", **{k: f"{v} supervisor" for k, v in RULES.items()}}
 

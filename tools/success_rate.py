@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 from cmrt import Evaluator, open_store, optimize_now
-from cmrt.cli import resolve_task
+from cmrt.cli.commands import resolve_task
 from cmrt.errors import CmrtError
 
 

@@ -23,7 +23,7 @@ nothing of the ground that it cannot do: what MuJoCo does with them is what was
 planned. When the motion asks for more than the feet can give, the QP trades tracking
 against momentum - it never pulls on the floor. A loss of balance is then what it is
 physically: the CoM drifting past the point of no return and toppling over an edge
-of the feet (``cmrt.balance``), not a launch (docs/controller.md has the measurements).
+of the feet (``cmrt.sim.balance``), not a launch (docs/controller.md has the measurements).
 
 Contact modes follow the measured contact (the heel/toe contact LCP, decided by the
 physics): a foot whose toe (heel) is off the ground - pushed over by something the
@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cmrt.character import FOOT_POINT_RADIUS_M, Character
+from cmrt.body.character import FOOT_POINT_RADIUS_M, Character
 from cmrt.control import kernel
 from cmrt.control.kernel import AIR, FLAT, HEEL, TOE
 from cmrt.control.planar import PlanarKinematics

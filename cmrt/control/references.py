@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from cmrt.character import Character
+from cmrt.body.character import Character
 from cmrt.inputs import REFERENCE_MODES  # noqa: F401 - the modes; defined with the CLI's other choices
 
 DEFAULT_REFERENCE_MODE = "center"

@@ -13,9 +13,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from cmrt.character import character
+from cmrt.body.character import character
 from cmrt.control.references import GRAVITY_M_S2, WinterPendulum, YuReference, motion_com
-from cmrt.task import load_task
+from cmrt.motion.task import load_task
 
 
 def _state(q: np.ndarray):

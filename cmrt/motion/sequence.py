@@ -1,7 +1,7 @@
 """Sequences of pose changes with superposed CMRTs (ABC 4.2, Fig. 6).
 
-A sequence file (shipped: ``cmrt/tasks/sequences/*.toml``; a user's: any path) lists motions - pose-change tasks with a
-speed and a start time - that chain (each ends in the pose the next starts from). The
+A sequence file (shipped: ``cmrt/motion/tasks/sequences/*.toml``; a user's: any path) lists motions -
+pose-change tasks with a speed and a start time - that chain (each ends in the pose the next starts from). The
 sequence is simulated as one clip: the reference follows each motion in turn, and the
 CMRT is the sum of the motions' CMRTs, each shifted so that its own task starts at the
 motion's start time: d(t) = sum_i d_i(t - start_i + P_i), where overlapping
@@ -27,10 +27,10 @@ from pathlib import Path
 import numpy as np
 
 from cmrt import inputs
-from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
 from cmrt.inputs import MAX_RUN_S, Range, shown
-from cmrt.task import DEFAULT_PARAMS, MAX_TEXT, TASKS_DIR, Task, load_task
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.task import DEFAULT_PARAMS, MAX_TEXT, TASKS_DIR, Task, load_task
 
 SEQUENCES_DIR = TASKS_DIR / "sequences"
 SEQUENCE_KEYS = frozenset({"name", "summary", "tail_s", "cop_sample_step_s", "motion"})

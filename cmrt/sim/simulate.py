@@ -3,7 +3,7 @@
 ``simulate_batch`` steps n clips of one task that differ only in their CMRT in lockstep
 on ``mujoco.batch.Batch`` with one vectorised controller - one group of clips per core, each
 group in its own thread (docs/performance.md) - and, for a scoring run, one compiled call per
-control step (``cmrt.tick``); ``simulate`` is the case n = 1. MuJoCo's batch is bit-identical
+control step (``cmrt.sim.tick``); ``simulate`` is the case n = 1. MuJoCo's batch is bit-identical
 to stepping each simulation alone, and the controller's arithmetic is row-wise, so a candidate's objective does not
 depend on what else is in its batch (tested).
 
@@ -13,7 +13,7 @@ looks at [0, L]; the tail shows whether the character really comes to rest.
 It always starts from the task's settled standing state (the start pose held by the
 controller for ``SETTLE_S`` seconds), so no start-up transient enters the objective.
 
-Every control step the balance monitor (``cmrt.balance``) checks for a loss of
+Every control step the balance monitor (``cmrt.sim.balance``) checks for a loss of
 balance. When it finds one, a scoring run stops that simulation (nothing after a fall
 enters the score); a recorded run (``record=True``: traces, renders) switches it to a
 protective mode - a passive spring-damper holding the pose it fell in, which cannot
@@ -38,18 +38,18 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from cmrt.balance import REASONS, BalanceLimits, FallReason, capture_point_x, check_balance
-from cmrt.character import FOOT_POINT_RADIUS_M, character
+from cmrt.body.character import FOOT_POINT_RADIUS_M, character
+from cmrt.body.props import CONTACT_FORCE_N, model_values, prop_class
 from cmrt.control import ControllerConfig, MomentumBalanceController
 from cmrt.control.controller import _read_only
 from cmrt.control.planar import PlanarKinematics
 from cmrt.control.references import MotionCom, Targets, YuReference, motion_com
 from cmrt.control.stepping import StepCommand, StepConfig, StepSupervisor
-from cmrt.curve import Cmrt
-from cmrt.ensemble import NOMINAL, Perturbation
-from cmrt.props import CONTACT_FORCE_N, model_values, prop_class
-from cmrt.task import Task
-from cmrt.tick import control_tick, geometry, sample_support
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.ensemble import NOMINAL, Perturbation
+from cmrt.motion.task import Task
+from cmrt.sim.balance import REASONS, BalanceLimits, FallReason, capture_point_x, check_balance
+from cmrt.sim.tick import control_tick, geometry, sample_support
 
 SETTLE_S = 1.5
 POST_FALL_S = 1.0  # a recorded clip runs at least this long past a fall, so the topple is seen
@@ -63,7 +63,7 @@ PROTECTIVE_STIFFNESS_PER_RAD = 0.1
 PROTECTIVE_DAMPING_PER_RAD_S = 0.1
 
 # Scoring runs in the center mode with feet planted do their control steps in one compiled call
-# (cmrt.tick); False runs them on the Python path, as traces do (tests compare the two bit for bit).
+# (cmrt.sim.tick); False runs them on the Python path, as traces do (tests compare the two bit for bit).
 COMPILED_TICK = True
 # ...and step the batch through MuJoCo's bound C++ ``step`` (see ``_direct_step``); False: ``Batch.step``.
 DIRECT_STEP = True
@@ -165,7 +165,7 @@ class _Geometry:
         return z.min(axis=1)
 
     def at_control(self, geom_xpos, geom_xmat, qpos, qvel, act) -> tuple[np.ndarray, ...]:
-        """``cmrt.tick.geometry`` of these rows: point_x, lo, hi, contact, roll, jspeed, lowest, grounded, c_lo,
+        """``cmrt.sim.tick.geometry`` of these rows: point_x, lo, hi, contact, roll, jspeed, lowest, grounded, c_lo,
         c_hi (fresh arrays: the stepping supervisor and the records may keep them)."""
         n = qpos.shape[0]
         out = (np.empty((n, self.points.size)), np.empty(n), np.empty(n), np.empty((n, self.points.size), bool),
@@ -538,7 +538,7 @@ def _no_load(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 class _CompiledTick:
     """The control step of a scoring run in the center mode with feet planted, as one compiled call
-    (``cmrt.tick.control_tick``): everything that does not change during the run is bound here once."""
+    (``cmrt.sim.tick.control_tick``): everything that does not change during the run is bound here once."""
 
     FIELDS = ("geom_xpos", "geom_xmat", "qpos", "qvel", "cdof", "cdof_dot", "cvel", "cinert", "M", "qfrc_bias",
               "qfrc_passive", "subtree_com", "time")
@@ -720,7 +720,7 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
         return ids[~done]
 
     k, prop_stepped = 0, -1  # prop_stepped: the step whose prop.step the compiled loop made before handing over
-    if compiled is not None:  # a scoring run: compiled control steps (cmrt.tick), ground forces summed at the end
+    if compiled is not None:  # a scoring run: compiled control steps (cmrt.sim.tick), ground forces summed at the end
         touch = np.full((n, n_steps, n_points), np.nan)  # normal force at heel_r, toe_r, heel_l, toe_l, every step
         sample_x = np.full((n, n_steps, n_points), np.nan)  # heel/toe x at the CoP sample steps
         sensors = b["sensordata"][:, :n_points]

@@ -19,7 +19,8 @@ array (``id`` numbers the mutable objects in the order they are first met, from 
 * ``["S", dtype, value]`` a numpy scalar;
 * ``["G", id, bit_generator, state]`` a ``numpy.random.Generator`` and its ``bit_generator.state``;
 * ``["O", id, "module:qualname", [[attribute, node]...], items]`` an instance of an allowlisted class
-  (``items``: null, or its entries when the class derives from dict or list);
+  (``items``: null, or its entries when the class derives from dict or list; a module path cmrt has moved
+  since is read at its new home, ``MOVED_MODULES``);
 * ``["F", "module:qualname"]`` an allowlisted function or class used as a value;
 * ``["R", id]`` the object numbered ``id`` again (identity and cycles survive:
   ``state.randn`` and the ES's ``opts['randn']`` stay ONE generator).
@@ -42,7 +43,7 @@ What it does not do by itself: the *values* in the document are attacker-chosen,
 pycma code that later runs on the rebuilt objects could misuse some of them (pycma
 ``eval``s string options). The semantic checks that close that gap (the options are
 rebuilt from the run's settings and must match) live with the state in
-:mod:`cmrt.optimize`.
+:mod:`cmrt.optimize.driver`.
 
 Anything outside the allowlists is refused: on writing with ``TypeError`` (a cmrt bug: the
 state grew a type nobody vetted - a test fails), on reading with :class:`InvalidCheckpoint`
@@ -76,7 +77,7 @@ def import_cma():
     """pycma, without the 1.5 s its package import spends loading matplotlib (for ``cma.s``'s plotting) and
     scipy.stats (for the surrogate models' Kendall tau): pycma guards both imports and falls back when they
     fail, and the optimizer uses neither. Marking the two packages absent in ``sys.modules`` for the length
-    of the import makes them fail; the marks are removed after, so a later ``import matplotlib`` (cmrt.plot,
+    of the import makes them fail; the marks are removed after, so a later ``import matplotlib`` (cmrt.viz.plot,
     a user's script) works as usual, as does ``cma.plot``, which imports pyplot when called. A package
     already imported is left alone. tests/test_checkpoint.py checks both."""
     absent = [name for name in ("matplotlib", "scipy.stats") if name not in sys.modules]
@@ -119,6 +120,19 @@ class InvalidCheckpoint(CmrtError):
 
 def _name(obj: Any) -> str:
     return f"{obj.__module__}:{obj.__qualname__}"
+
+
+#: Old homes of the classes a checkpoint names: before cmrt's modules moved into layer packages (issue 28)
+#: ``CmaState`` and ``_Randn`` lived in ``cmrt.optimize`` (now ``cmrt.optimize.driver``), so the checkpoints of
+#: runs in flight across the move say ``cmrt.optimize:CmaState``. A name is read at its new home; the class must
+#: still be on the reader's allowlist. Writing always uses the current names.
+MOVED_MODULES: dict[str, str] = {"cmrt.optimize": "cmrt.optimize.driver"}
+
+
+def current_name(name: str) -> str:
+    """A checkpoint's ``module:qualname`` with an old module path (``MOVED_MODULES``) replaced by its new one."""
+    module, sep, qualname = name.partition(":")
+    return f"{MOVED_MODULES[module]}:{qualname}" if sep and module in MOVED_MODULES else name
 
 
 #: Classes whose instances may be in a checkpoint: the pycma objects a CMAEvolutionStrategy holds for
@@ -234,7 +248,7 @@ class _Encoder:
             elif isinstance(obj, list):
                 items = [self.encode(v, f"{path}[{i}]") for i, v in enumerate(list.__iter__(obj))]
             return ["O", n, _name(t), attrs, items]
-        raise TypeError(f"cannot checkpoint {path}: {_name(t)} is not allowlisted in cmrt.checkpoint")
+        raise TypeError(f"cannot checkpoint {path}: {_name(t)} is not allowlisted in cmrt.optimize.checkpoint")
 
     def _items(self, d: dict, path: str) -> list:
         return [[self._key(k, path), self.encode(v, f"{path}[{k!r}]")] for k, v in dict.items(d)]
@@ -441,8 +455,8 @@ class _Decoder:
         return gen
 
     def _object(self, n: Any, name: Any, attrs: Any, items: Any) -> Any:
-        _check(type(name) is str and name in self.classes, f"class {name!r} is not allowlisted"[:160])
-        cls = self.classes[name]
+        _check(type(name) is str and current_name(name) in self.classes, f"class {name!r} is not allowlisted"[:160])
+        cls = self.classes[current_name(name)]
         base = dict if issubclass(cls, dict) else list if issubclass(cls, list) else object
         obj = self._register(n, base.__new__(cls))  # the builtin __new__: no __init__, no class code
         self.instances.setdefault(cls, []).append(obj)

@@ -10,7 +10,7 @@ import sys
 def main() -> int:
     """Import and run the CLI."""
     try:
-        from cmrt.cli import main as cli_main  # heavy: everything the verbs need
+        from cmrt.cli.commands import main as cli_main  # heavy: everything the verbs need
     except KeyboardInterrupt:
         # nothing is open yet; exit at once: finalising half-imported modules (threads, atexit hooks of
         # dask/numba) could meet the interrupt again and end in a traceback or a death by SIGINT

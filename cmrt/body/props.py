@@ -45,7 +45,7 @@ from typing import ClassVar
 import mujoco
 import numpy as np
 
-from cmrt.character import MODEL_PATH
+from cmrt.body.character import MODEL_PATH
 from cmrt.errors import CmrtError
 from cmrt.inputs import Range
 

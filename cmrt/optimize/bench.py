@@ -15,7 +15,7 @@
 (b) the batched evaluator: N candidates in lockstep with the compiled controller;
 (c) per-candidate serial evaluation (one clip after another, one thread);
 (d) one full generation of N candidates with each optimizer backend;
-(e) the same N candidates scored robustly: each on the task's ensemble (``cmrt.ensemble``),
+(e) the same N candidates scored robustly: each on the task's ensemble (``cmrt.motion.ensemble``),
     all N x members clips in one lockstep batch - the cost per member against a plain clip's;
 (f) optionally a whole optimization (the caller's ``optimize``: ``cmrt bench`` runs ``cmrt optimize
     TASK --seed 1 --init none`` into a throwaway store) against its evaluations x the floor per clip (the floor is
@@ -40,16 +40,16 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from cmrt.character import character
+from cmrt.body.character import character
+from cmrt.body.props import Prop, prop_class
 from cmrt.control import ControllerConfig
-from cmrt.curve import Cmrt
-from cmrt.ensemble import training_members
 from cmrt.errors import CmrtError
-from cmrt.library import library_curve
-from cmrt.parallel import BACKENDS, Evaluator, evaluate_candidate
-from cmrt.props import Prop, prop_class
-from cmrt.simulate import _direct_step, _threads, settled_state, simulate_batch
-from cmrt.task import Task
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.ensemble import training_members
+from cmrt.motion.library import library_curve
+from cmrt.motion.task import Task
+from cmrt.optimize.parallel import BACKENDS, Evaluator, evaluate_candidate
+from cmrt.sim.simulate import _direct_step, _threads, settled_state, simulate_batch
 
 # (evaluations, wall seconds) of one full optimization of a task: supplied by the caller (the CLI runs
 # ``jobs.optimize_now``; this module sits below the store and the service)

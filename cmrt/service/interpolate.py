@@ -16,12 +16,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cmrt.curve import MIN_GAP_S, N_KNOTS, Cmrt
 from cmrt.errors import CmrtError
-from cmrt.library import library_curve, load_entries
-from cmrt.sequence import SequenceTask, SuperposedCmrt
-from cmrt.store import Run, Store
-from cmrt.task import Task, active_params, load_task
+from cmrt.motion.curve import MIN_GAP_S, N_KNOTS, Cmrt
+from cmrt.motion.library import library_curve, load_entries
+from cmrt.motion.sequence import SequenceTask, SuperposedCmrt
+from cmrt.motion.task import Task, active_params, load_task
+from cmrt.service.store import Run, Store
 
 IGNORED_PARAMS = ("stop_threshold",)  # do not change the physics of a clip
 

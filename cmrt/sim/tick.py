@@ -17,7 +17,7 @@ on every task):
   row pairwise, eight partial sums first (``pairwise_sum`` in numpy's ``loops_utils``), and so
   does it;
 * the controller is ``cmrt.control.kernel.control_step`` itself, the monitor
-  ``cmrt.balance._first_failed`` itself.
+  ``cmrt.sim.balance._first_failed`` itself.
 """
 
 from __future__ import annotations
@@ -28,10 +28,10 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from cmrt import balance
-from cmrt.balance import _first_failed
 from cmrt.control import kernel
 from cmrt.control.kernel import N_INFO, N_SWING, control_step
+from cmrt.sim import balance
+from cmrt.sim.balance import _first_failed
 
 
 def drop_stale_cache(here: Path = Path(__file__)) -> bool:

@@ -11,10 +11,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from cmrt.character import SIDED_JOINTS, character
+from cmrt.body.character import SIDED_JOINTS, character
 
 if TYPE_CHECKING:
-    from cmrt.task import Task
+    from cmrt.motion.task import Task
 
 
 def smoothstep5(s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -1,6 +1,6 @@
 """Task files (TOML) -> reference motion, push, clip timing, objective settings.
 
-A task is data, not code. The shipped tasks are package data (``cmrt/tasks/*.toml``,
+A task is data, not code. The shipped tasks are package data (``cmrt/motion/tasks/*.toml``,
 read through ``importlib.resources`` so an installed cmrt has them too); a user's own
 task is a TOML file given by path (format in the README). Every number lives in ``[params]`` so that
 ``--set KEY=VALUE`` can override any of them; poses are tables of joint angles in
@@ -19,17 +19,17 @@ from pathlib import Path
 import numpy as np
 
 from cmrt import inputs
-from cmrt import reference as ref
-from cmrt.character import SIDED_JOINTS, character, feet_flat_qpos, joint_angles_from_pose
+from cmrt.body.character import SIDED_JOINTS, character, feet_flat_qpos, joint_angles_from_pose
+from cmrt.body.props import PROPS, build_model, model_values, prop_class
 from cmrt.control.references import DEFAULT_REFERENCE_MODE, REFERENCE_MODES
-from cmrt.ensemble import RobustSpec
 from cmrt.errors import CmrtError
 from cmrt.inputs import MAX_RUN_S, POSE_DEG, Range, param_range, shown
-from cmrt.props import PROPS, build_model, model_values, prop_class
+from cmrt.motion import reference as ref
+from cmrt.motion.ensemble import RobustSpec
 
 MIN_TAIL_S = 0.5
 #: The shipped task files (package data: present in an installed cmrt, not only in a checkout).
-TASKS_DIR = importlib.resources.files("cmrt") / "tasks"
+TASKS_DIR = importlib.resources.files("cmrt.motion") / "tasks"
 
 #: Parameters every task has, with defaults (seconds, newtons, metres).
 DEFAULT_PARAMS: dict[str, float] = {
@@ -186,7 +186,7 @@ class Task:
         return param_range(key, prop_class(self.prop).LIMITS)
 
     def with_robust(self, enabled: bool = True) -> Task:
-        """A copy scored on its robust ensemble (``cmrt.ensemble``), or on the nominal clip alone."""
+        """A copy scored on its robust ensemble (``cmrt.motion.ensemble``), or on the nominal clip alone."""
         return replace(self, robust=replace(self.robust, enabled=enabled))
 
     def with_reference(self, mode: str | None) -> Task:
@@ -269,7 +269,7 @@ class Task:
         return ref.keyframes(self)
 
     def reference(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Reference q, qd, qdd at times ``t_s`` (shape (n, nv)): see ``cmrt.reference.reference``."""
+        """Reference q, qd, qdd at times ``t_s`` (shape (n, nv)): see ``cmrt.motion.reference.reference``."""
         return ref.reference(self, t_s)
 
     def joint_windows(self) -> dict[str, tuple[float, float]]:

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING
 from cmrt import inputs
 from cmrt.errors import CmrtError, Terminated, TransientFault, clear_signals, note_signal, pending_termination
 from cmrt.inputs import BACKENDS, REFERENCE_MODES, escape, shown
-from cmrt.store import DEFAULT_STORE, RUN_STATUSES, Run, Store, open_store, resolve_path
+from cmrt.service.store import DEFAULT_STORE, RUN_STATUSES, Run, Store, open_store, resolve_path
 
 # Start-up: a verb imports what it uses (MuJoCo, numba, scipy, pycma, dask: ~4 s in all) when it runs, so
 # that `cmrt --help`, `cmrt runs` or `cmrt show` answer at once. Building the parser imports none of them:
@@ -40,9 +40,9 @@ from cmrt.store import DEFAULT_STORE, RUN_STATUSES, Run, Store, open_store, reso
 if TYPE_CHECKING:
     import numpy as np
 
-    from cmrt.curve import Cmrt
-    from cmrt.objective import Evaluation
-    from cmrt.task import Task
+    from cmrt.motion.curve import Cmrt
+    from cmrt.motion.task import Task
+    from cmrt.sim.objective import Evaluation
 
 EXIT_BAD_INPUT = 2
 EXIT_TEMPFAIL = 75  # sysexits EX_TEMPFAIL: a fault of the machine; the run is back in the queue
@@ -233,7 +233,7 @@ def _parse_sets(items: list[str] | None) -> dict[str, str]:
 
 def resolve_task(name: str, speed: float | None, sets: list[str] | None, reference: str | None = None) -> Task:
     """A task by name or path, with ``--set`` overrides, ``--speed`` and ``--reference`` applied (validated)."""
-    from cmrt.task import load_task
+    from cmrt.motion.task import load_task
 
     task = load_task(name).with_reference(reference)
     overrides = _parse_sets(sets)
@@ -250,9 +250,9 @@ def resolve_task(name: str, speed: float | None, sets: list[str] | None, referen
 
 def resolve_curve(spec: str, task: Task, store_path: str | None = None, flag: str = "--curve") -> tuple[Cmrt, str]:
     """zero | library | library-robust | RUN (a stored run id) | FILE.json -> (curve, description)."""
-    from cmrt import query
-    from cmrt.curve import Cmrt
-    from cmrt.library import library_curve
+    from cmrt.motion.curve import Cmrt
+    from cmrt.motion.library import library_curve
+    from cmrt.service import query
 
     if spec == "zero":
         return Cmrt.zero(task.clip_s), "zero"
@@ -339,8 +339,8 @@ def _save_npz(path: str, arrays: dict, flag: str = "--trace") -> None:
 
 def simulate_report(task, curve, curve_name: str, trace: str | None = None) -> dict:
     """Simulate one clip and score it: what ``cmrt simulate`` prints (optionally saving the trace)."""
-    from cmrt.objective import evaluate
-    from cmrt.simulate import simulate
+    from cmrt.sim.objective import evaluate
+    from cmrt.sim.simulate import simulate
 
     if trace is not None:  # --trace '' is a bad path, not "no trace"
         inputs.check_output(trace, "--trace")  # before the simulation, not after it
@@ -407,7 +407,7 @@ def _backend_args(p: argparse.ArgumentParser) -> None:
 
 def _opt_defaults(args) -> None:
     """The optimizer options not given on the command line: OptimizeSettings' defaults."""
-    from cmrt.optimize import OptimizeSettings
+    from cmrt.optimize.driver import OptimizeSettings
 
     defaults = OptimizeSettings()
     for name in _OPT_ARGS:
@@ -451,7 +451,7 @@ class Tasks(Command):
     name, help = "tasks", "list the shipped tasks"
 
     def run(self, args):
-        from cmrt.task import available_tasks, load_task
+        from cmrt.motion.task import available_tasks, load_task
 
         rows = []
         for name in available_tasks():
@@ -494,7 +494,7 @@ class Submit(Command):
 
     def run(self, args):
         task = _opt_task(args, args.speed)
-        from cmrt import jobs
+        from cmrt.service import jobs
 
         with _store(args.store) as store:
             run_id = jobs.submit(store, task, **_submit_kwargs(args))
@@ -518,8 +518,8 @@ class Optimize(Command):
     def run(self, args):
         if args.speeds:
             return self._family(args)
-        from cmrt import jobs
-        from cmrt.parallel import Evaluator
+        from cmrt.optimize.parallel import Evaluator
+        from cmrt.service import jobs
 
         task = _opt_task(args, args.speed)
         evaluator = Evaluator(args.backend, args.workers, args.scheduler)  # fails before the store is touched
@@ -537,8 +537,8 @@ class Optimize(Command):
     @staticmethod
     def _family(args) -> Output:
         """--speeds a,b,c: ``jobs.optimize_family``; each member's result is printed as it finishes."""
-        from cmrt import jobs
-        from cmrt.parallel import Evaluator
+        from cmrt.optimize.parallel import Evaluator
+        from cmrt.service import jobs
 
         items = args.speeds.split(",")
         if len(items) > inputs.MAX_SPEEDS:
@@ -579,8 +579,8 @@ class Worker(Command):
         _backend_args(p)
 
     def run(self, args):
-        from cmrt import jobs
-        from cmrt.parallel import Evaluator
+        from cmrt.optimize.parallel import Evaluator
+        from cmrt.service import jobs
 
         if args.stale_after is None:
             args.stale_after = jobs.DEFAULT_STALE_AFTER_S
@@ -639,7 +639,7 @@ class Runs(Command):
         p.add_argument("--reference", choices=REFERENCE_MODES, help="only runs with this reference mode")
 
     def run(self, args):
-        from cmrt import query
+        from cmrt.service import query
 
         with _store(args.store, readonly=True) as store:
             rows = [query.run_summary(r) for r in store.runs(task=args.task, reference=args.reference)]
@@ -653,7 +653,7 @@ class Show(Command):
         p.add_argument("run", type=inputs.run_id_arg)
 
     def run(self, args):
-        from cmrt import query
+        from cmrt.service import query
 
         with _store(args.store, readonly=True) as store:
             d = query.run_details(store, args.run)
@@ -672,7 +672,7 @@ class Best(Command):
         _task_args(p)
 
     def run(self, args):
-        from cmrt import query
+        from cmrt.service import query
 
         task = resolve_task(args.task, args.speed, args.set, args.reference)
         with _store(args.store, readonly=True) as store:
@@ -689,7 +689,7 @@ class Export(Command):
         _force_arg(p)
 
     def run(self, args):
-        from cmrt import query
+        from cmrt.service import query
 
         if args.out is not None:
             _check_out(args, args.out, "--out")
@@ -712,7 +712,7 @@ class Interpolate(Command):
         _force_arg(p)
 
     def run(self, args):
-        from cmrt.interpolate import interpolate, to_json
+        from cmrt.service.interpolate import interpolate, to_json
 
         if args.param is not None:
             inputs.param_name(args.param, "--param")
@@ -752,11 +752,11 @@ class Sequence(Command):
         _force_arg(p)
 
     def run(self, args):
-        from cmrt.curve import Cmrt
-        from cmrt.interpolate import superpose
-        from cmrt.objective import evaluate
-        from cmrt.sequence import load_sequence
-        from cmrt.simulate import simulate
+        from cmrt.motion.curve import Cmrt
+        from cmrt.motion.sequence import load_sequence
+        from cmrt.service.interpolate import superpose
+        from cmrt.sim.objective import evaluate
+        from cmrt.sim.simulate import simulate
 
         if args.trace is not None:
             _check_out(args, args.trace, "--trace")
@@ -793,7 +793,7 @@ class Plot(Command):
         _force_arg(p)
 
     def run(self, args):
-        from cmrt import plot  # matplotlib: only this verb pays for it
+        from cmrt.viz import plot  # matplotlib: only this verb pays for it
 
         if args.run is None and not args.family and not args.sequence:
             raise CmrtError("plot what? give a RUN, --family TASK or --sequence FILE")
@@ -828,7 +828,7 @@ class Render(Command):
         _force_arg(p)
 
     def run(self, args):
-        from cmrt.render import OUT_SUFFIXES, render  # OpenGL: only this verb pays for it
+        from cmrt.viz.render import OUT_SUFFIXES, render  # OpenGL: only this verb pays for it
 
         _check_out(args, args.out, "--out", OUT_SUFFIXES)  # before anything is simulated
         task = resolve_task(args.task, args.speed, args.set, args.reference)
@@ -859,7 +859,7 @@ class Bench(Command):
                        help="skip timing a full 'cmrt optimize TASK --seed 1 --init none' (throwaway store)")
 
     def run(self, args):
-        from cmrt.bench import run_bench
+        from cmrt.optimize.bench import run_bench
 
         backends = tuple(args.backends.split(",")) if args.backends else BACKENDS
         unknown = [b for b in backends if b not in BACKENDS]
@@ -902,7 +902,7 @@ def _timed_optimization(task: Task) -> tuple[int, float]:
     throwaway store: (evaluations, wall seconds). Cold, because a warm start from the shipped library
     curve ends the fast bend after one generation - that would time start-up, not the optimization -
     and the user's store is neither read nor written."""
-    from cmrt import jobs
+    from cmrt.service import jobs
 
     with tempfile.TemporaryDirectory() as tmp, open_store(Path(tmp) / "bench.db") as store:
         t0 = time.perf_counter()
@@ -919,12 +919,12 @@ class Demo(Command):
     def run(self, args):
         """Optimize the fast bend into the store and show the stored result (printed as it goes: it takes a
         while)."""
-        from cmrt import jobs, query
-        from cmrt.curve import Cmrt
-        from cmrt.library import library_curve
-        from cmrt.optimize import OptimizeSettings
-        from cmrt.parallel import Evaluator
-        from cmrt.task import load_task
+        from cmrt.motion.curve import Cmrt
+        from cmrt.motion.library import library_curve
+        from cmrt.motion.task import load_task
+        from cmrt.optimize.driver import OptimizeSettings
+        from cmrt.optimize.parallel import Evaluator
+        from cmrt.service import jobs, query
 
         task = load_task("bend").with_speed(0.4)
         print("Fast bend (T = 0.4 s, trunk first, both feet planted). The reactive controller alone:")
@@ -1024,7 +1024,7 @@ THREADS = inputs.Range(1, 256, integer=True)
 def _check_environment() -> None:
     """The environment variables cmrt reads, checked before anything runs (one line, exit 2), not deep
     inside a worker's first generation."""
-    from cmrt.memory import memory_share
+    from cmrt.optimize.memory import memory_share
 
     memory_share()
     text = os.environ.get("CMRT_THREADS", "").strip()
@@ -1036,6 +1036,3 @@ def _terminate(signum, frame) -> None:
     note_signal(signum)  # seen even where sqlite3 swallows the exception (a signal inside an SQLite step)
     raise Terminated(signum)
 
-
-if __name__ == "__main__":
-    sys.exit(main())

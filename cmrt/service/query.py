@@ -9,11 +9,11 @@ from typing import TYPE_CHECKING
 
 from cmrt import inputs
 from cmrt.errors import CmrtError
-from cmrt.store import Run, Store
+from cmrt.service.store import Run, Store
 
 if TYPE_CHECKING:
-    from cmrt.curve import Cmrt
-    from cmrt.task import Task
+    from cmrt.motion.curve import Cmrt
+    from cmrt.motion.task import Task
 
 SUMMARY_KEYS = ("id", "task", "speed", "reference", "status", "seed", "best_objective", "best_success", "best_fell",
                 "baseline_objective", "baseline_success", "baseline_fell", "evaluations", "generations", "stop_reason",
@@ -47,7 +47,7 @@ def best_run(store: Store, task: Task) -> Run:
 
 def task_of(run: Run) -> Task:
     """The task exactly as the run was queued with (not the task file as it is now)."""
-    from cmrt.task import task_from_dict  # MuJoCo: listing and showing runs do not load it
+    from cmrt.motion.task import task_from_dict  # MuJoCo: listing and showing runs do not load it
 
     return task_from_dict(run.task_definition, source=f"run {run.id}")
 
@@ -57,7 +57,7 @@ def run_curve(store: Store, run_id: int) -> Cmrt:
     run = store.run(run_id)
     if not run.best_cmrt:
         raise CmrtError(f"run {run_id} has no result yet (status {run.status})")
-    from cmrt.curve import Cmrt  # scipy: listing and showing runs do not load it
+    from cmrt.motion.curve import Cmrt  # scipy: listing and showing runs do not load it
 
     return Cmrt.from_dict(run.best_cmrt)
 

@@ -8,7 +8,7 @@ fixed per task, not tied to the physics step). Samples where the feet carry less
 
 A clip is a **success** when
 
-* balance held over the clip and its standing tail (no fall, ``cmrt.balance``);
+* balance held over the clip and its standing tail (no fall, ``cmrt.sim.balance``);
 * the motion was **performed**: a pose change ends within ``FINAL_POSE_TOLERANCE_RAD``
   of its target pose (at the end of the tail), tracked it during the task window
   [P, P + T] with an RMS joint error no larger than that of its own reference played
@@ -37,11 +37,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from cmrt.character import character
+from cmrt.body.character import character
+from cmrt.body.props import CONTACT_FORCE_N
 from cmrt.control.controller import GRAVITY_M_S2
-from cmrt.props import CONTACT_FORCE_N
-from cmrt.simulate import Trajectory
-from cmrt.task import Task
+from cmrt.motion.task import Task
+from cmrt.sim.simulate import Trajectory
 
 MIN_FOOT_FORCE_FRACTION = 0.05
 IMPACT_WINDOW_S = 0.1  # peak ground force is reported outside this window after the first hand-prop contact

@@ -27,9 +27,9 @@ from typing import TYPE_CHECKING
 from cmrt.inputs import Range
 
 if TYPE_CHECKING:
-    from cmrt.task import Task
+    from cmrt.motion.task import Task
 
-PHYSICS_TIMESTEP_S = 0.002  # cmrt/assets/humanoid.xml <option timestep>
+PHYSICS_TIMESTEP_S = 0.002  # cmrt/body/humanoid.xml <option timestep>
 STEP_BYTES = 700  # per clip per physics step (measured 668 B: tools/bench_memory.py)
 CLIP_BASE_BYTES = 256 * 1024  # per clip, whatever its length (measured ~190 kB)
 DEFAULT_MEMORY_SHARE = 0.25  # of physical RAM, for one batch of clips

@@ -1,4 +1,4 @@
-"""The CMRTs shipped with the project (``cmrt/assets/library.json``).
+"""The CMRTs shipped with the project (``cmrt/motion/library.json``).
 
 ``--curve library`` looks a task and speed up here, so users can run the paper's
 results without optimizing. Entries are written by ``tools/find_library_curve.py``.
@@ -9,11 +9,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
-from cmrt.task import Task, active_params, load_task
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.task import Task, active_params, load_task
 
-LIBRARY_PATH = Path(__file__).parent / "assets" / "library.json"
+LIBRARY_PATH = Path(__file__).parent / "library.json"
 SPEED_TOLERANCE = 1e-9
 
 
@@ -33,7 +33,7 @@ def library_curve(task: Task, path: Path = LIBRARY_PATH, robust: bool = False) -
 
     The library holds a plain CMRT (optimized on the nominal clip, as the paper does: the
     default, which the Table 1 reproduction, the speed and mass families and the sequences
-    use) and a robust one (optimized on the task's ensemble, ``cmrt.ensemble``: ``robust=True``).
+    use) and a robust one (optimized on the task's ensemble, ``cmrt.motion.ensemble``: ``robust=True``).
     Other parameters may differ (that is the expectation-mismatch demo: the 7 kg catch
     CMRT used on a 1 kg ball); if several entries share the speed, the one whose
     parameters all match wins, else the one for the task file's defaults.

@@ -16,7 +16,7 @@ from scipy.optimize import brentq
 
 from cmrt.errors import CmrtError
 
-MODEL_PATH = Path(__file__).parent / "assets" / "humanoid.xml"
+MODEL_PATH = Path(__file__).parent / "humanoid.xml"
 
 #: Joints a task pose may name; a bare name ("hip") sets both sides.
 POSE_JOINTS = ("lumbar", "neck", "shoulder", "elbow", "hip", "knee", "ankle")

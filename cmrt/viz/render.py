@@ -20,11 +20,11 @@ import mujoco
 import numpy as np
 
 from cmrt import inputs
-from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
-from cmrt.objective import evaluate
-from cmrt.simulate import Trajectory, simulate
-from cmrt.task import Task
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.task import Task
+from cmrt.sim.objective import evaluate
+from cmrt.sim.simulate import Trajectory, simulate
 
 CYAN = np.array([0.1, 0.8, 0.9, 1.0], dtype=np.float32)
 GREEN = np.array([0.1, 0.8, 0.2, 1.0], dtype=np.float32)

@@ -19,15 +19,15 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from cmrt import inputs  # noqa: E402
-from cmrt.curve import Cmrt  # noqa: E402
 from cmrt.errors import CmrtError  # noqa: E402
-from cmrt.interpolate import candidates, interpolate, superpose  # noqa: E402
-from cmrt.objective import evaluate  # noqa: E402
-from cmrt.query import task_of  # noqa: E402
-from cmrt.sequence import load_sequence  # noqa: E402
-from cmrt.simulate import simulate  # noqa: E402
-from cmrt.store import Store, StoredEvaluation  # noqa: E402
-from cmrt.task import Task, load_task  # noqa: E402
+from cmrt.motion.curve import Cmrt  # noqa: E402
+from cmrt.motion.sequence import load_sequence  # noqa: E402
+from cmrt.motion.task import Task, load_task  # noqa: E402
+from cmrt.service.interpolate import candidates, interpolate, superpose  # noqa: E402
+from cmrt.service.query import task_of  # noqa: E402
+from cmrt.service.store import Store, StoredEvaluation  # noqa: E402
+from cmrt.sim.objective import evaluate  # noqa: E402
+from cmrt.sim.simulate import simulate  # noqa: E402
 
 
 def _save(fig, out: Path) -> Path:

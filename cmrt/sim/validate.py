@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import math
 
-from cmrt.curve import Cmrt
-from cmrt.ensemble import validation_members
-from cmrt.objective import evaluate
-from cmrt.props import prop_class
-from cmrt.simulate import simulate_batch
-from cmrt.task import Task
+from cmrt.body.props import prop_class
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.ensemble import validation_members
+from cmrt.motion.task import Task
+from cmrt.sim.objective import evaluate
+from cmrt.sim.simulate import simulate_batch
 
 
 def robustness(task: Task, curve: Cmrt, threads: int | None = None) -> dict:

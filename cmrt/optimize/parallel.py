@@ -24,15 +24,15 @@ from dataclasses import replace
 import joblib
 import numpy as np
 
-from cmrt.curve import Cmrt
-from cmrt.ensemble import combine, training_members
+from cmrt.body.props import prop_class
 from cmrt.errors import CmrtError, TransientFault
 from cmrt.inputs import BACKENDS
-from cmrt.memory import bound_heap_growth, clips_per_batch
-from cmrt.objective import EvalRecord, evaluate
-from cmrt.props import prop_class
-from cmrt.simulate import simulate_batch
-from cmrt.task import Task
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.ensemble import combine, training_members
+from cmrt.motion.task import Task
+from cmrt.optimize.memory import bound_heap_growth, clips_per_batch
+from cmrt.sim.objective import EvalRecord, evaluate
+from cmrt.sim.simulate import simulate_batch
 
 
 def evaluate_candidate(task: Task, x: np.ndarray) -> EvalRecord:

@@ -389,7 +389,7 @@ class Run:
     restarts: int | None
     stall_generations: int | None  # None: the default (OptimizeSettings)
     robust: dict | None
-    robustness: dict | None  # cmrt.validate.robustness of the best CMRT
+    robustness: dict | None  # cmrt.sim.validate.robustness of the best CMRT
     retries: int | None = None  # transient faults and take-overs so far (NULL before schema 4: none)
     reference: str = "center"  # the controller's reference mode the run was optimized with (NULL: "center")
 
@@ -592,7 +592,7 @@ class Store:
                 )
             self.conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
 
-    # --- writes (the job queue: cmrt.jobs drives them) --------------------------------
+    # --- writes (the job queue: cmrt.service.jobs drives them) --------------------------------
     def add_run(self, spec: RunSpec) -> int:
         """Queue a run whose whole definition is ``spec``; returns its id."""
         row = {

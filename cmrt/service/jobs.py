@@ -21,16 +21,16 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 
 from cmrt import inputs
-from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError, TransientFault, pending_termination
-from cmrt.objective import evaluate
-from cmrt.optimize import CmaState, OptimizeSettings, best_cmrt, new_state, restart_if_stalled, step, stop_reason
-from cmrt.parallel import Evaluator
-from cmrt.simulate import simulate
-from cmrt.store import Claim, Generation, LostClaim, Run, RunProgress, RunSpec, Store, StoredEvaluation
-from cmrt.task import Task, task_from_dict
-from cmrt.validate import robustness
-from cmrt.warmstart import resolve_init
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.task import Task, task_from_dict
+from cmrt.optimize.driver import CmaState, OptimizeSettings, best_cmrt, new_state, restart_if_stalled, step, stop_reason
+from cmrt.optimize.parallel import Evaluator
+from cmrt.service.store import Claim, Generation, LostClaim, Run, RunProgress, RunSpec, Store, StoredEvaluation
+from cmrt.service.warmstart import resolve_init
+from cmrt.sim.objective import evaluate
+from cmrt.sim.simulate import simulate
+from cmrt.sim.validate import robustness
 
 DEFAULT_STALE_AFTER_S = 120.0
 _DEFAULTS = OptimizeSettings()

@@ -3,7 +3,7 @@
 Stopping rules, checked between generations:
 
 * ``threshold``: a *successful* candidate (balance held, motion performed, settled:
-  ``cmrt.objective``) scores below the task's ``stop_threshold`` (ABC section 4.1);
+  ``cmrt.sim.objective``) scores below the task's ``stop_threshold`` (ABC section 4.1);
 * ``budget``: the next generation would pass ``max_evals`` evaluations;
 * ``converged``: the search stalled (below) and no restart fits any more - ``max_restarts`` done, or
   less budget left than two generations of the run's population - after ``min_evals`` evaluations.
@@ -36,7 +36,7 @@ generation, so a resumed run continues - across restarts too - with exactly the
 samples an uninterrupted one would draw.
 
 Checkpoints are untrusted input (a store is shared and downloaded), so they are not
-pickles but :mod:`cmrt.checkpoint` documents, from which nothing is called, and
+pickles but :mod:`cmrt.optimize.checkpoint` documents, from which nothing is called, and
 :meth:`CmaState.loads` then checks what pycma would otherwise trust: pycma ``eval``s
 string-valued options (``CMAOptions.eval``: at construction, and on every ``stop()`` for
 the options it reads from its signals file), and its options name the functions it calls
@@ -59,11 +59,11 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from cmrt import checkpoint
-from cmrt.checkpoint import InvalidCheckpoint, cma  # pycma, imported without matplotlib (import_cma)
-from cmrt.curve import N_KNOTS, Cmrt
 from cmrt.errors import CmrtError
-from cmrt.objective import EvalRecord
+from cmrt.motion.curve import N_KNOTS, Cmrt
+from cmrt.optimize import checkpoint
+from cmrt.optimize.checkpoint import InvalidCheckpoint, cma  # pycma, imported without matplotlib (import_cma)
+from cmrt.sim.objective import EvalRecord
 
 N_PARAMS = 2 * N_KNOTS
 _log = logging.getLogger(__name__)
@@ -109,7 +109,7 @@ class _Randn:
 
 @dataclass
 class CmaState:
-    """Everything needed to continue a run bit-identically (the checkpoint: :mod:`cmrt.checkpoint`)."""
+    """Everything needed to continue a run bit-identically (the checkpoint: :mod:`cmrt.optimize.checkpoint`)."""
 
     es: cma.CMAEvolutionStrategy
     generation: int = 0
@@ -417,7 +417,7 @@ REGIMES = ("large", "small")
 
 #: the largest population IPOP's doubling reaches (10 x 2**7; ``--popsize`` above it is kept as given). Past it a
 #: generation costs more than the default budget and averages no better; it also bounds a generation's
-#: optimizer memory (a batch's clips are bounded separately: :mod:`cmrt.memory`).
+#: optimizer memory (a batch's clips are bounded separately: :mod:`cmrt.optimize.memory`).
 MAX_RESTART_POPSIZE = 1280
 
 

@@ -13,11 +13,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from cmrt.curve import Cmrt
 from cmrt.errors import CmrtError
-from cmrt.library import load_entries
-from cmrt.store import Store
-from cmrt.task import Task
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.library import load_entries
+from cmrt.motion.task import Task
+from cmrt.service.store import Store
 
 CLIP_TOLERANCE_S = 1e-9
 IGNORED_PARAMS = frozenset({"stop_threshold"})  # optimizer settings, not physics
