@@ -51,7 +51,7 @@ state grew a type nobody vetted - a test fails), on reading with :class:`Invalid
 written by an older cmrt (it starts with ``0x80``) is refused too, never unpickled.
 
 The allowlists are what pycma 4.5 keeps in a ``CMAEvolutionStrategy`` for cmrt's options
-(see ``tests/test_checkpoint.py``, which checks the census); the pycma version is in the
+(see ``tests/optimize/test_checkpoint.py``, which checks the census); the pycma version is in the
 document and a checkpoint written under another pycma is refused: its internals (and
 so a bit-identical resume) are not guaranteed across versions.
 """
@@ -79,7 +79,7 @@ def import_cma():
     fail, and the optimizer uses neither. Marking the two packages absent in ``sys.modules`` for the length
     of the import makes them fail; the marks are removed after, so a later ``import matplotlib`` (cmrt.viz.plot,
     a user's script) works as usual, as does ``cma.plot``, which imports pyplot when called. A package
-    already imported is left alone. tests/test_checkpoint.py checks both."""
+    already imported is left alone. tests/optimize/test_checkpoint.py checks both."""
     absent = [name for name in ("matplotlib", "scipy.stats") if name not in sys.modules]
     for name in absent:
         sys.modules[name] = None  # the documented way to make an import raise ImportError

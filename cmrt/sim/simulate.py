@@ -496,7 +496,7 @@ def _direct_step(batch: mujoco.batch.Batch, stage: mujoco.mjtStage):
     on every call (dtype, order, uniqueness, range: 5 us, as much Python as the rest of a lean step), for
     ids the scoring loop validated once when they changed - sorted, unique, in range, int32 - or None for
     all rows. It calls the C++ batch ``Batch.step`` itself wraps (the private ``_b``), so the simulation is
-    the same call (tests/test_tick.py compares the two bit for bit and checks this path is taken with
+    the same call (tests/sim/test_tick.py compares the two bit for bit and checks this path is taken with
     the installed MuJoCo); a MuJoCo without it gets the public ``Batch.step``. 11 % of the seed-1
     optimization's evaluation time on 2 cores (docs/performance.md)."""
     raw = getattr(getattr(batch, "_b", None), "step", None)

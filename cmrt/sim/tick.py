@@ -8,7 +8,7 @@ feet planted - what an optimization evaluates. Traces, the ``yu`` reference and 
 Python loop (their extra work is per step and per row, but they are not the hot path).
 
 Everything is the same IEEE arithmetic in the same order as the numpy code it stands for,
-so trajectories are bit for bit those of the Python path (tests/test_tick.py compares the two
+so trajectories are bit for bit those of the Python path (tests/sim/test_tick.py compares the two
 on every task):
 
 * :func:`geometry` is the ``_Geometry``/``_in_contact``/``_ground_support`` numpy code (NaNs
@@ -122,7 +122,7 @@ def geometry(rows, geom_xpos, geom_xmat, qpos, qvel, points, body_geoms, half, r
 def _pairwise_sum(x):
     """numpy's sum of a short contiguous row (``pairwise_sum`` for n <= 128): under 8 terms one by one from
     -0.0, else eight interleaved partial sums combined as a tree, then the remainder one by one (checked
-    bit for bit against ``np.sum(axis=1)`` in tests/test_tick.py)."""
+    bit for bit against ``np.sum(axis=1)`` in tests/sim/test_tick.py)."""
     n = x.shape[0]
     if n < 8:
         s = -0.0

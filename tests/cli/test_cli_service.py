@@ -8,8 +8,7 @@ import json
 import pytest
 
 from cmrt.cli.commands import main
-
-from .service_helpers import FAST_BEND, cmrt
+from tests.service_helpers import FAST_BEND, cmrt
 
 
 @pytest.fixture(scope="module")

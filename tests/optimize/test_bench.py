@@ -8,8 +8,7 @@ from cmrt.motion.curve import Cmrt
 from cmrt.motion.task import load_task
 from cmrt.optimize.bench import record_replay, replay_physics
 from cmrt.sim.simulate import simulate_batch
-
-from .service_helpers import cmrt
+from tests.service_helpers import cmrt
 
 
 @pytest.mark.slow  # times every backend, repeated

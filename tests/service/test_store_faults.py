@@ -19,8 +19,7 @@ from cmrt.motion.task import load_task
 from cmrt.optimize.parallel import Evaluator
 from cmrt.service.jobs import claim, run_claimed, submit, work
 from cmrt.service.store import MAX_RETRIES, open_store
-
-from .service_helpers import cmrt, spawn_worker
+from tests.service_helpers import cmrt, spawn_worker
 
 TASK = load_task("bend").with_speed(0.4)
 SMALL = dict(seed=5, max_evals=20, popsize=5, init="none")

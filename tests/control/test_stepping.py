@@ -193,7 +193,7 @@ def test_a_backward_step_saves_a_backward_push_standing_cannot():
     assert traj.point_contact[-1].astype(bool).all()  # both feet flat at the end
 
 
-BRACE_CMRT = Path(__file__).resolve().parent / "data" / "cmrt_brace_step_back.json"
+BRACE_CMRT = Path(__file__).resolve().parents[1] / "data" / "cmrt_brace_step_back.json"
 
 
 @pytest.mark.slow

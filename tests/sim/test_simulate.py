@@ -24,7 +24,7 @@ def stand():
     return load_task("stand")
 
 
-@pytest.mark.slow  # a 10 s clip (stand is in the fast loop through tests/test_tasks.py)
+@pytest.mark.slow  # a 10 s clip (stand is in the fast loop through tests/motion/test_tasks.py)
 def test_quiet_standing_ten_seconds(stand):
     traj = simulate(stand)
     ev = evaluate(stand, traj)

@@ -12,8 +12,7 @@ from cmrt.motion.task import load_task
 from cmrt.optimize.parallel import Evaluator
 from cmrt.service.jobs import claim, optimize_family, run_claimed, submit, work
 from cmrt.service.store import open_store
-
-from .service_helpers import spawn_worker
+from tests.service_helpers import spawn_worker
 
 TASK = load_task("bend").with_speed(0.4)
 

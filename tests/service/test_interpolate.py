@@ -9,8 +9,7 @@ from cmrt.motion.curve import MIN_GAP_S
 from cmrt.motion.library import load_entries
 from cmrt.motion.sequence import Motion, SequenceTask, load_sequence
 from cmrt.service.interpolate import blend, interpolate, superpose
-
-from .service_helpers import cmrt
+from tests.service_helpers import cmrt
 
 A = Cmrt(2.6, (0.8, 1.0, 1.2, 1.4), (0.02, 0.03, -0.01, -0.02))
 B = Cmrt(2.6, (0.5, 1.3, 1.9, 2.3), (0.01, -0.02, 0.015, 0.0))

@@ -32,8 +32,7 @@ from cmrt.optimize.parallel import Evaluator
 from cmrt.service.jobs import claim, submit, work
 from cmrt.service.store import Generation, RunProgress, StoredEvaluation, open_store
 from cmrt.sim.objective import EvalRecord
-
-from .service_helpers import spawn_worker
+from tests.service_helpers import spawn_worker
 
 TASK = load_task("bend").with_speed(0.4)
 RUGGED = OptimizeSettings(seed=4, max_evals=2000, stall_generations=3, min_evals=0, stop_threshold=10.0)
@@ -130,7 +129,7 @@ def test_one_generator_after_loading():
     assert es.opts["randn"] is not state.randn  # a copy, not the live object
 
 
-OLD_CHECKPOINT = Path(__file__).resolve().parent / "data" / "checkpoint_flat_modules.bin"
+OLD_CHECKPOINT = Path(__file__).resolve().parents[1] / "data" / "checkpoint_flat_modules.bin"
 
 
 def test_a_checkpoint_naming_the_old_module_paths_resumes():

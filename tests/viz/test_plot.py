@@ -7,8 +7,7 @@ from cmrt.cli.commands import main
 from cmrt.motion.task import load_task
 from cmrt.service.jobs import submit
 from cmrt.service.store import open_store
-
-from .service_helpers import FAST_BEND, cmrt
+from tests.service_helpers import FAST_BEND, cmrt
 
 
 @pytest.mark.slow  # an optimization run and its figures

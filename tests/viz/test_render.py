@@ -10,8 +10,7 @@ from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.task import load_task
 from cmrt.viz.render import render as render_clip
-
-from .service_helpers import FAST_BEND, cmrt
+from tests.service_helpers import FAST_BEND, cmrt
 
 
 def render(tmp_path, name, *args):

@@ -6,8 +6,7 @@ import pytest
 
 from cmrt.errors import CmrtError
 from cmrt.service.store import SCHEMA_VERSION, open_store
-
-from .service_helpers import cmrt
+from tests.service_helpers import cmrt
 
 
 def digest(path):
