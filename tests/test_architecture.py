@@ -2,7 +2,7 @@
 
 One package per layer (docs/architecture.md), lowest first; a module imports only from its own layer or
 one below it, so data flows one way - body -> control -> motion -> sim -> optimize -> service -> viz -> cli.
-The top-level modules (``errors``, ``inputs``) are the base every layer may use.
+The top-level modules (``errors``, ``modes``, ``inputs``) are the base every layer may use.
 """
 
 import ast
@@ -15,7 +15,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / "cmrt"
 
 #: Layers, lowest first: a package each, the base its top-level modules.
 LAYERS: list[tuple[str, set[str]]] = [
-    ("base", {"errors", "inputs"}),
+    ("base", {"errors", "modes", "inputs"}),
     ("body", {"body"}),
     ("control", {"control"}),
     ("motion", {"motion"}),
@@ -78,7 +78,7 @@ def _edges() -> dict[str, set[str]]:
 def test_cmrt_holds_one_folder_per_layer_and_the_base_modules():
     """``ls cmrt/``: the layers' packages and the base modules, nothing else."""
     entries = {p.name for p in PACKAGE.iterdir() if p.name != "__pycache__"}
-    assert entries == {"__init__.py", "errors.py", "inputs.py"} | {
+    assert entries == {"__init__.py", "errors.py", "modes.py", "inputs.py"} | {
         top for _, tops in LAYERS[1:] for top in tops}
 
 
@@ -92,6 +92,16 @@ def test_imports_point_down(module):
         assert target != "__init__", f"{module} imports the top-level API (cmrt/__init__.py)"
         assert RANK[layer(target)] <= RANK[layer(module)], \
             f"{module} ({layer(module)}) imports {target} ({layer(target)}): an upward import"
+
+
+def test_modes_are_constants_and_the_controller_reads_no_user_input_checks():
+    """``modes`` imports nothing; the controller's modes come from it, not from the CLI's ``inputs``."""
+    tree = ast.parse(MODULES["modes"].read_text())
+    code = ast.Import | ast.ImportFrom | ast.FunctionDef | ast.ClassDef
+    assert not [n for n in ast.walk(tree) if isinstance(n, code)]
+    for module, path in MODULES.items():
+        if layer(module) == "control":
+            assert "inputs" not in {t for t, _, _ in _imports(path)}, module
 
 
 def test_the_store_depends_on_nothing_but_errors():

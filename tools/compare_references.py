@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from cmrt import CmrtError, Evaluator, evaluate, library_curve, load_task, open_store, optimize_now, run_curve
-from cmrt.control.references import REFERENCE_MODES
+from cmrt.modes import REFERENCE_MODES
 from cmrt.motion.ensemble import Perturbation
 from cmrt.sim.simulate import simulate, simulate_batch
 

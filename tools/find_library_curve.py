@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 from cmrt import Evaluator, evaluate, load_task, open_store, optimize_now, run_curve, simulate
-from cmrt.control.references import REFERENCE_MODES
+from cmrt.modes import REFERENCE_MODES
 from cmrt.motion.library import save_entry
 
 

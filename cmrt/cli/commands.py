@@ -31,7 +31,8 @@ from typing import TYPE_CHECKING
 
 from cmrt import inputs
 from cmrt.errors import CmrtError, Terminated, TransientFault, clear_signals, note_signal, pending_termination
-from cmrt.inputs import BACKENDS, REFERENCE_MODES, escape, shown
+from cmrt.inputs import escape, shown
+from cmrt.modes import BACKENDS, REFERENCE_MODES
 from cmrt.service.store import DEFAULT_STORE, RUN_STATUSES, Run, Store, open_store, resolve_path
 
 # Start-up: a verb imports what it uses (MuJoCo, numba, scipy, pycma, dask: ~4 s in all) when it runs, so

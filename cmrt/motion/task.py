@@ -21,9 +21,9 @@ import numpy as np
 from cmrt import inputs
 from cmrt.body.character import SIDED_JOINTS, character, feet_flat_qpos, joint_angles_from_pose
 from cmrt.body.props import PROPS, build_model, model_values, prop_class
-from cmrt.control.references import DEFAULT_REFERENCE_MODE, REFERENCE_MODES
 from cmrt.errors import CmrtError
 from cmrt.inputs import MAX_RUN_S, POSE_DEG, Range, param_range, shown
+from cmrt.modes import DEFAULT_REFERENCE_MODE, REFERENCE_MODES
 from cmrt.motion import reference as ref
 from cmrt.motion.ensemble import RobustSpec
 

@@ -44,11 +44,12 @@ from cmrt.body.character import character
 from cmrt.body.props import Prop, prop_class
 from cmrt.control import ControllerConfig
 from cmrt.errors import CmrtError
+from cmrt.modes import BACKENDS
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.ensemble import training_members
 from cmrt.motion.library import library_curve
 from cmrt.motion.task import Task
-from cmrt.optimize.parallel import BACKENDS, Evaluator, evaluate_candidate
+from cmrt.optimize.parallel import Evaluator, evaluate_candidate
 from cmrt.sim.simulate import _direct_step, _threads, settled_state, simulate_batch
 
 # (evaluations, wall seconds) of one full optimization of a task: supplied by the caller (the CLI runs

@@ -26,7 +26,7 @@ import numpy as np
 
 from cmrt.body.props import prop_class
 from cmrt.errors import CmrtError, TransientFault
-from cmrt.inputs import BACKENDS
+from cmrt.modes import BACKENDS
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.ensemble import combine, training_members
 from cmrt.motion.task import Task
