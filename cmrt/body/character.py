@@ -22,6 +22,10 @@ MODEL_PATH = Path(__file__).parent / "humanoid.xml"
 POSE_JOINTS = ("lumbar", "neck", "shoulder", "elbow", "hip", "knee", "ankle")
 SIDED_JOINTS = ("shoulder", "elbow", "hip", "knee", "ankle")
 FOOT_POINT_RADIUS_M = 0.01
+#: Gravity (m/s^2, pointing down), the MJCF's ``<option gravity>`` (tests/body/test_character.py checks they
+#: agree): the one value the controller, the fall monitor, the props and the objective use. numba compiles it
+#: into its cached functions (sim/balance.py), so it is a constant, never changed at run time.
+GRAVITY_M_S2 = 9.81
 
 
 @functools.cache

@@ -45,7 +45,7 @@ from typing import ClassVar
 import mujoco
 import numpy as np
 
-from cmrt.body.character import MODEL_PATH
+from cmrt.body.character import GRAVITY_M_S2, MODEL_PATH
 from cmrt.errors import CmrtError
 from cmrt.inputs import Range
 
@@ -60,7 +60,6 @@ GRIP_SETTLED_M_S = 0.05  # ... or as soon as the ball moves with the point it is
 BALL_RESIDUAL_MASS_KG = 0.05  # what the ball body keeps once its mass is in the forearms
 CONTACT_FORCE_N = 1.0  # a hand-prop force above this counts as contact
 TOPPLED_DEG = 30.0  # a slab rotated this far has passed its balance angle and is falling
-GRAVITY_M_S2 = 9.81
 SLAB_WIDTH_M = 0.6
 BAG_LENGTH_M = 1.0  # a 100 cm heavy bag
 BAG_THICKNESS_M = 0.35  # 35 cm across

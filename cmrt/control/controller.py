@@ -43,12 +43,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cmrt.body.character import FOOT_POINT_RADIUS_M, Character
+from cmrt.body.character import FOOT_POINT_RADIUS_M, GRAVITY_M_S2, Character
 from cmrt.control import kernel
 from cmrt.control.kernel import AIR, FLAT, HEEL, TOE
 from cmrt.control.planar import PlanarKinematics
 
-GRAVITY_M_S2 = 9.81
 # -DUAL_REGULARIZATION on the multipliers' diagonal of the KKT matrix: redundant support rows
 # (both feet asking the same vertical acceleration of a straight-kneed body: the legs' Jacobians
 # are singular at the knee limit) then solve in the least-squares sense instead of making the

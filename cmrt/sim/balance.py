@@ -36,7 +36,7 @@ from enum import StrEnum
 import numpy as np
 from numba import njit
 
-GRAVITY_M_S2 = 9.81
+from cmrt.body.character import GRAVITY_M_S2
 
 
 class FallReason(StrEnum):

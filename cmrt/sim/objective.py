@@ -37,9 +37,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from cmrt.body.character import character
+from cmrt.body.character import GRAVITY_M_S2, character
 from cmrt.body.props import CONTACT_FORCE_N
-from cmrt.control.controller import GRAVITY_M_S2
 from cmrt.motion.task import Task
 from cmrt.sim.simulate import Trajectory
 

@@ -1,7 +1,7 @@
 import mujoco
 import numpy as np
 
-from cmrt.body.character import character, feet_flat_qpos, joint_angles_from_pose, support_interval_x
+from cmrt.body.character import GRAVITY_M_S2, character, feet_flat_qpos, joint_angles_from_pose, support_interval_x
 
 
 def test_dimensions_mass_and_height():
@@ -44,3 +44,8 @@ def test_balanced_pose_puts_com_over_support_center():
     assert abs(d.subtree_com[0, 0] - 0.5 * (lo + hi)) < 1e-9
     for heel, toe in ch.foot_points:
         assert abs(d.geom_xpos[heel, 2] - d.geom_xpos[toe, 2]) < 1e-9  # feet flat
+
+
+def test_the_gravity_constant_is_the_models():
+    """One gravity for the whole package (controller, fall monitor, props, objective): the MJCF's."""
+    assert character().model.opt.gravity.tolist() == [0.0, 0.0, -GRAVITY_M_S2]

@@ -13,8 +13,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from cmrt.body.character import character
-from cmrt.control.references import GRAVITY_M_S2, WinterPendulum, YuReference, motion_com
+from cmrt.body.character import GRAVITY_M_S2, character
+from cmrt.control.references import WinterPendulum, YuReference, motion_com
 from cmrt.motion.task import load_task
 
 

@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cmrt.body.character import GRAVITY_M_S2
 from cmrt.control.stepping import (
     CAPTURE_POINT,
-    GRAVITY_M_S2,
     StepConfig,
     StepSupervisor,
     bezier,
