@@ -94,6 +94,26 @@ def test_imports_point_down(module):
             f"{module} ({layer(module)}) imports {target} ({layer(target)}): an upward import"
 
 
+def test_no_import_circle():
+    """No module reaches itself through imports (a lazy one inside a function counts too)."""
+    edges = _edges()
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+
+    def visit(module: str, path: list[str]) -> None:
+        state[module] = 1
+        for target in sorted(edges.get(module, ())):
+            if state.get(target) == 1:
+                cycle = path[path.index(target):] + [target] if target in path else [module, target]
+                pytest.fail(f"import circle: {' -> '.join(cycle)}")
+            if target not in state:
+                visit(target, path + [target])
+        state[module] = 2
+
+    for module in sorted(edges):
+        if module not in state:
+            visit(module, [module])
+
+
 def test_modes_are_constants_and_the_controller_reads_no_user_input_checks():
     """``modes`` imports nothing; the controller's modes come from it, not from the CLI's ``inputs``."""
     tree = ast.parse(MODULES["modes"].read_text())

@@ -1,20 +1,38 @@
 """The reference motion of a task: each joint eased from pose to pose over the task phase [P, P + T].
 
-``Task.reference``, ``Task.keyframes`` and ``Task.joint_windows`` are these functions.
+It is computed from a :class:`Schedule` - the poses and timing a task's reference depends on, nothing else
+(``Task.schedule()`` makes one) - so this module knows no Task. ``Task.reference``, ``Task.keyframes`` and
+``Task.joint_windows`` are these functions on the task's schedule.
 """
 
 from __future__ import annotations
 
 import threading
 from collections import OrderedDict
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
 import numpy as np
 
 from cmrt.body.character import SIDED_JOINTS, character
 
-if TYPE_CHECKING:
-    from cmrt.motion.task import Task
+
+@dataclass(frozen=True, eq=False)
+class Schedule:
+    """What a task's reference motion is made of: its poses as qpos (read-only arrays) and their timing."""
+
+    key: str  # the task's content hash: two schedules with the same key are the same (the cache's key)
+    start_qpos: np.ndarray
+    end_qpos: np.ndarray | None  # None: no pose change, the start pose is held
+    via_qpos: np.ndarray | None  # a pose passed through at ``via_fraction`` of T, or None
+    via_fraction: float | None
+    timing: dict[str, tuple[float, float]]  # ``[timing]``: per joint, its easing window as fractions of T
+    preparation_s: float  # P
+    duration_s: float  # T
+
+    def __post_init__(self) -> None:
+        for q in (self.start_qpos, self.end_qpos, self.via_qpos):
+            if q is not None:
+                q.flags.writeable = False
 
 
 def smoothstep5(s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -27,12 +45,13 @@ def smoothstep5(s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     )
 
 
-def keyframes(task: Task) -> list[tuple[float, np.ndarray]]:
-    """(fraction of T, qpos) of the poses the motion passes: start, [via], end."""
-    keys = [(0.0, task.start_qpos())]
-    if task.via_pose_deg is not None:
-        keys.append((task.params["via_fraction"], task.via_qpos()))
-    return keys + [(1.0, task.end_qpos())]
+def keyframes(schedule: Schedule) -> list[tuple[float, np.ndarray]]:
+    """(fraction of T, qpos) of the poses the motion passes: start, [via], end (read-only arrays)."""
+    keys = [(0.0, schedule.start_qpos)]
+    if schedule.via_qpos is not None:
+        keys.append((schedule.via_fraction, schedule.via_qpos))
+    end = schedule.start_qpos if schedule.end_qpos is None else schedule.end_qpos
+    return keys + [(1.0, end)]
 
 
 _CACHE: OrderedDict[tuple[str, bytes], tuple[np.ndarray, np.ndarray, np.ndarray]] = OrderedDict()
@@ -40,18 +59,18 @@ _CACHE_SIZE = 64  # (task, times) pairs: a clip's steps, its scored samples, the
 _CACHE_LOCK = threading.Lock()  # simulate_batch's threads ask for it at once
 
 
-def reference(task: Task, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def reference(schedule: Schedule, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``reference_motion``, remembered per task and times (read-only arrays): every evaluation asks for
     the same clip's reference four times (the controller's, and the objective's tracking error and
     bound), and computing it cost ~15 % of an evaluation's physics."""
     t = np.atleast_1d(np.asarray(t_s, dtype=float))
-    key = (task.content_hash(), t.tobytes())
+    key = (schedule.key, t.tobytes())
     with _CACHE_LOCK:
         hit = _CACHE.get(key)
         if hit is not None:
             _CACHE.move_to_end(key)
             return hit
-    out = reference_motion(task, t)
+    out = reference_motion(schedule, t)
     for a in out:
         a.flags.writeable = False
     with _CACHE_LOCK:
@@ -61,7 +80,7 @@ def reference(task: Task, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
     return out
 
 
-def reference_motion(task: Task, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def reference_motion(schedule: Schedule, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Reference q, qd, qdd at times ``t_s`` (shape (n, nv)).
 
     Each joint eases from the start to the end pose (through the via pose, if any, at
@@ -71,20 +90,20 @@ def reference_motion(task: Task, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarra
     they ease with the hip for completeness.
     """
     t = np.atleast_1d(np.asarray(t_s, dtype=float))
-    q0, q1 = task.start_qpos(), task.end_qpos()
+    q0, q1 = schedule.start_qpos, schedule.end_qpos
     n, nv = len(t), q0.size
     q, qd, qdd = np.tile(q0, (n, 1)), np.zeros((n, nv)), np.zeros((n, nv))
-    if task.end_pose_deg is None:
+    if q1 is None:
         return q, qd, qdd
     ch = character()
     dq = q1 - q0
-    windows = joint_windows(task)
-    keys = keyframes(task)
+    windows = joint_windows(schedule)
+    keys = keyframes(schedule)
     for (fa, qa), (fb, qb) in zip(keys, keys[1:], strict=False):
         for i, name in enumerate(ch.dof_names):
             a, b = windows.get(name, (0.0, 1.0)) if len(keys) == 2 else (fa, fb)
-            span = (b - a) * task.duration_s
-            s, ds, dds = smoothstep5((t - task.preparation_s - a * task.duration_s) / span)
+            span = (b - a) * schedule.duration_s
+            s, ds, dds = smoothstep5((t - schedule.preparation_s - a * schedule.duration_s) / span)
             step = qb[i] - qa[i]
             q[:, i] += s * step
             qd[:, i] += ds / span * step
@@ -101,10 +120,10 @@ def reference_motion(task: Task, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return q, qd, qdd
 
 
-def joint_windows(task: Task) -> dict[str, tuple[float, float]]:
+def joint_windows(schedule: Schedule) -> dict[str, tuple[float, float]]:
     """Per-dof easing window as fractions of T (bare names expand to both sides)."""
     out = {}
-    for key, win in task.timing.items():
+    for key, win in schedule.timing.items():
         names = [f"{key}_r", f"{key}_l"] if key in SIDED_JOINTS else [key]
         for n in names:
             out[n] = win

@@ -26,6 +26,7 @@ from cmrt.inputs import MAX_RUN_S, POSE_DEG, Range, param_range, shown
 from cmrt.modes import DEFAULT_REFERENCE_MODE, REFERENCE_MODES
 from cmrt.motion import reference as ref
 from cmrt.motion.ensemble import RobustSpec
+from cmrt.motion.reference import Schedule
 
 MIN_TAIL_S = 0.5
 #: The shipped task files (package data: present in an installed cmrt, not only in a checkout).
@@ -264,17 +265,25 @@ class Task:
     def via_qpos(self) -> np.ndarray:
         return _pose_qpos(tuple(sorted(self.via_pose_deg.items())), self.balance_joint)
 
+    def schedule(self) -> Schedule:
+        """What the reference motion is made of: the poses as qpos and their timing (``cmrt.motion.reference``)."""
+        end = None if self.end_pose_deg is None else self.end_qpos()
+        via = None if self.via_pose_deg is None else self.via_qpos()
+        return Schedule(key=self.content_hash(), start_qpos=self.start_qpos(), end_qpos=end, via_qpos=via,
+                        via_fraction=None if via is None else self.params["via_fraction"], timing=dict(self.timing),
+                        preparation_s=self.preparation_s, duration_s=self.duration_s)
+
     def keyframes(self) -> list[tuple[float, np.ndarray]]:
         """(fraction of T, qpos) of the poses the motion passes: start, [via], end."""
-        return ref.keyframes(self)
+        return [(f, q.copy()) for f, q in ref.keyframes(self.schedule())]
 
     def reference(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Reference q, qd, qdd at times ``t_s`` (shape (n, nv)): see ``cmrt.motion.reference.reference``."""
-        return ref.reference(self, t_s)
+        return ref.reference(self.schedule(), t_s)
 
     def joint_windows(self) -> dict[str, tuple[float, float]]:
         """Per-dof easing window as fractions of T (bare names expand to both sides)."""
-        return ref.joint_windows(self)
+        return ref.joint_windows(self.schedule())
 
     def push_at(self, t_s: float) -> float:
         """Horizontal push on the thorax at time t_s (N): the task's push plus, if its file declares them,
