@@ -114,6 +114,40 @@ def test_no_import_circle():
             visit(module, [module])
 
 
+def _private_uses(module: str, path: Path) -> list[str]:
+    """Underscore names of another layer's modules that ``module`` uses: imported by name, or read as an
+    attribute of an imported module (``kernel._x``)."""
+    out = []
+    modules_bound = {}  # local name -> cmrt module it is bound to
+    tree = ast.parse(path.read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "cmrt":
+            package = node.module.removeprefix("cmrt").removeprefix(".")
+            for alias in node.names:
+                target = _target(package, alias.name)
+                if target == (f"{package}.{alias.name}" if package else alias.name):
+                    modules_bound[alias.asname or alias.name] = target
+                elif alias.name.startswith("_") and layer(target) != layer(module):
+                    out.append(f"{target}.{alias.name}")
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.asname and alias.name.startswith("cmrt."):
+                    modules_bound[alias.asname] = alias.name.removeprefix("cmrt.")
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.attr.startswith("_") \
+                and not node.attr.startswith("__"):
+            target = modules_bound.get(node.value.id)
+            if target is not None and layer(target) != layer(module):
+                out.append(f"{target}.{node.attr}")
+    return out
+
+
+def test_no_layer_uses_another_layers_private_names():
+    """A leading underscore is private to its layer: another layer uses only public names."""
+    offenders = {m: uses for m, p in MODULES.items() if (uses := _private_uses(m, p))}
+    assert offenders == {}
+
+
 def test_modes_are_constants_and_the_controller_reads_no_user_input_checks():
     """``modes`` imports nothing; the controller's modes come from it, not from the CLI's ``inputs``."""
     tree = ast.parse(MODULES["modes"].read_text())

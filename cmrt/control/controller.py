@@ -113,7 +113,8 @@ _FIELDS = ("cdof", "cdof_dot", "cvel", "cinert", "qpos", "qvel", "M", "qfrc_bias
            "geom_xpos")
 
 
-def _read_only(x: np.ndarray) -> np.ndarray:
+def read_only(x: np.ndarray) -> np.ndarray:
+    """A read-only view of ``x`` (the kernel's inputs: numba compiles one signature for read-only arrays)."""
     x = x.view()
     x.flags.writeable = False
     return x
@@ -126,7 +127,7 @@ def _as_kernel(x, dtype=np.float64) -> np.ndarray:
     if x.__class__ is np.ndarray and not x.flags.writeable and x.flags.c_contiguous and x.dtype == dtype:
         return x
     x = np.ascontiguousarray(x, dtype=dtype)
-    return _read_only(x) if x.flags.writeable else x
+    return read_only(x) if x.flags.writeable else x
 
 
 def _shared_rows(r: np.ndarray, buf: np.ndarray, view: np.ndarray) -> np.ndarray:
@@ -198,10 +199,10 @@ class MomentumBalanceController:
             bufs = [np.empty((n, self.nv)) for _ in range(3)]
             c = self._per_n[n] = {
                 "rows": np.arange(n),  # simulation i reads row i (writable int64, as the compiled loop's rows)
-                "refs": [(buf, _read_only(buf)) for buf in bufs],
-                "mass": _read_only(np.full(n, self.mass)), "no_swing": _read_only(np.full(n, -1.0)),
-                "no_target": _read_only(np.zeros((n, kernel.N_SWING))),
-                "cold": _read_only(np.zeros((n, self.n_rows), bool)), "warm_out": np.zeros((n, self.n_rows), bool),
+                "refs": [(buf, read_only(buf)) for buf in bufs],
+                "mass": read_only(np.full(n, self.mass)), "no_swing": read_only(np.full(n, -1.0)),
+                "no_target": read_only(np.zeros((n, kernel.N_SWING))),
+                "cold": read_only(np.zeros((n, self.n_rows), bool)), "warm_out": np.zeros((n, self.n_rows), bool),
                 "no_load": (np.zeros((n, 2)), np.zeros((n, 3)), np.zeros(0, np.int64))}  # read, never written
         return c
 

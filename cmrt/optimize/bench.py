@@ -6,7 +6,7 @@
     into ``ctrl`` at each control step (the evaluation holds them in between), each clip for exactly
     the steps it ran in the evaluation (a clip that fell stops at its fall), split into the same groups
     on the same threads as ``simulate_batch`` (one group per core, a one-thread Batch in its own thread)
-    and stepped through the same call (``simulate._direct_step``). Pushes are applied at the same steps,
+    and stepped through the same call (``simulate.direct_step``). Pushes are applied at the same steps,
     and a prop with per-step logic (the ball's release, grip and hand-over: ``Prop.step``) runs it as in
     the evaluation, so the replay is the evaluation's physics: ``replay_max_divergence_m`` is how far the
     replayed CoM strays from the closed-loop one (0 when the replay is bit for bit; open loop, any
@@ -50,7 +50,7 @@ from cmrt.motion.ensemble import training_members
 from cmrt.motion.library import library_curve
 from cmrt.motion.task import Task
 from cmrt.optimize.parallel import Evaluator, evaluate_candidate
-from cmrt.sim.simulate import _direct_step, _threads, settled_state, simulate_batch
+from cmrt.sim.simulate import direct_step, settled_state, simulate_batch, thread_count
 
 # (evaluations, wall seconds) of one full optimization of a task: supplied by the caller (the CLI runs
 # ``jobs.optimize_now``; this module sits below the store and the service)
@@ -100,7 +100,7 @@ def replay_physics(task: Task, replay: Replay, threads: int | None = None,
     threads as ``simulate_batch`` splits a batch. ``com_out`` (steps, n, 2): filled with the replayed CoM at
     the start of each step (not while timing). Returns the steps each clip was stepped (from its clock)."""
     n = replay.steps.size
-    groups = min(n, threads or _threads(n))
+    groups = min(n, threads or thread_count(n))
     settled_state(task, config)  # cached before the threads share it, as simulate_batch does
     if groups <= 1:
         return _replay_group(task, replay, np.arange(n), config, com_out)
@@ -137,7 +137,7 @@ def _replay_group(task: Task, replay: Replay, rows: np.ndarray, config: Controll
     batch.forward(stage=vel_stage)
     prop_steps = type(prop).step is not Prop.step  # the ball: released, gripped and handed over mid-clip
     every, every_step = config.control_every, prop.every_step
-    step_rows, rows32, ids, sel = _direct_step(batch, vel_stage), None, np.arange(n), slice(None)
+    step_rows, rows32, ids, sel = direct_step(batch, vel_stage), None, np.arange(n), slice(None)
     next_end = steps.min()
     ctrl_b, push_b = b["ctrl"], b["xfrc_applied"]
     for k in range(steps.max()):

@@ -41,7 +41,7 @@ import numpy as np
 from cmrt.body.character import FOOT_POINT_RADIUS_M, character
 from cmrt.body.props import CONTACT_FORCE_N, model_values, prop_class
 from cmrt.control import ControllerConfig, MomentumBalanceController
-from cmrt.control.controller import _read_only
+from cmrt.control.controller import read_only
 from cmrt.control.planar import PlanarKinematics
 from cmrt.control.references import MotionCom, Targets, YuReference, motion_com
 from cmrt.control.stepping import StepCommand, StepConfig, StepSupervisor
@@ -65,7 +65,7 @@ PROTECTIVE_DAMPING_PER_RAD_S = 0.1
 # Scoring runs in the center mode with feet planted do their control steps in one compiled call
 # (cmrt.sim.tick); False runs them on the Python path, as traces do (tests compare the two bit for bit).
 COMPILED_TICK = True
-# ...and step the batch through MuJoCo's bound C++ ``step`` (see ``_direct_step``); False: ``Batch.step``.
+# ...and step the batch through MuJoCo's bound C++ ``step`` (see ``direct_step``); False: ``Batch.step``.
 DIRECT_STEP = True
 CONTROL_FIELDS = ("qpos", "qvel", "cdof", "cdof_dot", "cvel", "cinert", "M", "qfrc_bias", "qfrc_passive",
                   "subtree_com", "xpos", "geom_xpos")
@@ -182,7 +182,8 @@ class _Geometry:
 _SETTLED: dict = {}
 
 
-def _threads(n: int) -> int:
+def thread_count(n: int) -> int:
+    """Threads for a batch of ``n`` simulations: ``$CMRT_THREADS`` (default: the CPUs), at most ``n``."""
     return max(1, min(n, int(os.environ.get("CMRT_THREADS", os.cpu_count() or 1))))
 
 
@@ -491,7 +492,7 @@ def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarra
     return ctrl, bad, plan_cop  # the fallen: motors off, their joints passive (``_Limp``)
 
 
-def _direct_step(batch: mujoco.batch.Batch, stage: mujoco.mjtStage):
+def direct_step(batch: mujoco.batch.Batch, stage: mujoco.mjtStage):
     """``step(ids32)``: ``batch.step(ids, stage=stage)`` without the checks ``Batch.step`` makes of its ids
     on every call (dtype, order, uniqueness, range: 5 us, as much Python as the rest of a lean step), for
     ids the scoring loop validated once when they changed - sorted, unique, in range, int32 - or None for
@@ -556,13 +557,13 @@ class _CompiledTick:
         bound = [b[name] for name in self.FIELDS]
         self.strided = [(f, np.empty(f.shape)) for f in bound if not f.flags.c_contiguous]
         buffers = {id(f): buf for f, buf in self.strided}
-        self.fields = tuple(_read_only(buffers.get(id(f), f)) for f in bound)
+        self.fields = tuple(read_only(buffers.get(id(f), f)) for f in bound)
         self.ctrl, self.dt, self.control_dt, self.nb, self.mass_kg = b["ctrl"], dt, control_dt, nb, mass_kg
         self.geometry = (geo.points, geo.body_geoms, geo.half, geo.radius, geo.leg_dofs, geo.root_pitch, act,
                          FOOT_POINT_RADIUS_M, CONTACT_HEIGHT_M, limits.com_height_m, limits.airborne_s,
                          limits.roll_rad, limits.capture_margin_m)
         self.controller = (c.chain, c.m_rows, c.m_cols, c.point_bodies, c.actuated, c.bounds, c.w2, c.params)
-        self.drive = (*(_read_only(r if variants else r[None]) for r in (drive.q_ref, drive.qd_ref, drive.qdd_ref)),
+        self.drive = (*(read_only(r if variants else r[None]) for r in (drive.q_ref, drive.qd_ref, drive.qdd_ref)),
                       drive.variant_of.astype(np.int64) if variants else np.zeros(n, np.int64),
                       drive.disp_m, drive.disp_vel_m_s)
         self.lean = (lean_check, rec["prop_force"], CONTACT_FORCE_N)
@@ -618,7 +619,7 @@ def simulate_batch(
     members = list(perturbations) if perturbations is not None else [NOMINAL] * n
     if len(members) != n:
         raise ValueError("one perturbation per CMRT")
-    groups = min(n, threads or _threads(n))
+    groups = min(n, threads or thread_count(n))
     if groups <= 1:
         return _simulate_group(task, curves, config, record, limits, members)
     settled_state(task, config)  # cached once, before the threads share it
@@ -725,7 +726,7 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
         sample_x = np.full((n, n_steps, n_points), np.nan)  # heel/toe x at the CoP sample steps
         sensors = b["sensordata"][:, :n_points]
         every, every_step, thorax = config.control_every, prop.every_step, ch.thorax_body
-        step_rows, rows32 = _direct_step(batch, vel_stage), None  # rows32: the stepped rows, int32 (None: all)
+        step_rows, rows32 = direct_step(batch, vel_stage), None  # rows32: the stepped rows, int32 (None: all)
         while k < n_steps:
             if k >= next_end:
                 ids = still_running(k)

@@ -109,7 +109,7 @@ def test_a_step_the_compiled_path_cannot_do_hands_the_clip_to_the_python_path(na
 
 
 def test_the_direct_step_is_taken_and_equals_batch_step(monkeypatch):
-    """The scoring loop steps through MuJoCo's bound C++ ``step`` with ids validated once (``_direct_step``):
+    """The scoring loop steps through MuJoCo's bound C++ ``step`` with ids validated once (``direct_step``):
     with the installed MuJoCo that path is taken (``Batch.step`` is not called), and every array is bit for
     bit what ``Batch.step`` gives - also after falls, when only some rows step."""
     task = load_task("bend").with_speed(0.4)
