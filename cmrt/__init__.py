@@ -36,7 +36,8 @@ if TYPE_CHECKING:
     from cmrt.motion.ensemble import Perturbation, RobustSpec
     from cmrt.motion.library import library_curve
     from cmrt.motion.sequence import load_sequence
-    from cmrt.motion.task import Task, available_tasks, load_task
+    from cmrt.motion.task import Task
+    from cmrt.motion.taskfile import available_tasks, load_task
     from cmrt.optimize.driver import OptimizeSettings
     from cmrt.optimize.parallel import Evaluator
     from cmrt.service.interpolate import interpolate, superpose
@@ -67,7 +68,7 @@ _API = {
     "StoredEvaluation": "cmrt.service.store",
     "Task": "cmrt.motion.task",
     "Trajectory": "cmrt.sim.simulate",
-    "available_tasks": "cmrt.motion.task",
+    "available_tasks": "cmrt.motion.taskfile",
     "best_run": "cmrt.service.query",
     "character": "cmrt.body.character",
     "claim": "cmrt.service.jobs",
@@ -77,7 +78,7 @@ _API = {
     "library_curve": "cmrt.motion.library",
     "load_model": "cmrt.body.character",
     "load_sequence": "cmrt.motion.sequence",
-    "load_task": "cmrt.motion.task",
+    "load_task": "cmrt.motion.taskfile",
     "nearest_start": "cmrt.service.warmstart",
     "open_store": "cmrt.service.store",
     "optimize_family": "cmrt.service.jobs",

@@ -19,7 +19,7 @@ import sqlite_utils
 
 from cmrt.cli import commands as cli
 from cmrt.motion.curve import Cmrt
-from cmrt.motion.task import load_task
+from cmrt.motion.taskfile import load_task
 from cmrt.service.store import (
     MIGRATIONS,
     Generation,

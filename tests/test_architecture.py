@@ -184,5 +184,5 @@ def test_imports_inside_functions_are_only_the_shells_lazy_heavy_ones():
     what the verbs load.)"""
     lazy = {(m, t) for m, p in MODULES.items() for t, _, inside in _imports(p) if inside}
     assert {(m, t) for m, t in lazy if m != "cli.commands"} <= {
-        ("service.query", "motion.curve"), ("service.query", "motion.task"), ("cli.launch", "cli.commands"),
+        ("service.query", "motion.curve"), ("service.query", "motion.taskfile"), ("cli.launch", "cli.commands"),
         ("cli", "cli.commands")}

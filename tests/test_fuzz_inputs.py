@@ -31,7 +31,8 @@ from cmrt.body.character import POSE_JOINTS, SIDED_JOINTS
 from cmrt.body.props import PROPS
 from cmrt.cli import commands as cli
 from cmrt.motion.ensemble import RobustSpec
-from cmrt.motion.task import DEFAULT_PARAMS, TASKS_DIR
+from cmrt.motion.task import DEFAULT_PARAMS
+from cmrt.motion.taskfile import TASKS_DIR
 from cmrt.sim import objective
 from tests.input_helpers import assert_valid_json, fake_evaluation, make_store, snapshot
 

@@ -20,7 +20,8 @@ from cmrt.errors import CmrtError
 from cmrt.inputs import MAX_RUN_S, Range, shown
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.sequence import load_sequence
-from cmrt.motion.task import DEFAULT_PARAMS, available_tasks, load_task, task_from_dict
+from cmrt.motion.task import DEFAULT_PARAMS
+from cmrt.motion.taskfile import available_tasks, load_task, task_from_dict
 from cmrt.sim import objective
 from tests.input_helpers import assert_refused, assert_valid_json, call, fake_evaluation, make_store, snapshot
 

@@ -34,7 +34,7 @@ def test_the_wheel_ships_every_task_sequence_and_asset(tmp_path):
 def test_tasks_are_found_through_the_package_not_the_working_directory(tmp_path, monkeypatch):
     """Loading by name does not depend on where cmrt is run from."""
     monkeypatch.chdir(tmp_path)
-    from cmrt.motion.task import available_tasks, load_task
+    from cmrt.motion.taskfile import available_tasks, load_task
 
     assert {"bend", "catch", "punch", "push", "rise"} <= set(available_tasks())
     assert load_task("bend").name == "bend"

@@ -99,7 +99,7 @@ def test_random_success_bad_input_is_one_line_and_exit_2(args, message, capsys):
 
 def test_success_rate_summary_of_dict_rows():
     """The summary reads the rows as the dicts measure() builds (it used attribute access and crashed)."""
-    from cmrt.motion.task import load_task
+    from cmrt.motion.taskfile import load_task
 
     tool = load_tool("success_rate.py")
     task = load_task("bend").with_speed(0.4)  # stop_threshold 0.7
@@ -138,7 +138,7 @@ def test_success_rate_bad_seeds_exit_2():
 # --- tools/peer_benchmark.py ---------------------------------------------------------------------
 
 def test_peer_benchmark_counts_the_first_success_and_the_first_under_the_threshold():
-    from cmrt.motion.task import load_task
+    from cmrt.motion.taskfile import load_task
 
     tool = load_tool("peer_benchmark.py")
     budget = tool.Budget(load_task("bend").with_speed(0.4), evaluator=None, max_evals=5)  # threshold 0.7

@@ -43,7 +43,7 @@ import analyze_reference  # noqa: E402  (a sibling tool)
 from cmrt.cli.commands import evaluation_dict  # noqa: E402
 from cmrt.control import ControllerConfig  # noqa: E402
 from cmrt.errors import CmrtError  # noqa: E402
-from cmrt.motion.task import TASKS_DIR, task_from_dict  # noqa: E402
+from cmrt.motion.taskfile import TASKS_DIR, task_from_dict  # noqa: E402
 from cmrt.sim.objective import evaluate  # noqa: E402
 from cmrt.sim.simulate import simulate  # noqa: E402
 

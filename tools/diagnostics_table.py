@@ -12,7 +12,7 @@ import json
 import time
 
 from cmrt.motion.library import library_curve
-from cmrt.motion.task import load_task
+from cmrt.motion.taskfile import load_task
 from cmrt.sim.objective import evaluate
 from cmrt.sim.simulate import simulate
 

@@ -17,7 +17,7 @@ import json
 import time
 
 from cmrt.control.stepping import RULES
-from cmrt.motion.task import load_task
+from cmrt.motion.taskfile import load_task
 from cmrt.sim.objective import evaluate
 from cmrt.sim.simulate import simulate
 

@@ -17,7 +17,7 @@ import sys
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.library import library_curve, load_entries
-from cmrt.motion.task import load_task
+from cmrt.motion.taskfile import load_task
 from cmrt.sim.objective import evaluate
 from cmrt.sim.simulate import simulate
 from cmrt.sim.validate import robustness

@@ -234,7 +234,7 @@ def _parse_sets(items: list[str] | None) -> dict[str, str]:
 
 def resolve_task(name: str, speed: float | None, sets: list[str] | None, reference: str | None = None) -> Task:
     """A task by name or path, with ``--set`` overrides, ``--speed`` and ``--reference`` applied (validated)."""
-    from cmrt.motion.task import load_task
+    from cmrt.motion.taskfile import load_task
 
     task = load_task(name).with_reference(reference)
     overrides = _parse_sets(sets)
@@ -452,7 +452,7 @@ class Tasks(Command):
     name, help = "tasks", "list the shipped tasks"
 
     def run(self, args):
-        from cmrt.motion.task import available_tasks, load_task
+        from cmrt.motion.taskfile import available_tasks, load_task
 
         rows = []
         for name in available_tasks():
@@ -922,7 +922,7 @@ class Demo(Command):
         while)."""
         from cmrt.motion.curve import Cmrt
         from cmrt.motion.library import library_curve
-        from cmrt.motion.task import load_task
+        from cmrt.motion.taskfile import load_task
         from cmrt.optimize.driver import OptimizeSettings
         from cmrt.optimize.parallel import Evaluator
         from cmrt.service import jobs, query

@@ -11,7 +11,8 @@ from pathlib import Path
 
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
-from cmrt.motion.task import Task, active_params, load_task
+from cmrt.motion.task import Task, active_params
+from cmrt.motion.taskfile import load_task
 
 LIBRARY_PATH = Path(__file__).parent / "library.json"
 SPEED_TOLERANCE = 1e-9

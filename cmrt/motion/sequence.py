@@ -30,7 +30,8 @@ from cmrt import inputs
 from cmrt.errors import CmrtError
 from cmrt.inputs import MAX_RUN_S, Range, shown
 from cmrt.motion.curve import Cmrt
-from cmrt.motion.task import DEFAULT_PARAMS, MAX_TEXT, TASKS_DIR, Task, load_task
+from cmrt.motion.task import DEFAULT_PARAMS, Task
+from cmrt.motion.taskfile import MAX_TEXT, TASKS_DIR, load_task
 
 SEQUENCES_DIR = TASKS_DIR / "sequences"
 SEQUENCE_KEYS = frozenset({"name", "summary", "tail_s", "cop_sample_step_s", "motion"})

@@ -20,7 +20,8 @@ from cmrt.errors import CmrtError
 from cmrt.motion.curve import MIN_GAP_S, N_KNOTS, Cmrt
 from cmrt.motion.library import library_curve, load_entries
 from cmrt.motion.sequence import SequenceTask, SuperposedCmrt
-from cmrt.motion.task import Task, active_params, load_task
+from cmrt.motion.task import Task, active_params
+from cmrt.motion.taskfile import load_task
 from cmrt.service.store import Run, Store
 
 IGNORED_PARAMS = ("stop_threshold",)  # do not change the physics of a clip

@@ -23,7 +23,8 @@ from collections.abc import Callable, Iterator, Sequence
 from cmrt import inputs
 from cmrt.errors import CmrtError, TransientFault, pending_termination
 from cmrt.motion.curve import Cmrt
-from cmrt.motion.task import Task, task_from_dict
+from cmrt.motion.task import Task
+from cmrt.motion.taskfile import task_from_dict
 from cmrt.optimize.driver import CmaState, OptimizeSettings, best_cmrt, new_state, restart_if_stalled, step, stop_reason
 from cmrt.optimize.parallel import Evaluator
 from cmrt.service.store import Claim, Generation, LostClaim, Run, RunProgress, RunSpec, Store, StoredEvaluation

@@ -47,7 +47,7 @@ def best_run(store: Store, task: Task) -> Run:
 
 def task_of(run: Run) -> Task:
     """The task exactly as the run was queued with (not the task file as it is now)."""
-    from cmrt.motion.task import task_from_dict  # MuJoCo: listing and showing runs do not load it
+    from cmrt.motion.taskfile import task_from_dict  # MuJoCo: listing and showing runs do not load it
 
     return task_from_dict(run.task_definition, source=f"run {run.id}")
 

@@ -22,7 +22,8 @@ from cmrt import inputs  # noqa: E402
 from cmrt.errors import CmrtError  # noqa: E402
 from cmrt.motion.curve import Cmrt  # noqa: E402
 from cmrt.motion.sequence import load_sequence  # noqa: E402
-from cmrt.motion.task import Task, load_task  # noqa: E402
+from cmrt.motion.task import Task
+from cmrt.motion.taskfile import load_task  # noqa: E402
 from cmrt.service.interpolate import candidates, interpolate, superpose  # noqa: E402
 from cmrt.service.query import task_of  # noqa: E402
 from cmrt.service.store import Store, StoredEvaluation  # noqa: E402

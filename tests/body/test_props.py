@@ -21,7 +21,7 @@ from cmrt.body.props import (
     strike_success,
 )
 from cmrt.motion.curve import Cmrt
-from cmrt.motion.task import task_from_dict
+from cmrt.motion.taskfile import task_from_dict
 from tests.sim.test_simulate import assert_plausible
 
 NQ = 15  # the humanoid's coordinates come first in a trace's qpos; the prop's follow

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from cmrt.body.character import character
-from cmrt.motion.task import load_task
+from cmrt.motion.taskfile import load_task
 
 
 @pytest.fixture

@@ -17,7 +17,7 @@ from cmrt.body.character import character
 from cmrt.cli.commands import main
 from cmrt.control.references import motion_com
 from cmrt.motion.library import load_entries
-from cmrt.motion.task import task_from_dict
+from cmrt.motion.taskfile import task_from_dict
 from cmrt.service.interpolate import interpolate
 from cmrt.service.warmstart import nearest_start
 from cmrt.sim.simulate import simulate_batch

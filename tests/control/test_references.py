@@ -15,7 +15,7 @@ import pytest
 
 from cmrt.body.character import GRAVITY_M_S2, character
 from cmrt.control.references import WinterPendulum, YuReference, motion_com
-from cmrt.motion.task import load_task
+from cmrt.motion.taskfile import load_task
 
 
 def _state(q: np.ndarray):

@@ -16,7 +16,7 @@ from cmrt.control.stepping import (
     desired_cop_x,
     swing_profile,
 )
-from cmrt.motion.task import available_tasks, load_task
+from cmrt.motion.taskfile import available_tasks, load_task
 
 HEEL_TO_CENTER_M, FOOT_M = 0.12, 0.24
 FEET_TOGETHER_X = np.array([[-0.06, 0.18, -0.06, 0.18]])  # heel_r, toe_r, heel_l, toe_l

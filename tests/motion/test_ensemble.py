@@ -7,7 +7,7 @@ from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.ensemble import NOMINAL, Perturbation, RobustSpec, combine, training_members, validation_members
 from cmrt.motion.library import library_curve
-from cmrt.motion.task import load_task, task_from_dict
+from cmrt.motion.taskfile import load_task, task_from_dict
 from cmrt.optimize.parallel import evaluate_batch
 from cmrt.sim.objective import evaluate
 from cmrt.sim.simulate import simulate_batch

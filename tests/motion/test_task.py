@@ -3,7 +3,8 @@ import pytest
 
 from cmrt.body.character import character
 from cmrt.errors import CmrtError
-from cmrt.motion.task import DEFAULT_PARAMS, Task, available_tasks, load_task, task_from_dict
+from cmrt.motion.task import DEFAULT_PARAMS, Task
+from cmrt.motion.taskfile import available_tasks, load_task, task_from_dict
 
 
 def test_shipped_tasks_load():

@@ -5,7 +5,7 @@ import pytest
 
 from cmrt.cli.commands import main
 from cmrt.motion.curve import Cmrt
-from cmrt.motion.task import load_task
+from cmrt.motion.taskfile import load_task
 from cmrt.optimize.bench import record_replay, replay_physics
 from cmrt.sim.simulate import simulate_batch
 from tests.service_helpers import cmrt

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from cmrt.errors import CmrtError
-from cmrt.motion.task import load_task
+from cmrt.motion.taskfile import load_task
 from cmrt.optimize.checkpoint import MAGIC, InvalidCheckpoint, pack_document, unpack_document
 from cmrt.optimize.driver import (
     CmaState,

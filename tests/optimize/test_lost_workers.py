@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from cmrt.motion.task import load_task
+from cmrt.motion.taskfile import load_task
 from cmrt.optimize.parallel import LOST_WORKER_ERRORS, Evaluator
 
 TASK = load_task("bend").with_speed(0.4)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from cmrt.errors import CmrtError
-from cmrt.motion.task import load_task
+from cmrt.motion.taskfile import load_task
 from cmrt.optimize.memory import MEMORY_SHARE_ENV, clip_bytes, clips_per_batch, memory_share, physical_memory_bytes
 from cmrt.optimize.parallel import evaluate_batch
 
@@ -46,7 +46,7 @@ HEAP_CHILD = r"""
 import json, resource, sys
 import numpy as np
 from cmrt.optimize.parallel import evaluate_batch
-from cmrt.motion.task import load_task
+from cmrt.motion.taskfile import load_task
 task = load_task("bend").with_speed(0.4)
 rng = np.random.default_rng(0)
 peaks = []

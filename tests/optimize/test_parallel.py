@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from cmrt.errors import CmrtError
-from cmrt.motion.task import load_task
+from cmrt.motion.taskfile import load_task
 from cmrt.optimize.parallel import Evaluator
 from cmrt.service.jobs import claim, run_claimed, submit
 from cmrt.service.store import open_store

@@ -8,7 +8,7 @@ import time
 import pytest
 
 from cmrt.errors import CmrtError
-from cmrt.motion.task import load_task
+from cmrt.motion.taskfile import load_task
 from cmrt.optimize.parallel import Evaluator
 from cmrt.service.jobs import claim, optimize_family, run_claimed, submit, work
 from cmrt.service.store import open_store

@@ -15,7 +15,7 @@ import pytest
 
 from cmrt.cli.commands import main
 from cmrt.errors import CmrtError
-from cmrt.motion.task import load_task
+from cmrt.motion.taskfile import load_task
 from cmrt.optimize.parallel import Evaluator
 from cmrt.service.jobs import claim, run_claimed, submit, work
 from cmrt.service.store import MAX_RETRIES, open_store

@@ -8,7 +8,7 @@ import pytest
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.library import load_entries
-from cmrt.motion.task import load_task
+from cmrt.motion.taskfile import load_task
 from cmrt.service.jobs import submit
 from cmrt.service.store import open_store
 from cmrt.service.warmstart import COLD, nearest_start, resolve_init, task_distance

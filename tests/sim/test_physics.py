@@ -5,7 +5,7 @@ import numpy as np
 
 from cmrt.body.character import character
 from cmrt.control.momentum import KinematicsScratch, centroidal_momentum_matrix
-from cmrt.motion.task import load_task
+from cmrt.motion.taskfile import load_task
 from cmrt.sim.simulate import simulate
 
 

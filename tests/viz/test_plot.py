@@ -4,7 +4,7 @@ import matplotlib.image as mpimg
 import pytest
 
 from cmrt.cli.commands import main
-from cmrt.motion.task import load_task
+from cmrt.motion.taskfile import load_task
 from cmrt.service.jobs import submit
 from cmrt.service.store import open_store
 from tests.service_helpers import FAST_BEND, cmrt

@@ -8,7 +8,7 @@ import pytest
 
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
-from cmrt.motion.task import load_task
+from cmrt.motion.taskfile import load_task
 from cmrt.viz.render import render as render_clip
 from tests.service_helpers import FAST_BEND, cmrt
 
