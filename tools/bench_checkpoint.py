@@ -17,7 +17,8 @@ import time
 
 import numpy as np
 
-from cmrt.optimize.driver import CmaState, OptimizeSettings, new_state, restart_if_stalled, step
+from cmrt import OptimizeSettings
+from cmrt.optimize.driver import CmaState, new_state, restart_if_stalled, step
 from cmrt.sim.objective import EvalRecord
 
 

@@ -20,9 +20,9 @@ import sys
 CHILD = r"""
 import json, resource, sys
 import numpy as np
+from cmrt import load_task
 from cmrt.optimize.memory import clip_bytes
 from cmrt.optimize.parallel import evaluate_batch
-from cmrt.motion.taskfile import load_task
 task = load_task(sys.argv[1])
 if sys.argv[3] != "-":
     task = task.with_params(clip_s=float(sys.argv[3]))

@@ -40,12 +40,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import analyze_reference  # noqa: E402  (a sibling tool)
 
+from cmrt import CmrtError, ControllerConfig, evaluate, simulate
 from cmrt.cli.commands import evaluation_dict  # noqa: E402
-from cmrt.control import ControllerConfig  # noqa: E402
-from cmrt.errors import CmrtError  # noqa: E402
 from cmrt.motion.taskfile import TASKS_DIR, task_from_dict  # noqa: E402
-from cmrt.sim.objective import evaluate  # noqa: E402
-from cmrt.sim.simulate import simulate  # noqa: E402
 
 POSE_DEG = {"lumbar": (0, 45), "hip": (-110, -40), "knee": (0, 90), "neck": (-20, 10), "shoulder": (-150, 40)}
 GROUPS = {"trunk": ("hip", "lumbar", "neck"), "legs": ("knee", "ankle"), "arms": ("shoulder",)}

@@ -23,9 +23,8 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from cmrt import load_task
-from cmrt.motion.curve import Cmrt
-from cmrt.optimize.bench import _candidates, record_replay, replay_physics
+from cmrt import Cmrt, load_task
+from cmrt.optimize.bench import bench_candidates, record_replay, replay_physics
 from cmrt.sim import simulate as simulate_module  # noqa: E402
 from cmrt.sim.simulate import simulate_batch
 
@@ -39,7 +38,7 @@ def main() -> None:
     args = p.parse_args()
     task = load_task(args.task).with_speed(args.speed)
     n = args.population
-    curves = [Cmrt.from_params(x, task.clip_s) for x in _candidates(task, n)]
+    curves = [Cmrt.from_params(x, task.clip_s) for x in bench_candidates(task, n)]
     replay = record_replay(task, curves)  # also the warm-up: compiled code, settled state
     spent = {"step": 0.0, "tick": 0.0}
     step, control_tick = mujoco.batch.Batch.step, simulate_module.control_tick

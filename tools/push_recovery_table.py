@@ -16,10 +16,8 @@ import argparse
 import json
 import time
 
+from cmrt import evaluate, load_task, simulate
 from cmrt.control.stepping import RULES
-from cmrt.motion.taskfile import load_task
-from cmrt.sim.objective import evaluate
-from cmrt.sim.simulate import simulate
 
 SUPERVISORS = {0: "standing (no stepping)", **{k: f"{v} supervisor" for k, v in RULES.items()}}
 

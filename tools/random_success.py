@@ -27,13 +27,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cmrt import Cmrt, CmrtError, OptimizeSettings, Task, evaluate
 from cmrt.cli.commands import resolve_task
-from cmrt.errors import CmrtError
 from cmrt.inputs import SEED, SPEED, Range
-from cmrt.motion.curve import Cmrt
-from cmrt.motion.task import Task
-from cmrt.optimize.driver import OptimizeSettings, new_state
-from cmrt.sim.objective import evaluate
+from cmrt.optimize.driver import new_state
 from cmrt.sim.simulate import simulate_batch
 
 SAMPLES = Range(1, 100_000, integer=True)

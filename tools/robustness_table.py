@@ -14,13 +14,8 @@ import argparse
 import json
 import sys
 
-from cmrt.errors import CmrtError
-from cmrt.motion.curve import Cmrt
-from cmrt.motion.library import library_curve, load_entries
-from cmrt.motion.taskfile import load_task
-from cmrt.sim.objective import evaluate
-from cmrt.sim.simulate import simulate
-from cmrt.sim.validate import robustness
+from cmrt import Cmrt, CmrtError, evaluate, library_curve, load_task, robustness, simulate
+from cmrt.motion.library import load_entries
 
 
 def rows(only: str | None) -> list[dict]:

@@ -57,7 +57,7 @@ from cmrt.sim.simulate import direct_step, settled_state, simulate_batch, thread
 OptimizeFn = Callable[[Task], tuple[int, float]]
 
 
-def _candidates(task: Task, n: int) -> list[np.ndarray]:
+def bench_candidates(task: Task, n: int) -> list[np.ndarray]:
     """Small perturbations of the library optimum (most clips run to the end), or of the flat start."""
     try:
         base = library_curve(task).to_params()
@@ -169,7 +169,7 @@ def run_bench(task: Task, population: int = 16, repeat: int = 5, backends=BACKEN
     m = task.model()  # the humanoid and the task's prop
     n_steps = int(round((task.clip_s + task.tail_s) / m.opt.timestep))  # what an evaluation simulates
     threads = os.cpu_count() or 1
-    xs = _candidates(task, population)
+    xs = bench_candidates(task, population)
     curves = [Cmrt.from_params(x, task.clip_s) for x in xs]
     state = settled_state(task, ControllerConfig())
     replay = record_replay(task, curves)  # also the warm-up: settled state, compiled controller
