@@ -86,6 +86,14 @@ def test_every_module_has_a_layer():
     assert {layer(m) for m in MODULES} - {"__init__"} == set(RANK)
 
 
+def test_every_layer_has_a_readme():
+    for _, tops in LAYERS[1:]:
+        for top in tops:
+            readme = PACKAGE / top / "README.md"
+            assert readme.is_file(), readme
+            assert 5 <= len(readme.read_text().splitlines()) <= 25, readme
+
+
 @pytest.mark.parametrize("module", sorted(set(MODULES) - {"__init__"}))
 def test_imports_point_down(module):
     for target, _, _ in _imports(MODULES[module]):
