@@ -29,6 +29,12 @@ def test_the_wheel_ships_every_task_sequence_and_asset(tmp_path):
     assert {"cmrt/motion/tasks/bend.toml", "cmrt/motion/tasks/sequences/four-poses.toml", "cmrt/body/humanoid.xml",
             "cmrt/motion/library.json", "cmrt/cli/__main__.py"} <= needed
     assert needed <= shipped, sorted(needed - shipped)
+    (entry_points,) = [n for n in shipped if n.endswith(".dist-info/entry_points.txt")]
+    script = zipfile.ZipFile(wheel).read(entry_points).decode()
+    assert "cmrt = cmrt.cli.launch:main" in script  # the console script's target exists (below)
+    from cmrt.cli.launch import main
+
+    assert callable(main)
 
 
 def test_tasks_are_found_through_the_package_not_the_working_directory(tmp_path, monkeypatch):
