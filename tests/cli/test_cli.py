@@ -148,3 +148,11 @@ def test_optimizer_defaults_come_from_optimize_settings(tmp_path):
     d = OptimizeSettings()
     assert (run_.seed, run_.max_evals, run_.popsize, run_.sigma0, run_.min_evals, run_.stall_generations) == (
         d.seed, d.max_evals, d.popsize, d.sigma0, d.min_evals, d.stall_generations)
+
+
+def test_the_package_entry_runs_the_command(capsys):
+    """``cmrt.cli.main`` (what ``python -m cmrt.cli`` and the console script run) is the command itself."""
+    from cmrt.cli import main
+
+    assert main(["tasks", "--json"]) == 0
+    assert "bend" in {row["name"] for row in json.loads(capsys.readouterr().out)}
