@@ -12,8 +12,6 @@ The public API for scripts; the CLI (``cmrt``) is a thin layer over it::
 
 import importlib
 import os as _os
-import sys
-import types
 from typing import TYPE_CHECKING
 
 # The controller's matrices are tiny: BLAS thread pools only add overhead and, with
@@ -31,74 +29,75 @@ if "MUJOCO_GL" not in _os.environ:
 # which a Ctrl-C may interrupt - does not load MuJoCo, numba and dask up front. Type checkers and IDEs see
 # the imports below.
 if TYPE_CHECKING:
-    from cmrt.balance import BalanceLimits, FallReason
-    from cmrt.character import character, load_model
+    from cmrt.body.character import character, load_model
     from cmrt.control import ControllerConfig, MomentumBalanceController
-    from cmrt.curve import Cmrt
-    from cmrt.ensemble import Perturbation, RobustSpec
     from cmrt.errors import CmrtError
-    from cmrt.interpolate import interpolate, superpose
-    from cmrt.jobs import claim, optimize_family, optimize_now, submit, work
-    from cmrt.library import library_curve
-    from cmrt.objective import Evaluation, evaluate
-    from cmrt.optimize import OptimizeSettings
-    from cmrt.parallel import Evaluator
-    from cmrt.query import best_run, export_run, run_curve, run_details, task_of
-    from cmrt.sequence import load_sequence
-    from cmrt.simulate import Trajectory, simulate
-    from cmrt.store import Generation, Run, Store, StoredEvaluation, open_store
-    from cmrt.task import Task, available_tasks, load_task
-    from cmrt.validate import robustness
-    from cmrt.warmstart import nearest_start
+    from cmrt.motion.curve import Cmrt
+    from cmrt.motion.ensemble import Perturbation, RobustSpec
+    from cmrt.motion.library import library_curve
+    from cmrt.motion.sequence import load_sequence
+    from cmrt.motion.task import Task
+    from cmrt.motion.taskfile import available_tasks, load_task
+    from cmrt.optimize.driver import OptimizeSettings
+    from cmrt.optimize.parallel import Evaluator
+    from cmrt.service.interpolate import interpolate, superpose
+    from cmrt.service.jobs import claim, optimize_family, optimize_now, submit, work
+    from cmrt.service.query import best_run, export_run, run_curve, run_details, task_of
+    from cmrt.service.store import Generation, Run, Store, StoredEvaluation, open_store
+    from cmrt.service.warmstart import nearest_start
+    from cmrt.sim.balance import BalanceLimits, FallReason
+    from cmrt.sim.objective import Evaluation, evaluate
+    from cmrt.sim.simulate import Trajectory, simulate
+    from cmrt.sim.validate import robustness
 
 _API = {
-    "BalanceLimits": "cmrt.balance",
-    "Cmrt": "cmrt.curve",
+    "BalanceLimits": "cmrt.sim.balance",
+    "Cmrt": "cmrt.motion.curve",
     "CmrtError": "cmrt.errors",
     "ControllerConfig": "cmrt.control",
-    "Evaluation": "cmrt.objective",
-    "Evaluator": "cmrt.parallel",
-    "FallReason": "cmrt.balance",
-    "Generation": "cmrt.store",
+    "Evaluation": "cmrt.sim.objective",
+    "Evaluator": "cmrt.optimize.parallel",
+    "FallReason": "cmrt.sim.balance",
+    "Generation": "cmrt.service.store",
     "MomentumBalanceController": "cmrt.control",
-    "OptimizeSettings": "cmrt.optimize",
-    "Perturbation": "cmrt.ensemble",
-    "RobustSpec": "cmrt.ensemble",
-    "Run": "cmrt.store",
-    "Store": "cmrt.store",
-    "StoredEvaluation": "cmrt.store",
-    "Task": "cmrt.task",
-    "Trajectory": "cmrt.simulate",
-    "available_tasks": "cmrt.task",
-    "best_run": "cmrt.query",
-    "character": "cmrt.character",
-    "claim": "cmrt.jobs",
-    "evaluate": "cmrt.objective",
-    "export_run": "cmrt.query",
-    "interpolate": "cmrt.interpolate",
-    "library_curve": "cmrt.library",
-    "load_model": "cmrt.character",
-    "load_sequence": "cmrt.sequence",
-    "load_task": "cmrt.task",
-    "nearest_start": "cmrt.warmstart",
-    "open_store": "cmrt.store",
-    "optimize_family": "cmrt.jobs",
-    "optimize_now": "cmrt.jobs",
-    "robustness": "cmrt.validate",
-    "run_curve": "cmrt.query",
-    "run_details": "cmrt.query",
-    "simulate": "cmrt.simulate",
-    "submit": "cmrt.jobs",
-    "superpose": "cmrt.interpolate",
-    "task_of": "cmrt.query",
-    "work": "cmrt.jobs",
+    "OptimizeSettings": "cmrt.optimize.driver",
+    "Perturbation": "cmrt.motion.ensemble",
+    "RobustSpec": "cmrt.motion.ensemble",
+    "Run": "cmrt.service.store",
+    "Store": "cmrt.service.store",
+    "StoredEvaluation": "cmrt.service.store",
+    "Task": "cmrt.motion.task",
+    "Trajectory": "cmrt.sim.simulate",
+    "available_tasks": "cmrt.motion.taskfile",
+    "best_run": "cmrt.service.query",
+    "character": "cmrt.body.character",
+    "claim": "cmrt.service.jobs",
+    "evaluate": "cmrt.sim.objective",
+    "export_run": "cmrt.service.query",
+    "interpolate": "cmrt.service.interpolate",
+    "library_curve": "cmrt.motion.library",
+    "load_model": "cmrt.body.character",
+    "load_sequence": "cmrt.motion.sequence",
+    "load_task": "cmrt.motion.taskfile",
+    "nearest_start": "cmrt.service.warmstart",
+    "open_store": "cmrt.service.store",
+    "optimize_family": "cmrt.service.jobs",
+    "optimize_now": "cmrt.service.jobs",
+    "robustness": "cmrt.sim.validate",
+    "run_curve": "cmrt.service.query",
+    "run_details": "cmrt.service.query",
+    "simulate": "cmrt.sim.simulate",
+    "submit": "cmrt.service.jobs",
+    "superpose": "cmrt.service.interpolate",
+    "task_of": "cmrt.service.query",
+    "work": "cmrt.service.jobs",
 }
 
 
 def __getattr__(name: str):
     module = _API.get(name)
     if module is None:
-        try:  # a submodule: cmrt.jobs, cmrt.plot, ...
+        try:  # a layer package: cmrt.service, cmrt.viz, ...
             return importlib.import_module(f"cmrt.{name}")
         except ModuleNotFoundError:
             raise AttributeError(f"module 'cmrt' has no attribute '{name}'") from None
@@ -109,19 +108,6 @@ def __getattr__(name: str):
 
 def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_API))
-
-
-class _Package(types.ModuleType):
-    """``cmrt.simulate`` and ``cmrt.interpolate`` are API functions with the names of their modules. Importing
-    a submodule binds it on the package; for these names the function wins, as it did with eager imports."""
-
-    def __setattr__(self, name: str, value) -> None:
-        if name in _API and isinstance(value, types.ModuleType):
-            return
-        super().__setattr__(name, value)
-
-
-sys.modules[__name__].__class__ = _Package
 
 
 __all__ = [

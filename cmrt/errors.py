@@ -12,7 +12,7 @@ class CmrtError(ValueError):
 class TransientFault(RuntimeError):
     """A fault of the machine, not of the input or the code: a full disk, a lost dask or loky worker, a
     SIGTERM. The worker gives the run back to the queue (it resumes from its last checkpoint) up to
-    ``cmrt.store.MAX_RETRIES`` times, then marks it failed with the reason."""
+    ``cmrt.service.store.MAX_RETRIES`` times, then marks it failed with the reason."""
 
 
 class Terminated(KeyboardInterrupt):

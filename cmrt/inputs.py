@@ -41,7 +41,7 @@ Rules (the ranges, the README's "bad input" paragraph quotes them):
   written to a temporary file in the target's directory and moved over the target with
   ``os.replace``: a failed write leaves nothing, or the old file, behind, never half a file.
 
-This module is the foundation layer: it imports nothing of cmrt but ``errors``.
+This module is in the base layer: it imports nothing of cmrt but ``errors``.
 """
 
 from __future__ import annotations
@@ -68,11 +68,6 @@ MAX_NESTING = 32  # brackets / braces deep in a TOML or JSON input
 MAX_NUMBER_CHARS = 40  # a number written with more characters than this is refused unparsed
 MAX_RUN_S = 60.0  # clip_s + tail_s: the longest simulated clip (memory: see the module docstring)
 INT64_MAX = 2**63 - 1
-
-# The choices of --reference and --backend, defined here (and imported by cmrt.control.references and
-# cmrt.parallel) so that building the command line does not import MuJoCo, numba or dask.
-REFERENCE_MODES = ("center", "yu")
-BACKENDS = ("batch", "serial", "loky", "loky+batch", "dask", "dask+batch")
 
 
 # --- showing user values --------------------------------------------------------------
@@ -223,7 +218,7 @@ REPEAT = Range(1, 100, integer=True)  # bench
 MAX_SPEEDS = 32  # members of a --speeds family
 MAX_SETS = 64  # --set options
 
-#: Ranges of the parameters every task has (``cmrt.task.DEFAULT_PARAMS``); a prop declares its own
+#: Ranges of the parameters every task has (``cmrt.motion.task.DEFAULT_PARAMS``); a prop declares its own
 #: (``Prop.LIMITS``). Any other parameter of a task file is a finite number with |x| <= 1e9.
 TASK_PARAMS: dict[str, Range] = {
     "clip_s": Range(0.0, MAX_RUN_S, lo_open=True, unit="s"),

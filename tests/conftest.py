@@ -11,8 +11,8 @@ import pytest  # noqa: E402
 def queued_store(tmp_path):
     """A real store file holding one queued fast-bend run (run 1), nothing optimized."""
     from cmrt import load_task
-    from cmrt.jobs import submit
-    from cmrt.store import open_store
+    from cmrt.service.jobs import submit
+    from cmrt.service.store import open_store
 
     path = tmp_path / "s.sqlite"
     with open_store(path) as s:

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import sqlite_utils
 
-from cmrt import cli
-from cmrt.curve import Cmrt
-from cmrt.objective import Evaluation
-from cmrt.store import (
+from cmrt.cli import commands as cli
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.taskfile import load_task
+from cmrt.service.store import (
     MIGRATIONS,
     Generation,
     RunProgress,
@@ -28,7 +28,7 @@ from cmrt.store import (
     StoredEvaluation,
     open_store,
 )
-from cmrt.task import load_task
+from cmrt.sim.objective import Evaluation
 
 MAX_SECONDS = 20.0  # "within seconds", with room for a loaded 2-core machine and first imports
 

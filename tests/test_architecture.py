@@ -1,7 +1,8 @@
 """The package's boundaries, checked on its source: which layer may import which, and where SQL lives.
 
-Layers, lowest first (docs/architecture.md): a module imports only from its own layer or one below it,
-so data flows one way - task -> simulate -> objective -> optimizer -> store -> query -> CLI.
+One package per layer (docs/architecture.md), lowest first; a module imports only from its own layer or
+one below it, so data flows one way - body -> control -> motion -> sim -> optimize -> service -> viz -> cli.
+The top-level modules (``errors``, ``modes``, ``inputs``) are the base every layer may use.
 """
 
 import ast
@@ -12,21 +13,23 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parent.parent / "cmrt"
 
+#: Layers, lowest first: a package each, the base its top-level modules.
 LAYERS: list[tuple[str, set[str]]] = [
-    ("foundation", {"errors", "inputs", "balance", "character", "curve", "ensemble", "control", "control.controller",
-                    "control.kernel", "control.momentum", "control.planar", "control.references",
-                    "control.stepping"}),
-    ("physics", {"props", "reference", "task", "sequence", "library", "tick", "simulate", "objective", "validate",
-                 "render"}),
-    ("optimizer", {"checkpoint", "optimize", "memory", "parallel", "bench"}),
-    ("store", {"store"}),
-    ("service", {"warmstart", "jobs", "query", "interpolate", "plot"}),
-    ("shell", {"cli", "launch"}),
+    ("base", {"errors", "modes", "inputs"}),
+    ("body", {"body"}),
+    ("control", {"control"}),
+    ("motion", {"motion"}),
+    ("sim", {"sim"}),
+    ("optimize", {"optimize"}),
+    ("service", {"service"}),
+    ("viz", {"viz"}),
+    ("cli", {"cli"}),
 ]
-RANK = {module: rank for rank, (_, modules) in enumerate(LAYERS) for module in modules}
+RANK = {top: rank for rank, (_, tops) in enumerate(LAYERS) for top in tops}
 
 
 def _modules() -> dict[str, Path]:
+    """Every module by dotted name inside cmrt (``sim.simulate``; a package by its own name, ``sim``)."""
     out = {}
     for path in PACKAGE.rglob("*.py"):
         name = ".".join(path.relative_to(PACKAGE).with_suffix("").parts)
@@ -34,46 +37,148 @@ def _modules() -> dict[str, Path]:
     return out
 
 
-def _imports(path: Path) -> list[tuple[str, bool]]:
-    """(imported cmrt module, imported inside a function) for every import in the file."""
+MODULES = _modules()
+
+
+def layer(module: str) -> str:
+    """The layer of a module (``sim.tick`` -> ``sim``; ``errors`` -> ``errors``)."""
+    return module.split(".")[0]
+
+
+def _target(package: str, name: str) -> str:
+    """What ``from cmrt.<package> import <name>`` imports: the submodule ``name`` if there is one, else
+    (a name defined in the package's module) the package itself."""
+    full = f"{package}.{name}" if package else name
+    return full if full in MODULES else package or "__init__"
+
+
+def _imports(path: Path) -> list[tuple[str, list[str], bool]]:
+    """(imported cmrt module, names taken from it, whether the import is inside a function) for every import
+    in the file (those under ``if TYPE_CHECKING`` too: a circle a type checker sees is a circle)."""
     tree = ast.parse(path.read_text())
     inner = {id(n) for f in ast.walk(tree) if isinstance(f, ast.FunctionDef | ast.AsyncFunctionDef)
              for n in ast.walk(f) if n is not f}
     found = []
     for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "cmrt":
-            if node.module == "cmrt":
-                found += [(a.name, id(node) in inner) for a in node.names]
-            else:
-                found.append((node.module.removeprefix("cmrt."), id(node) in inner))
+            package = node.module.removeprefix("cmrt").removeprefix(".")
+            for alias in node.names:
+                found.append((_target(package, alias.name), [alias.name], id(node) in inner))
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.split(".")[0] == "cmrt" and alias.name != "cmrt":
+                    found.append((alias.name.removeprefix("cmrt."), [], id(node) in inner))
     return found
 
 
+def _edges() -> dict[str, set[str]]:
+    return {m: {t for t, _, _ in _imports(p)} - {m} for m, p in MODULES.items()}
+
+
+def test_cmrt_holds_one_folder_per_layer_and_the_base_modules():
+    """``ls cmrt/``: the layers' packages and the base modules, nothing else."""
+    entries = {p.name for p in PACKAGE.iterdir() if p.name != "__pycache__"}
+    assert entries == {"__init__.py", "errors.py", "modes.py", "inputs.py"} | {
+        top for _, tops in LAYERS[1:] for top in tops}
+
+
 def test_every_module_has_a_layer():
-    assert set(_modules()) - {"__init__"} == set(RANK)
+    assert {layer(m) for m in MODULES} - {"__init__"} == set(RANK)
 
 
-@pytest.mark.parametrize("module", sorted(RANK))
+def test_every_layer_has_a_readme():
+    for _, tops in LAYERS[1:]:
+        for top in tops:
+            readme = PACKAGE / top / "README.md"
+            assert readme.is_file(), readme
+            assert 5 <= len(readme.read_text().splitlines()) <= 25, readme
+
+
+@pytest.mark.parametrize("module", sorted(set(MODULES) - {"__init__"}))
 def test_imports_point_down(module):
-    path = _modules()[module]
-    for target, _ in _imports(path):
-        assert RANK[target] <= RANK[module], f"{module} ({LAYERS[RANK[module]][0]}) imports {target} " \
-                                             f"({LAYERS[RANK[target]][0]})"
+    for target, _, _ in _imports(MODULES[module]):
+        assert target != "__init__", f"{module} imports the top-level API (cmrt/__init__.py)"
+        assert RANK[layer(target)] <= RANK[layer(module)], \
+            f"{module} ({layer(module)}) imports {target} ({layer(target)}): an upward import"
+
+
+def test_no_import_circle():
+    """No module reaches itself through imports (a lazy one inside a function counts too)."""
+    edges = _edges()
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+
+    def visit(module: str, path: list[str]) -> None:
+        state[module] = 1
+        for target in sorted(edges.get(module, ())):
+            if state.get(target) == 1:
+                cycle = path[path.index(target):] + [target] if target in path else [module, target]
+                pytest.fail(f"import circle: {' -> '.join(cycle)}")
+            if target not in state:
+                visit(target, path + [target])
+        state[module] = 2
+
+    for module in sorted(edges):
+        if module not in state:
+            visit(module, [module])
+
+
+def _private_uses(module: str, path: Path) -> list[str]:
+    """Underscore names of another layer's modules that ``module`` uses: imported by name, or read as an
+    attribute of an imported module (``kernel._x``)."""
+    out = []
+    modules_bound = {}  # local name -> cmrt module it is bound to
+    tree = ast.parse(path.read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "cmrt":
+            package = node.module.removeprefix("cmrt").removeprefix(".")
+            for alias in node.names:
+                target = _target(package, alias.name)
+                if target == (f"{package}.{alias.name}" if package else alias.name):
+                    modules_bound[alias.asname or alias.name] = target
+                elif alias.name.startswith("_") and layer(target) != layer(module):
+                    out.append(f"{target}.{alias.name}")
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.asname and alias.name.startswith("cmrt."):
+                    modules_bound[alias.asname] = alias.name.removeprefix("cmrt.")
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.attr.startswith("_") \
+                and not node.attr.startswith("__"):
+            target = modules_bound.get(node.value.id)
+            if target is not None and layer(target) != layer(module):
+                out.append(f"{target}.{node.attr}")
+    return out
+
+
+def test_no_layer_uses_another_layers_private_names():
+    """A leading underscore is private to its layer: another layer uses only public names."""
+    offenders = {m: uses for m, p in MODULES.items() if (uses := _private_uses(m, p))}
+    assert offenders == {}
+
+
+def test_modes_are_constants_and_the_controller_reads_no_user_input_checks():
+    """``modes`` imports nothing; the controller's modes come from it, not from the CLI's ``inputs``."""
+    tree = ast.parse(MODULES["modes"].read_text())
+    code = ast.Import | ast.ImportFrom | ast.FunctionDef | ast.ClassDef
+    assert not [n for n in ast.walk(tree) if isinstance(n, code)]
+    for module, path in MODULES.items():
+        if layer(module) == "control":
+            assert "inputs" not in {t for t, _, _ in _imports(path)}, module
 
 
 def test_the_store_depends_on_nothing_but_errors():
-    assert {t for t, _ in _imports(_modules()["store"])} <= {"errors"}
+    assert {t for t, _, _ in _imports(MODULES["service.store"])} <= {"errors"}
 
 
 def test_only_the_shell_imports_the_job_queue():
-    for module, path in _modules().items():
-        if module not in ("cli", "__init__", "jobs"):
-            assert "jobs" not in {t for t, _ in _imports(path)}, module
+    for module, path in MODULES.items():
+        if layer(module) != "cli" and module not in ("__init__", "service.jobs"):
+            assert "service.jobs" not in {t for t, _, _ in _imports(path)}, module
 
 
 def test_no_sql_outside_the_store():
     sql = re.compile(r"\b(SELECT|INSERT INTO|UPDATE \w+ SET|DELETE FROM|CREATE TABLE|PRAGMA)\b")
-    offenders = [f"{m}: {line.strip()}" for m, p in _modules().items() if m != "store"
+    offenders = [f"{m}: {line.strip()}" for m, p in MODULES.items() if m != "service.store"
                  for line in p.read_text().splitlines() if sql.search(line)]
     assert offenders == []
 
@@ -82,7 +187,10 @@ def test_imports_inside_functions_are_only_the_shells_lazy_heavy_ones():
     """An import inside a function must have a reason: each CLI verb imports what it uses when it runs
     (MuJoCo, numba, scipy, pycma, dask, matplotlib: ~4 s), so that the parser and the verbs that only read
     the store start at once, and ``query`` reads a run's task and curve (MuJoCo, scipy) only when asked for
-    them. Anywhere else it would hide a cycle or a wrong-way edge. ``launch`` imports the CLI inside
-    ``main`` so that a Ctrl-C during start-up is handled. (tests/test_cli.py checks what the verbs load.)"""
-    lazy = {(m, t) for m, p in _modules().items() for t, inside in _imports(p) if inside}
-    assert {(m, t) for m, t in lazy if m != "cli"} <= {("query", "curve"), ("query", "task"), ("launch", "cli")}
+    them. Anywhere else it would hide a cycle or a wrong-way edge. ``cli.launch`` (and ``cli.main``) import
+    the commands inside ``main`` so that a Ctrl-C during start-up is handled. (tests/cli/test_cli.py checks
+    what the verbs load.)"""
+    lazy = {(m, t) for m, p in MODULES.items() for t, _, inside in _imports(p) if inside}
+    assert {(m, t) for m, t in lazy if m != "cli.commands"} <= {
+        ("service.query", "motion.curve"), ("service.query", "motion.taskfile"), ("cli.launch", "cli.commands"),
+        ("cli", "cli.commands")}

@@ -27,11 +27,13 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from cmrt import cli, objective
-from cmrt.character import POSE_JOINTS, SIDED_JOINTS
-from cmrt.ensemble import RobustSpec
-from cmrt.props import PROPS
-from cmrt.task import DEFAULT_PARAMS, TASKS_DIR
+from cmrt.body.character import POSE_JOINTS, SIDED_JOINTS
+from cmrt.body.props import PROPS
+from cmrt.cli import commands as cli
+from cmrt.motion.ensemble import RobustSpec
+from cmrt.motion.task import DEFAULT_PARAMS
+from cmrt.motion.taskfile import TASKS_DIR
+from cmrt.sim import objective
 from tests.input_helpers import assert_valid_json, fake_evaluation, make_store, snapshot
 
 FAST = settings(max_examples=25, deadline=None, derandomize=True, database=None,
@@ -94,7 +96,7 @@ def check(result, json_out: bool = True) -> int:
 def _no_physics():
     """The simulator replaced by a stub whose evaluation is all NaN (it must print as null)."""
     # the CLI imports them when a verb runs: patched where they live (``cmrt.simulate`` names the function)
-    with mock.patch.object(sys.modules["cmrt.simulate"], "simulate", lambda task, curve, record=True: None), \
+    with mock.patch.object(sys.modules["cmrt.sim.simulate"], "simulate", lambda task, curve, record=True: None), \
             mock.patch.object(objective, "evaluate", lambda task, traj: fake_evaluation()):
         yield
 
@@ -201,7 +203,7 @@ def _task_file_property(work, data):
     store = _fresh_store(work)
     rc = check(run_cli(["submit", _task_file(work, data), "--init", "none", "--json"], store))
     if rc == 0:  # a task that passed validation is a task the service can run: it is in range and finite
-        from cmrt.store import open_store
+        from cmrt.service.store import open_store
         with open_store(store) as s:
             run = s.runs()[-1]
         assert all(math.isfinite(v) for v in run.params.values())

@@ -13,13 +13,16 @@ import sys
 import numpy as np
 import pytest
 
-from cmrt import cli, inputs, objective
-from cmrt.curve import Cmrt
+from cmrt import inputs
+from cmrt.body.props import PROPS
+from cmrt.cli import commands as cli
 from cmrt.errors import CmrtError
 from cmrt.inputs import MAX_RUN_S, Range, shown
-from cmrt.props import PROPS
-from cmrt.sequence import load_sequence
-from cmrt.task import DEFAULT_PARAMS, available_tasks, load_task, task_from_dict
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.sequence import load_sequence
+from cmrt.motion.task import DEFAULT_PARAMS
+from cmrt.motion.taskfile import available_tasks, load_task, task_from_dict
+from cmrt.sim import objective
 from tests.input_helpers import assert_refused, assert_valid_json, call, fake_evaluation, make_store, snapshot
 
 
@@ -212,7 +215,7 @@ def test_show_and_export_json_never_print_nan(tmp_path, capsys):
 
 def test_simulate_json_turns_nan_into_null(tmp_path, capsys, monkeypatch):
     # the CLI imports them when a verb runs: patched where they live (``cmrt.simulate`` names the function)
-    monkeypatch.setattr(sys.modules["cmrt.simulate"], "simulate", lambda task, curve, record=True: None)
+    monkeypatch.setattr(sys.modules["cmrt.sim.simulate"], "simulate", lambda task, curve, record=True: None)
     monkeypatch.setattr(objective, "evaluate", lambda task, traj: fake_evaluation())
     store = tmp_path / "s.sqlite"
     r = call(capsys, ["simulate", "bend", "--json", "--store", store])

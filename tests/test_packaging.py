@@ -24,16 +24,23 @@ def test_the_wheel_ships_every_task_sequence_and_asset(tmp_path):
                    check=True, capture_output=True)
     (wheel,) = tmp_path.glob("cmrt-*.whl")
     shipped = set(zipfile.ZipFile(wheel).namelist())
-    needed = {str(p.relative_to(ROOT)) for sub in ("tasks", "assets") for p in (PACKAGE / sub).rglob("*")
-              if p.is_file() and "__pycache__" not in p.parts}
-    assert {"cmrt/tasks/bend.toml", "cmrt/tasks/sequences/four-poses.toml", "cmrt/assets/humanoid.xml"} <= needed
+    needed = {str(p.relative_to(ROOT)) for p in PACKAGE.rglob("*")  # every module and data file of every layer
+              if p.is_file() and "__pycache__" not in p.parts and p.name != "README.md"}
+    assert {"cmrt/motion/tasks/bend.toml", "cmrt/motion/tasks/sequences/four-poses.toml", "cmrt/body/humanoid.xml",
+            "cmrt/motion/library.json", "cmrt/cli/__main__.py"} <= needed
     assert needed <= shipped, sorted(needed - shipped)
+    (entry_points,) = [n for n in shipped if n.endswith(".dist-info/entry_points.txt")]
+    script = zipfile.ZipFile(wheel).read(entry_points).decode()
+    assert "cmrt = cmrt.cli.launch:main" in script  # the console script's target exists (below)
+    from cmrt.cli.launch import main
+
+    assert callable(main)
 
 
 def test_tasks_are_found_through_the_package_not_the_working_directory(tmp_path, monkeypatch):
     """Loading by name does not depend on where cmrt is run from."""
     monkeypatch.chdir(tmp_path)
-    from cmrt.task import available_tasks, load_task
+    from cmrt.motion.taskfile import available_tasks, load_task
 
     assert {"bend", "catch", "punch", "push", "rise"} <= set(available_tasks())
     assert load_task("bend").name == "bend"

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from cmrt import evaluate, simulate
-from cmrt.character import character
+from cmrt.body.character import character
 from cmrt.control import ControllerConfig
-from cmrt.optimize import OptimizeSettings, new_state
+from cmrt.optimize.driver import OptimizeSettings, new_state
 
 ROOT = Path(__file__).resolve().parent.parent
 TOOLS = ROOT / "tools"
@@ -99,7 +99,7 @@ def test_random_success_bad_input_is_one_line_and_exit_2(args, message, capsys):
 
 def test_success_rate_summary_of_dict_rows():
     """The summary reads the rows as the dicts measure() builds (it used attribute access and crashed)."""
-    from cmrt.task import load_task
+    from cmrt.motion.taskfile import load_task
 
     tool = load_tool("success_rate.py")
     task = load_task("bend").with_speed(0.4)  # stop_threshold 0.7
@@ -138,7 +138,7 @@ def test_success_rate_bad_seeds_exit_2():
 # --- tools/peer_benchmark.py ---------------------------------------------------------------------
 
 def test_peer_benchmark_counts_the_first_success_and_the_first_under_the_threshold():
-    from cmrt.task import load_task
+    from cmrt.motion.taskfile import load_task
 
     tool = load_tool("peer_benchmark.py")
     budget = tool.Budget(load_task("bend").with_speed(0.4), evaluator=None, max_evals=5)  # threshold 0.7
@@ -300,7 +300,7 @@ def test_diagnostics_table_tool():
 def test_find_library_curve_tool_no_save_leaves_the_library_alone():
     """A two-speed family on a tiny budget (the first run and a warm-started one); --no-save must not
     touch the shipped library."""
-    library = ROOT / "cmrt" / "assets" / "library.json"
+    library = ROOT / "cmrt" / "motion" / "library.json"
     before = library.read_bytes()
     r = run_tool("find_library_curve.py", "bend", "--speeds", "0.4,0.6", "--max-evals", "10", "--no-save")
     assert library.read_bytes() == before

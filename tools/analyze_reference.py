@@ -40,10 +40,10 @@ import mujoco
 import numpy as np
 from scipy.optimize import linprog
 
-from cmrt.character import character, feet_flat_qpos, support_interval_x
+from cmrt import character, load_task
+from cmrt.body.character import feet_flat_qpos, support_interval_x
 from cmrt.control.controller import ControllerConfig
 from cmrt.control.momentum import centroidal_momentum_matrix
-from cmrt.task import load_task
 
 DT_S = 0.002
 LP_STEP = 5  # the shifts' grid: every 5th 2 ms sample (10 ms)

@@ -16,8 +16,7 @@ import time
 
 import numpy as np
 
-from cmrt import library_curve, load_task
-from cmrt.parallel import Evaluator
+from cmrt import Evaluator, library_curve, load_task
 
 
 def main() -> None:

@@ -17,8 +17,9 @@ import time
 
 import numpy as np
 
-from cmrt.objective import EvalRecord
-from cmrt.optimize import CmaState, OptimizeSettings, new_state, restart_if_stalled, step
+from cmrt import OptimizeSettings
+from cmrt.optimize.driver import CmaState, new_state, restart_if_stalled, step
+from cmrt.sim.objective import EvalRecord
 
 
 def _sphere(xs):

@@ -17,7 +17,7 @@ import time
 import mujoco
 
 from cmrt import ControllerConfig, evaluate, library_curve, load_task, simulate
-from cmrt.simulate import settled_state
+from cmrt.sim.simulate import settled_state
 
 
 def main() -> None:

@@ -1,4 +1,4 @@
-"""Peak memory per simulated clip, measured, against the model the batch size is chosen by (cmrt/memory.py).
+"""Peak memory per simulated clip, measured, against the model the batch size is chosen by (cmrt/optimize/memory.py).
 
 Each measurement is a fresh Python process that scores one candidate (model compiled, start pose
 settled), reads its peak RSS, scores ``--clips`` candidates in one batch (``CMRT_MEMORY_SHARE=1``: no
@@ -20,9 +20,9 @@ import sys
 CHILD = r"""
 import json, resource, sys
 import numpy as np
-from cmrt.memory import clip_bytes
-from cmrt.parallel import evaluate_batch
-from cmrt.task import load_task
+from cmrt import load_task
+from cmrt.optimize.memory import clip_bytes
+from cmrt.optimize.parallel import evaluate_batch
 task = load_task(sys.argv[1])
 if sys.argv[3] != "-":
     task = task.with_params(clip_s=float(sys.argv[3]))

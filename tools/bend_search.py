@@ -10,7 +10,7 @@ windows for the trunk (hip, lumbar, neck), the legs (knee, ankle) and the arms (
 * the inverse-dynamics check of ``tools/analyze_reference.py`` (the reference's minimum vertical ground
   force, its CoP excess beyond the QP's band);
 * if its joints stay at or below 25 rad/s, the zero CMRT simulated on the shipped controller
-  (``cmrt.simulate``, recorded, ``cmrt.objective.evaluate``): success, fall and direction, tracking error
+  (``cmrt.simulate``, recorded, ``cmrt.sim.objective.evaluate``): success, fall and direction, tracking error
   against its bound, timing lag, planned-vs-executed CoP gap.
 
 ``--commit K`` multiplies the tracking weight W of the bend's driving joints (lumbar, hip, knee, neck,
@@ -40,12 +40,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import analyze_reference  # noqa: E402  (a sibling tool)
 
-from cmrt.cli import evaluation_dict  # noqa: E402
-from cmrt.control import ControllerConfig  # noqa: E402
-from cmrt.errors import CmrtError  # noqa: E402
-from cmrt.objective import evaluate  # noqa: E402
-from cmrt.simulate import simulate  # noqa: E402
-from cmrt.task import TASKS_DIR, task_from_dict  # noqa: E402
+from cmrt import CmrtError, ControllerConfig, evaluate, simulate
+from cmrt.cli.commands import evaluation_dict  # noqa: E402
+from cmrt.motion.taskfile import TASKS_DIR, task_from_dict  # noqa: E402
 
 POSE_DEG = {"lumbar": (0, 45), "hip": (-110, -40), "knee": (0, 90), "neck": (-20, 10), "shoulder": (-150, 40)}
 GROUPS = {"trunk": ("hip", "lumbar", "neck"), "legs": ("knee", "ankle"), "arms": ("shoulder",)}

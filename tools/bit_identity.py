@@ -41,12 +41,10 @@ def fingerprint(traj) -> dict:
 
 def clips(quick: bool):
     """(name, list of Trajectory) for the fixed set."""
-    from cmrt import library_curve, load_task
-    from cmrt.ensemble import training_members
-    from cmrt.interpolate import superpose
-    from cmrt.props import prop_class
-    from cmrt.sequence import load_sequence
-    from cmrt.simulate import simulate, simulate_batch
+    from cmrt import library_curve, load_sequence, load_task, simulate, superpose
+    from cmrt.body.props import prop_class
+    from cmrt.motion.ensemble import training_members
+    from cmrt.sim.simulate import simulate_batch
 
     tasks = [("bend-0.4", load_task("bend").with_speed(0.4)), ("catch", load_task("catch"))]
     if not quick:

@@ -11,10 +11,7 @@ import argparse
 import json
 import time
 
-from cmrt.library import library_curve
-from cmrt.objective import evaluate
-from cmrt.simulate import simulate
-from cmrt.task import load_task
+from cmrt import evaluate, library_curve, load_task, simulate
 
 CASES = ("bend:0.4", "bend:1.2", "punch", "push", "catch", "rise")
 KEYS = ("success", "fell", "fall_time_s", "tracking_error_rad", "max_plan_cop_error_m", "timing_lag_s",

@@ -1,13 +1,13 @@
 """Optimize a task at one speed with the real optimizer and ship the result in the library.
 
 Runs ``cmrt.optimize_now`` (CMA-ES, batched evaluation) into a scratch store and writes
-the best CMRT with its provenance to ``cmrt/assets/library.json``, where
+the best CMRT with its provenance to ``cmrt/motion/library.json``, where
 ``--curve library`` finds it.
 
     python tools/find_library_curve.py bend --speed 0.4 --seed 1 --max-evals 1500 --stop-threshold 0
     python tools/find_library_curve.py bend --speed 0.4 --reference yu   # for Yu's reactive reference
 
-``--robust`` scores candidates on the task's ensemble (``cmrt.ensemble``); ``--init auto``
+``--robust`` scores candidates on the task's ensemble (``cmrt.motion.ensemble``); ``--init auto``
 starts from the nearest library CMRT (how the shipped robust CMRTs were made: each from
 the plain CMRT of its own task, with ``--sigma0 0.15``).
 """
@@ -21,8 +21,8 @@ import time
 from pathlib import Path
 
 from cmrt import Evaluator, evaluate, load_task, open_store, optimize_now, run_curve, simulate
-from cmrt.control.references import REFERENCE_MODES
-from cmrt.library import save_entry
+from cmrt.modes import REFERENCE_MODES
+from cmrt.motion.library import save_entry
 
 
 def main() -> None:

@@ -14,8 +14,7 @@ import json
 import tempfile
 from pathlib import Path
 
-from cmrt import Evaluator, evaluate, load_task, open_store, optimize_now, simulate
-from cmrt.interpolate import interpolate
+from cmrt import Evaluator, evaluate, interpolate, load_task, open_store, optimize_now, simulate
 
 
 def main() -> None:

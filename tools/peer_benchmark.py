@@ -38,11 +38,9 @@ from pathlib import Path
 
 import numpy as np
 
-from cmrt import Evaluator, open_store, optimize_now
-from cmrt.cli import resolve_task
-from cmrt.errors import CmrtError
-from cmrt.optimize import N_PARAMS, OptimizeSettings
-from cmrt.task import Task
+from cmrt import CmrtError, Evaluator, OptimizeSettings, Task, open_store, optimize_now
+from cmrt.cli.commands import resolve_task
+from cmrt.optimize.driver import N_PARAMS
 
 OPTIMIZERS = ("cmrt", "optuna", "cmaes", "random")
 BOX = 10.0  # optuna's search box, +- parameter units (+-0.5 m of CoM shift): wider than any shipped CMRT (<= 7.5)

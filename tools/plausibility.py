@@ -14,7 +14,7 @@ import argparse
 import json
 
 from cmrt import CmrtError, evaluate, library_curve, load_task
-from cmrt.simulate import simulate_batch
+from cmrt.sim.simulate import simulate_batch
 
 CASES = [
     ("stand", {}), ("stand", {"push_force_n": 100.0, "push_duration_s": 0.1}),

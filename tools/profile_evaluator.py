@@ -3,8 +3,8 @@
 Alternates, in one process, the physics floor (``cmrt bench``'s: the same clips' recorded torques replayed
 open loop, as many steps as each was evaluated, ``bench.replay_physics``) with ``simulate_batch`` of N
 candidates, both on ONE thread (one ``Batch`` thread; one group of clips), timing the physics steps
-(``Batch.step``, or the scoring loop's direct step, ``simulate._direct_step``) and
-``cmrt.tick.control_tick`` (the controller kernel, the monitor and the records of a control step) inside
+(``Batch.step``, or the scoring loop's direct step, ``simulate.direct_step``) and
+``cmrt.sim.tick.control_tick`` (the controller kernel, the monitor and the records of a control step) inside
 the latter; "rest" is the evaluator's own Python (the loop, CoP samples, setup). On one thread the parts
 add up to the wall time; the default evaluator runs one such group per core in parallel threads, and
 the last column is that: its wall time against the floor on all cores' threads (``cmrt bench``'s ratio).
@@ -17,19 +17,16 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 
 import mujoco
 import mujoco.batch
 import numpy as np
 
-from cmrt import load_task
-from cmrt.bench import _candidates, record_replay, replay_physics
-from cmrt.curve import Cmrt
-from cmrt.simulate import simulate_batch
-
-simulate_module = sys.modules["cmrt.simulate"]  # the module: ``cmrt.simulate`` is also a function's name
+from cmrt import Cmrt, load_task
+from cmrt.optimize.bench import bench_candidates, record_replay, replay_physics
+from cmrt.sim import simulate as simulate_module  # noqa: E402
+from cmrt.sim.simulate import simulate_batch
 
 
 def main() -> None:
@@ -41,18 +38,18 @@ def main() -> None:
     args = p.parse_args()
     task = load_task(args.task).with_speed(args.speed)
     n = args.population
-    curves = [Cmrt.from_params(x, task.clip_s) for x in _candidates(task, n)]
+    curves = [Cmrt.from_params(x, task.clip_s) for x in bench_candidates(task, n)]
     replay = record_replay(task, curves)  # also the warm-up: compiled code, settled state
     spent = {"step": 0.0, "tick": 0.0}
     step, control_tick = mujoco.batch.Batch.step, simulate_module.control_tick
-    direct_step = simulate_module._direct_step
+    direct_step = simulate_module.direct_step
 
     def timed_step(self, *a, **k):  # the Python path's steps
         t0 = time.perf_counter()
         step(self, *a, **k)
         spent["step"] += time.perf_counter() - t0
 
-    def timed_direct_step(batch, stage):  # the scoring loop's steps (simulate._direct_step)
+    def timed_direct_step(batch, stage):  # the scoring loop's steps (simulate.direct_step)
         inner = direct_step(batch, stage)
 
         def timed(rows):
@@ -83,13 +80,13 @@ def main() -> None:
     for _ in range(args.rounds):
         f1 = floor(1)
         mujoco.batch.Batch.step, simulate_module.control_tick = timed_step, timed_tick
-        simulate_module._direct_step = timed_direct_step
+        simulate_module.direct_step = timed_direct_step
         spent.update(step=0.0, tick=0.0)
         try:
             w1 = wall(lambda: simulate_batch(task, curves, threads=1))
         finally:
             mujoco.batch.Batch.step, simulate_module.control_tick = step, control_tick
-            simulate_module._direct_step = direct_step
+            simulate_module.direct_step = direct_step
         fc = floor(cores)
         wc = wall(lambda: simulate_batch(task, curves))
         rows.append((f1, w1, spent["step"], spent["tick"], w1 - spent["step"] - spent["tick"], fc, wc))

@@ -16,10 +16,8 @@ import argparse
 import json
 import time
 
+from cmrt import evaluate, load_task, simulate
 from cmrt.control.stepping import RULES
-from cmrt.objective import evaluate
-from cmrt.simulate import simulate
-from cmrt.task import load_task
 
 SUPERVISORS = {0: "standing (no stepping)", **{k: f"{v} supervisor" for k, v in RULES.items()}}
 

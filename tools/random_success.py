@@ -3,7 +3,7 @@
     python tools/random_success.py bend --speed 0.4 [--set KEY=VALUE ...] [--samples 200] [--seed 1] [--json]
 
 The candidates are drawn from exactly the distribution ``cmrt optimize TASK --init none`` starts from:
-the mean, step size and covariance of the optimizer's own fresh CMA-ES (``cmrt.optimize.new_state``:
+the mean, step size and covariance of the optimizer's own fresh CMA-ES (``cmrt.optimize.driver.new_state``:
 x0 = 0, the flat CMRT, and ``sigma0``) in its 8-parameter space, mapped to CMRTs by the optimizer's
 ``Cmrt.from_params``. They are drawn from a numpy Generator of their own seeded by ``--seed`` (not the
 global RNG, not pycma's), simulated with the batched evaluator (``simulate_batch``) and scored by
@@ -27,14 +27,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cmrt.cli import resolve_task
-from cmrt.curve import Cmrt
-from cmrt.errors import CmrtError
+from cmrt import Cmrt, CmrtError, OptimizeSettings, Task, evaluate
+from cmrt.cli.commands import resolve_task
 from cmrt.inputs import SEED, SPEED, Range
-from cmrt.objective import evaluate
-from cmrt.optimize import OptimizeSettings, new_state
-from cmrt.simulate import simulate_batch
-from cmrt.task import Task
+from cmrt.optimize.driver import new_state
+from cmrt.sim.simulate import simulate_batch
 
 SAMPLES = Range(1, 100_000, integer=True)
 CHUNK = 64  # clips per simulate_batch call: bounds the per-step records' memory (a clip's score does not

@@ -3,7 +3,7 @@
     python tools/robustness_table.py [--json] [--task TASK]
 
 For each shipped (task, speed, parameters): the nominal clip's success and objective, and
-``cmrt.validate.robustness`` (20 seeded perturbed clips: +-25 N x 0.1 s thorax pushes at
+``cmrt.sim.validate.robustness`` (20 seeded perturbed clips: +-25 N x 0.1 s thorax pushes at
 random moments, prop mass +-10 %, timing +-5 %) for the zero CMRT, the plain library CMRT
 and the robust library CMRT.
 """
@@ -14,13 +14,8 @@ import argparse
 import json
 import sys
 
-from cmrt.curve import Cmrt
-from cmrt.errors import CmrtError
-from cmrt.library import library_curve, load_entries
-from cmrt.objective import evaluate
-from cmrt.simulate import simulate
-from cmrt.task import load_task
-from cmrt.validate import robustness
+from cmrt import Cmrt, CmrtError, evaluate, library_curve, load_task, robustness, simulate
+from cmrt.motion.library import load_entries
 
 
 def rows(only: str | None) -> list[dict]:

@@ -20,9 +20,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from cmrt import Evaluator, open_store, optimize_now
-from cmrt.cli import resolve_task
-from cmrt.errors import CmrtError
+from cmrt import CmrtError, Evaluator, open_store, optimize_now
+from cmrt.cli.commands import resolve_task
 
 
 def parse_seeds(text: str) -> list[int]:

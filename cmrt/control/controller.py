@@ -23,7 +23,7 @@ nothing of the ground that it cannot do: what MuJoCo does with them is what was
 planned. When the motion asks for more than the feet can give, the QP trades tracking
 against momentum - it never pulls on the floor. A loss of balance is then what it is
 physically: the CoM drifting past the point of no return and toppling over an edge
-of the feet (``cmrt.balance``), not a launch (docs/controller.md has the measurements).
+of the feet (``cmrt.sim.balance``), not a launch (docs/controller.md has the measurements).
 
 Contact modes follow the measured contact (the heel/toe contact LCP, decided by the
 physics): a foot whose toe (heel) is off the ground - pushed over by something the
@@ -43,12 +43,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cmrt.character import FOOT_POINT_RADIUS_M, Character
+from cmrt.body.character import FOOT_POINT_RADIUS_M, GRAVITY_M_S2, Character
 from cmrt.control import kernel
 from cmrt.control.kernel import AIR, FLAT, HEEL, TOE
 from cmrt.control.planar import PlanarKinematics
 
-GRAVITY_M_S2 = 9.81
 # -DUAL_REGULARIZATION on the multipliers' diagonal of the KKT matrix: redundant support rows
 # (both feet asking the same vertical acceleration of a straight-kneed body: the legs' Jacobians
 # are singular at the knee limit) then solve in the least-squares sense instead of making the
@@ -114,7 +113,8 @@ _FIELDS = ("cdof", "cdof_dot", "cvel", "cinert", "qpos", "qvel", "M", "qfrc_bias
            "geom_xpos")
 
 
-def _read_only(x: np.ndarray) -> np.ndarray:
+def read_only(x: np.ndarray) -> np.ndarray:
+    """A read-only view of ``x`` (the kernel's inputs: numba compiles one signature for read-only arrays)."""
     x = x.view()
     x.flags.writeable = False
     return x
@@ -127,7 +127,7 @@ def _as_kernel(x, dtype=np.float64) -> np.ndarray:
     if x.__class__ is np.ndarray and not x.flags.writeable and x.flags.c_contiguous and x.dtype == dtype:
         return x
     x = np.ascontiguousarray(x, dtype=dtype)
-    return _read_only(x) if x.flags.writeable else x
+    return read_only(x) if x.flags.writeable else x
 
 
 def _shared_rows(r: np.ndarray, buf: np.ndarray, view: np.ndarray) -> np.ndarray:
@@ -199,10 +199,10 @@ class MomentumBalanceController:
             bufs = [np.empty((n, self.nv)) for _ in range(3)]
             c = self._per_n[n] = {
                 "rows": np.arange(n),  # simulation i reads row i (writable int64, as the compiled loop's rows)
-                "refs": [(buf, _read_only(buf)) for buf in bufs],
-                "mass": _read_only(np.full(n, self.mass)), "no_swing": _read_only(np.full(n, -1.0)),
-                "no_target": _read_only(np.zeros((n, kernel.N_SWING))),
-                "cold": _read_only(np.zeros((n, self.n_rows), bool)), "warm_out": np.zeros((n, self.n_rows), bool),
+                "refs": [(buf, read_only(buf)) for buf in bufs],
+                "mass": read_only(np.full(n, self.mass)), "no_swing": read_only(np.full(n, -1.0)),
+                "no_target": read_only(np.zeros((n, kernel.N_SWING))),
+                "cold": read_only(np.zeros((n, self.n_rows), bool)), "warm_out": np.zeros((n, self.n_rows), bool),
                 "no_load": (np.zeros((n, 2)), np.zeros((n, 3)), np.zeros(0, np.int64))}  # read, never written
         return c
 

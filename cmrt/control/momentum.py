@@ -4,7 +4,7 @@ Rows are [L_x, L_z, H_y]: horizontal and vertical linear momentum (kg m/s) and p
 angular momentum about the CoM (kg m^2/s), so that momentum = A qd and its rate =
 A qdd + a. MuJoCo has no built-in for the bias; we take a central finite difference
 of A along qd (two extra kinematics passes on a scratch MjData). Error O(eps^2) with
-eps = 1e-5 s: ~1e-9 relative, checked against MuJoCo in tests/test_physics.py.
+eps = 1e-5 s: ~1e-9 relative, checked against MuJoCo in tests/sim/test_physics.py.
 """
 
 from __future__ import annotations

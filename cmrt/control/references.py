@@ -37,11 +37,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from cmrt.character import Character
-from cmrt.inputs import REFERENCE_MODES  # noqa: F401 - the modes; defined with the CLI's other choices
+from cmrt.body.character import GRAVITY_M_S2, Character
 
-DEFAULT_REFERENCE_MODE = "center"
-GRAVITY_M_S2 = 9.81
 MIN_LOAD_N = 1.0  # below this total foot force the weights of eq. 3.3 are undefined: both feet count half
 
 

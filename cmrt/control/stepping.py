@@ -36,7 +36,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import erf
 
-GRAVITY_M_S2 = 9.81
+from cmrt.body.character import GRAVITY_M_S2
+
 MOMENTUM, CAPTURE_POINT = 1, 2  # the task parameter ``stepping``: 0 off, 1 momentum supervisor, 2 capture point
 RULES = {MOMENTUM: "momentum", CAPTURE_POINT: "capture point"}
 NO_SWING = -1

@@ -4,8 +4,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from cmrt.character import character
-from cmrt.task import load_task
+from cmrt.body.character import character
+from cmrt.motion.taskfile import load_task
 
 
 @pytest.fixture

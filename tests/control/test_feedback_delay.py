@@ -1,17 +1,16 @@
 """The balance feedback's delay (``ControllerConfig.feedback_delay_s``, issue 25): what it acts on, that both
 control-step paths apply it alike, and that it makes the controller less able to absorb a push."""
 
-import sys
 
 import numpy as np
 
 from cmrt import Cmrt, load_task
 from cmrt.control import ControllerConfig
 from cmrt.control.references import Targets
-from cmrt.objective import evaluate
-from cmrt.simulate import _delayed, simulate, simulate_batch
+from cmrt.sim import simulate as simulate_module  # noqa: E402
+from cmrt.sim.objective import evaluate
+from cmrt.sim.simulate import _delayed, simulate, simulate_batch
 
-simulate_module = sys.modules["cmrt.simulate"]
 DELAYED = ControllerConfig(feedback_delay_s=0.1)
 INSTANT = ControllerConfig(feedback_delay_s=0.0)
 

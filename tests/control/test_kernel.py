@@ -3,7 +3,7 @@
 import mujoco
 import numpy as np
 
-from cmrt.character import FOOT_POINT_RADIUS_M
+from cmrt.body.character import FOOT_POINT_RADIUS_M
 from cmrt.control import kernel
 from cmrt.control.momentum import KinematicsScratch, centroidal_momentum_matrix, foot_jacobian
 from cmrt.control.planar import PlanarKinematics

@@ -7,11 +7,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from cmrt.character import character
+from cmrt.body.character import character
 from cmrt.control import ControllerConfig, MomentumBalanceController
 from cmrt.control.kernel import LIMIT_SLACK
-from cmrt.simulate import CONTROL_FIELDS, _in_contact, simulate
-from cmrt.task import load_task
+from cmrt.motion.taskfile import load_task
+from cmrt.sim.simulate import CONTROL_FIELDS, _in_contact, simulate
 
 # 40 % of the MJCF's motor limits: the bend's plan needs more than that at some of the states below.
 WEAK = 0.4

@@ -42,7 +42,7 @@ import numpy as np
 import pytest
 
 import cmrt
-from cmrt.character import FOOT_POINT_RADIUS_M, character
+from cmrt.body.character import FOOT_POINT_RADIUS_M, character
 from cmrt.control import kernel
 from cmrt.control.momentum import centroidal_momentum_matrix
 from cmrt.control.planar import PLANAR, PlanarKinematics

@@ -13,9 +13,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from cmrt.character import character
-from cmrt.control.references import GRAVITY_M_S2, WinterPendulum, YuReference, motion_com
-from cmrt.task import load_task
+from cmrt.body.character import GRAVITY_M_S2, character
+from cmrt.control.references import WinterPendulum, YuReference, motion_com
+from cmrt.motion.taskfile import load_task
 
 
 def _state(q: np.ndarray):

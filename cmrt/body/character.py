@@ -1,0 +1,170 @@
+"""The planar humanoid: model loading, names and indices, and feet-flat poses.
+
+Everything that knows the MJCF's names lives here, so the controller and the
+simulator work with integer indices only.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+from scipy.optimize import brentq
+
+from cmrt.errors import CmrtError
+
+MODEL_PATH = Path(__file__).parent / "humanoid.xml"
+
+#: Joints a task pose may name; a bare name ("hip") sets both sides.
+POSE_JOINTS = ("lumbar", "neck", "shoulder", "elbow", "hip", "knee", "ankle")
+SIDED_JOINTS = ("shoulder", "elbow", "hip", "knee", "ankle")
+FOOT_POINT_RADIUS_M = 0.01
+#: Gravity (m/s^2, pointing down), the MJCF's ``<option gravity>`` (tests/body/test_character.py checks they
+#: agree): the one value the controller, the fall monitor, the props and the objective use. numba compiles it
+#: into its cached functions (sim/balance.py), so it is a constant, never changed at run time.
+GRAVITY_M_S2 = 9.81
+
+
+@functools.cache
+def load_model(path: str = str(MODEL_PATH)) -> mujoco.MjModel:
+    """Compile the MJCF once per process (compiling costs ~10 ms; models are read-only)."""
+    return mujoco.MjModel.from_xml_path(path)
+
+
+@dataclass(frozen=True)
+class Character:
+    """Indices into the model that the controller and simulator need."""
+
+    model: mujoco.MjModel
+    mass_kg: float
+    root_dofs: tuple[int, int, int]  # slide x, slide z, hinge pitch
+    actuated_dofs: tuple[int, ...]  # dof of each actuator, actuator order
+    torque_limit_nm: np.ndarray  # per actuator
+    foot_bodies: tuple[int, int]  # right, left
+    foot_points: tuple[tuple[int, int], tuple[int, int]]  # (heel, toe) geom per foot
+    floor_geom: int
+    thorax_body: int
+    dof_names: tuple[str, ...]
+
+    @property
+    def nv(self) -> int:
+        """Degrees of freedom of the humanoid (root x, z, pitch and the joints)."""
+        return self.model.nv
+
+    @property
+    def foot_point_geoms(self) -> tuple[int, ...]:
+        """Geom ids of the heel and toe spheres (right heel, right toe, left heel, left toe)."""
+        return tuple(g for pair in self.foot_points for g in pair)
+
+    def joint_range_rad(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) of each actuator's joint (rad; +-inf for an unlimited joint): the stops of the MJCF."""
+        m = self.model
+        joints = m.actuator_trnid[:, 0]
+        limited = m.jnt_limited[joints].astype(bool)
+        return (np.where(limited, m.jnt_range[joints, 0], -np.inf), np.where(limited, m.jnt_range[joints, 1], np.inf))
+
+    def dof(self, joint_name: str) -> int:
+        """The dof index of a joint by name."""
+        return int(self.model.joint(joint_name).dofadr[0])
+
+
+@functools.cache
+def character() -> Character:
+    """The humanoid's names and indices, built once per process from ``humanoid.xml``."""
+    m = load_model()
+    name = lambda obj, i: mujoco.mj_id2name(m, obj, i)  # noqa: E731
+    dof_names = tuple(name(mujoco.mjtObj.mjOBJ_JOINT, int(m.dof_jntid[i])) for i in range(m.nv))
+    gid = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n)  # noqa: E731
+    bid = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n)  # noqa: E731
+    return Character(
+        model=m,
+        mass_kg=float(m.body_subtreemass[0]),
+        root_dofs=(0, 1, 2),
+        actuated_dofs=tuple(int(m.jnt_dofadr[m.actuator_trnid[a, 0]]) for a in range(m.nu)),
+        torque_limit_nm=m.actuator_ctrlrange[:, 1].copy(),
+        foot_bodies=(bid("foot_r"), bid("foot_l")),
+        foot_points=((gid("heel_r"), gid("toe_r")), (gid("heel_l"), gid("toe_l"))),
+        floor_geom=gid("floor"),
+        thorax_body=bid("thorax"),
+        dof_names=dof_names,
+    )
+
+
+def joint_angles_from_pose(pose_rad: dict[str, float]) -> dict[str, float]:
+    """Expand a pose (bare names set both sides) into per-joint angles; unknown names fail."""
+    ch = character()
+    out = {n: 0.0 for n in ch.dof_names[3:]}
+    for key, value in pose_rad.items():
+        if key in SIDED_JOINTS:
+            out[f"{key}_r"] = out[f"{key}_l"] = float(value)
+        elif key in out:
+            out[key] = float(value)
+        else:
+            raise CmrtError(f"unknown joint '{key}' in pose (known: {', '.join(POSE_JOINTS)} or *_r/*_l)")
+    return out
+
+
+def support_interval_x(data: mujoco.MjData, foot: int | None = None) -> tuple[float, float]:
+    """[heel x, toe x] over both feet (or one): the support interval of flat feet."""
+    ch = character()
+    feet = ch.foot_points if foot is None else (ch.foot_points[foot],)
+    xs = [data.geom_xpos[g, 0] for pair in feet for g in pair]
+    return float(min(xs)), float(max(xs))
+
+
+def feet_flat_qpos(angles_rad: dict[str, float], balance_joint: str | None = "ankle") -> np.ndarray:
+    """qpos for a pose with both feet flat on the floor, right heel point at x = -0.06 m.
+
+    Root pitch follows from the right leg (foot pitch = root + hip + knee + ankle = 0).
+    If ``balance_joint`` is given (both sides of it), its angle is solved so that the
+    CoM lies over the centre of the support interval: a statically balanced pose.
+    """
+    ch = character()
+    m = ch.model
+    d = mujoco.MjData(m)
+    angles = dict(angles_rad)
+    for side in ("hip", "knee", "ankle"):
+        if abs(angles[f"{side}_r"] - angles[f"{side}_l"]) > 1e-12:
+            raise CmrtError("both feet are on the ground: left and right leg angles must match")
+
+    def place(ankle_offset: float) -> float:
+        a = dict(angles)
+        if balance_joint:
+            a[f"{balance_joint}_r"] = a[f"{balance_joint}_l"] = angles[f"{balance_joint}_r"] + ankle_offset
+        d.qpos[:] = 0.0
+        for jname, val in a.items():
+            d.qpos[m.joint(jname).qposadr[0]] = val
+        d.qpos[2] = -(a["hip_r"] + a["knee_r"] + a["ankle_r"])
+        mujoco.mj_kinematics(m, d)
+        heel = d.geom_xpos[ch.foot_points[0][0]]
+        d.qpos[0] += -0.06 - heel[0]
+        d.qpos[1] += FOOT_POINT_RADIUS_M - heel[2]
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        lo, hi = support_interval_x(d)
+        return float(d.subtree_com[0, 0] - 0.5 * (lo + hi))
+
+    if balance_joint:
+        if place(-0.6) * place(0.6) > 0:
+            raise CmrtError(f"cannot balance the pose with the {balance_joint} joint alone")
+        offset = brentq(place, -0.6, 0.6, xtol=1e-12)
+        place(offset)
+    else:
+        place(0.0)
+    _check_joint_ranges(m, d.qpos)
+    return d.qpos.copy()
+
+
+def _check_joint_ranges(m: mujoco.MjModel, qpos: np.ndarray) -> None:
+    """CmrtError naming the first joint of a pose outside its range in the MJCF (the balance joint's solved angle
+    included): a pose the body cannot take is bad input, not a motion to simulate."""
+    for j in range(m.njnt):
+        if m.jnt_limited[j]:
+            lo, hi = m.jnt_range[j]
+            angle = qpos[m.jnt_qposadr[j]]
+            if not lo - 1e-9 <= angle <= hi + 1e-9:
+                raise CmrtError(f"{m.joint(j).name} = {np.degrees(angle):.1f} deg is outside the joint's range "
+                                f"[{np.degrees(lo):.1f}, {np.degrees(hi):.1f}] deg")

@@ -1,0 +1,1039 @@
+"""The ``cmrt`` command: a thin shell over the Python API.
+
+Each verb is one :class:`Command` (its arguments next to its action); an action calls the
+API and returns an :class:`Output`, which one formatter prints as JSON (``--json``) or
+text. Logic a script would want too lives in the API, not here.
+
+Bad input (unknown task, bad value, unreadable file) prints one line,
+``cmrt: error: ...``, and exits with status 2 - never a traceback. Every argument is checked
+(``cmrt.inputs``: types, finiteness, ranges, input files, output paths) before the first
+simulation and before the first write; outputs are written to a temporary file and moved into
+place, so a failed write says so and leaves nothing half-written. Values from the user are printed
+with their control characters escaped; JSON output never contains NaN or Infinity (null instead).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import signal
+import sqlite3
+import stat
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from cmrt import inputs
+from cmrt.errors import CmrtError, Terminated, TransientFault, clear_signals, note_signal, pending_termination
+from cmrt.inputs import escape, shown
+from cmrt.modes import BACKENDS, REFERENCE_MODES
+from cmrt.service.store import DEFAULT_STORE, RUN_STATUSES, Run, Store, open_store, resolve_path
+
+# Start-up: a verb imports what it uses (MuJoCo, numba, scipy, pycma, dask: ~4 s in all) when it runs, so
+# that `cmrt --help`, `cmrt runs` or `cmrt show` answer at once. Building the parser imports none of them:
+# the optimizer's defaults are filled in after parsing (``_opt_defaults``).
+if TYPE_CHECKING:
+    import numpy as np
+
+    from cmrt.motion.curve import Cmrt
+    from cmrt.motion.task import Task
+    from cmrt.sim.objective import Evaluation
+
+EXIT_BAD_INPUT = 2
+EXIT_TEMPFAIL = 75  # sysexits EX_TEMPFAIL: a fault of the machine; the run is back in the queue
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but usage errors are one line and exit 2 like every other bad input."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise CmrtError(message)
+
+
+# --- output ------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Output:
+    """What a verb returns: ``data`` (printed as JSON with ``--json``) and its human form (a string, or a
+    function of ``data`` returning one)."""
+
+    data: object
+    text: str | Callable[[object], str]
+
+
+def format_output(out: Output, as_json: bool) -> str:
+    """The one formatter: JSON (one line for objects, indented for lists) or the text form."""
+    if as_json:  # never NaN or Infinity: null
+        return inputs.dumps(out.data, indent=None if isinstance(out.data, dict) else 2)
+    return out.text(out.data) if callable(out.text) else out.text
+
+
+def _table(rows: list[dict], keys: tuple[str, ...]) -> str:
+    def fmt(v):
+        if isinstance(v, float):
+            return f"{v:.4g}"
+        return "-" if v is None else escape(str(v))  # a task name from a user's file: no control characters
+
+    cells = [list(keys)] + [[fmt(r.get(k)) for k in keys] for r in rows]
+    widths = [max(len(row[i]) for row in cells) for i in range(len(keys))]
+    return "\n".join("  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)) for row in cells)
+
+
+def _finite(x):
+    return None if x is None or (isinstance(x, float) and not math.isfinite(x)) else x
+
+
+def evaluation_dict(ev: Evaluation) -> dict:
+    """An Evaluation as JSON-safe values (non-finite floats become null)."""
+    return {f.name: _finite(getattr(ev, f.name)) for f in fields(ev)}
+
+
+def _outcome(r: dict) -> str:
+    if r["fell"]:
+        return f"LOST BALANCE at {_n(r['fall_time_s'], '.3f')} s ({r['fall_reason']})"
+    if r["success"]:
+        return "SUCCESS (balance kept, motion performed, standing still)"
+    why = []
+    if r["performed"] is False:
+        why.append("motion not performed" if r["task_success"] is None else "goal missed")
+    if not r["settled"]:
+        why.append("not standing still after the clip")
+    return "balance kept, but " + " and ".join(why)
+
+
+def _n(x, spec: str, scale: float = 1.0) -> str:
+    """A number for the text form; ``-`` for one that is not there (a NaN, null in JSON)."""
+    return "-" if x is None else format(scale * x, spec)
+
+
+def _report_text(r: dict) -> str:
+    speed = f" --speed {r['speed']:g}" if r["speed"] is not None else ""
+    track = _n(r["tracking_error_rad"], ".3f")
+    if r["tracking_bound_rad"] is not None:
+        track += f" (bound {r['tracking_bound_rad']:.3f})"
+    return "\n".join([
+        f"{escape(r['task'])}{speed}  curve={escape(r['curve'])}  reference={r['reference']}: {_outcome(r)}",
+        f"  objective {_n(r['objective'], '.4f')}  (CoP-error 2-norm {_n(r['cop_error_norm'], '.4f')} m "
+        f"+ penalty {_n(r['penalty'], '.2f')}; against its own reference CoP "
+        f"{_n(r['cop_error_own_reference_norm'], '.4f')} m)",
+        f"  min CoP margin {_n(r['min_cop_margin_m'], '.1f', 100)} cm  tracking error {track} rad  final pose error "
+        f"{_n(r['final_pose_error_rad'], '.3f')} rad  [{r['wall_s']:.2f} s]",
+        f"  peak ground force {_n(r['peak_normal_force_bw'], '.2f')} x body weight  airborne "
+        f"{_n(r['airborne_s'], '.3f')} s  max joint speed {_n(r['max_joint_speed_rad_s'], '.1f')} rad/s",
+        *([f"  steps {r['steps']} (lift-off at {', '.join(f'{t:.3f}' for t in r['step_times_s'])} s)"]
+          if r.get("steps") and isinstance(r.get("step_times_s"), list | tuple) else []),
+        f"  planned vs executed CoP {_n(r.get('max_plan_cop_error_m'), '.2f', 1000)} mm  timing lag "
+        f"{_n(r.get('timing_lag_s'), '.3f')} s"
+        + (f" (bound {_n(r['timing_lag_bound_s'], '.3f')} s)" if r.get("timing_lag_bound_s") is not None else ""),
+        *([_after_fall_text(r)] if r.get("fall_direction") is not None else []),
+    ])
+
+
+def _after_fall_text(r: dict) -> str:
+    """The fall's direction and, for a topple played out, how violent it was."""
+    line = f"  fell {r['fall_direction']} (by its {r['fall_direction_source'].replace('_', ' ')})"
+    if r.get("after_fall_max_joint_speed_rad_s") is None:
+        return line
+    floor = r.get("after_fall_floor_contact_s")
+    until = "the end" if floor is None else f"the body on the floor at {floor:.3f} s"
+    return (f"{line}; to {until}: joint speed {_n(r['after_fall_max_joint_speed_rad_s'], '.1f')} rad/s, foot "
+            f"force {_n(r['after_fall_peak_foot_force_bw'], '.2f')} x BW, foot lift "
+            f"{_n(r['after_fall_max_foot_lift_m'], '.1f', 100)} cm")
+
+
+def _result(run: Run) -> dict:
+    """A finished (or running) run as ``optimize``, ``best`` and ``demo`` report it."""
+    return {
+        "run_id": run.id,
+        "task": run.task,
+        "speed": run.speed,
+        "reference": run.reference,
+        "status": run.status,
+        "best_objective": run.best_objective,
+        "success": run.best_success,
+        "fell": run.best_fell,
+        "baseline_objective": run.baseline_objective,
+        "baseline_success": run.baseline_success,
+        "baseline_fell": run.baseline_fell,
+        "evaluations": run.evaluations,
+        "generations": run.generations,
+        "stop_reason": run.stop_reason,
+        "restarts": run.restarts or 0,
+        "init": run.init_source or "none",
+        "robust": run.robust is not None,
+        "robustness": run.robustness,
+        "wall_s": run.wall_s,
+        "best_cmrt": run.best_cmrt,
+    }
+
+
+def _result_text(r: dict) -> str:
+    def outcome(success, fell):
+        return "SUCCESS" if success else ("balance LOST" if fell else "not a success (balance kept)")
+
+    speed = f" --speed {r['speed']:g}" if r["speed"] is not None else ""
+    kind = "robust CMRT:   " if r["robust"] else "optimized CMRT:"
+    lines = [
+        f"run {r['run_id']} {escape(r['task'])}{speed}: {r['status']} ({r['stop_reason']}) after "
+        f"{r['evaluations']} evaluations, {r['restarts']} restarts, {r['wall_s']:.1f} s; start: {escape(r['init'])}",
+        f"  zero CMRT:      objective {r['baseline_objective']:.4f}  "
+        f"{outcome(r['baseline_success'], r['baseline_fell'])}",
+        f"  {kind} objective {r['best_objective']:.4f}  {outcome(r['success'], r['fell'])}",
+    ]
+    rb = r.get("robustness")
+    if rb:
+        margin = "n/a" if rb["min_cop_margin_m"] is None else f"{rb['min_cop_margin_m'] * 100:.1f} cm"
+        lines.append(f"  validation:     {rb['validation_survived']}/{rb['validation_total']} perturbed clips "
+                     f"succeed, {rb['validation_fell']} fall; min CoP margin {margin}")
+    return "\n".join(lines)
+
+
+class _Progress:
+    """tqdm bar on stderr: generation, evaluations, best objective, sigma, evaluations/s."""
+
+    def __init__(self, total: int, enabled: bool):
+        from tqdm import tqdm  # only verbs that optimize pay for it
+
+        self.bar = tqdm(total=total, unit="eval", file=sys.stderr, disable=not enabled, dynamic_ncols=True)
+
+    def __call__(self, state, records, wall_s) -> None:
+        if state.evaluations < self.bar.n:  # the next member of a family
+            self.bar.reset(total=self.bar.total)
+        self.bar.n = min(state.evaluations, self.bar.total)
+        self.bar.set_postfix_str(
+            f"gen {state.generation} best {state.best_objective:.4f} sigma {state.es.sigma:.3f} "
+            f"{state.evaluations / max(wall_s, 1e-9):.1f} eval/s",
+            refresh=True,
+        )
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+# --- inputs ------------------------------------------------------------------------
+def _parse_sets(items: list[str] | None) -> dict[str, str]:
+    """``--set KEY=VALUE`` options: KEY a parameter name, VALUE a finite number (``Task.with_params`` checks
+    its range and shows the text as given)."""
+    out = {}
+    if len(items or []) > inputs.MAX_SETS:
+        raise CmrtError(f"at most {inputs.MAX_SETS} --set options")
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise CmrtError(f"--set expects KEY=VALUE, got {shown(item)}")
+        key = inputs.param_name(key.strip(), "--set KEY")
+        inputs.number(value.strip(), f"--set {key}")
+        out[key] = value.strip()
+    return out
+
+
+def resolve_task(name: str, speed: float | None, sets: list[str] | None, reference: str | None = None) -> Task:
+    """A task by name or path, with ``--set`` overrides, ``--speed`` and ``--reference`` applied (validated)."""
+    from cmrt.motion.taskfile import load_task
+
+    task = load_task(name).with_reference(reference)
+    overrides = _parse_sets(sets)
+    if overrides:
+        try:
+            task = task.with_params(**overrides)
+        except CmrtError as exc:
+            raise CmrtError(f"--set: {exc}") from None
+    try:
+        return task.with_speed(speed)
+    except CmrtError as exc:
+        raise CmrtError(f"--speed: {exc}") from None
+
+
+def resolve_curve(spec: str, task: Task, store_path: str | None = None, flag: str = "--curve") -> tuple[Cmrt, str]:
+    """zero | library | library-robust | RUN (a stored run id) | FILE.json -> (curve, description)."""
+    from cmrt.motion.curve import Cmrt
+    from cmrt.motion.library import library_curve
+    from cmrt.service import query
+
+    if spec == "zero":
+        return Cmrt.zero(task.clip_s), "zero"
+    if spec in ("library", "library-robust"):
+        curve = library_curve(task, robust=spec == "library-robust")
+        if abs(curve.clip_s - task.clip_s) > 1e-9:  # the library's entry for the task file's own clip
+            raise CmrtError(f"the {spec} CMRT of '{task.name}' is for a {curve.clip_s:g} s clip, task clip is "
+                            f"{task.clip_s:g} s")
+        return curve, spec
+    if inputs.is_run_id(spec):  # ASCII digits only: str.isdigit() takes '²' too
+        run_id = inputs.RUN_ID.check(spec, f"{flag} RUN")
+        with _store(store_path, readonly=True) as store:
+            curve = query.run_curve(store, run_id)
+        if abs(curve.clip_s - task.clip_s) > 1e-9:
+            raise CmrtError(f"run {spec} is for a {curve.clip_s:g} s clip, task clip is {task.clip_s:g} s")
+        return curve, f"run {spec}"
+    path = Path(spec)
+    if path.suffix.lower() == ".json" or os.path.lexists(spec):
+        curve = Cmrt.load(path)
+        if abs(curve.clip_s - task.clip_s) > 1e-9:
+            raise CmrtError(f"CMRT in {shown(spec)} is for a {curve.clip_s:g} s clip, task clip is "
+                            f"{task.clip_s:g} s")
+        return curve, str(path)
+    raise CmrtError(f"{flag} must be zero, library, library-robust, a run id or a CMRT .json file, got {shown(spec)}")
+
+
+def _store(path: str | None, readonly: bool = False) -> Store:
+    """The store at ``path`` (``--store``). Before store.py opens it: a path that exists must be a regular file
+    (a FIFO or a device would block or be written), and a verb that only reads (``readonly``) opens it read-only:
+    it never creates, converts or writes a byte."""
+    p = resolve_path(path)
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        st = None
+    except (OSError, ValueError) as exc:
+        raise CmrtError(f"cannot open store {shown(str(p))}: {getattr(exc, 'strerror', None) or exc}") from None
+    if st is not None and not stat.S_ISDIR(st.st_mode) and not stat.S_ISREG(st.st_mode):
+        raise CmrtError(f"{shown(str(p))} is not a CMRT store (not a regular file)")
+    if st is not None and stat.S_ISREG(st.st_mode) and st.st_size == 0 and readonly:
+        raise CmrtError(f"{shown(str(p))} is not a CMRT store (an empty file)")
+    if not readonly and p == DEFAULT_STORE and not p.parent.exists():
+        p.parent.mkdir(parents=True)
+    return open_store(p, readonly=readonly)
+
+
+def _init_arg(value: str) -> str | int:
+    if value in ("auto", "none"):
+        return value
+    if inputs.is_run_id(value):
+        return inputs.run_id_arg(value)
+    raise argparse.ArgumentTypeError(f"must be auto, none or a run id, got {shown(value)}")
+
+
+def _dof_names(task: Task) -> np.ndarray:
+    """Names of the trace's qvel columns: the humanoid's dofs, then the prop's."""
+    import numpy as np
+
+    m = task.model()
+    return np.array([m.joint(int(m.dof_jntid[i])).name for i in range(m.nv)])
+
+
+def _force_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing output file (never a store, a TOML file or a file this command reads)")
+
+
+def _check_out(args, value: str, flag: str, suffixes: tuple[str, ...] = ()) -> None:
+    """An output path checked before any work: an existing file only with ``--force``, and never one the
+    command reads (its store, task, sequence or curve file) or a store or TOML file."""
+    reading = [resolve_path(getattr(args, "store", None))]
+    reading += [v for k in ("task", "curve", "compare", "sequence", "family", "file")
+                if isinstance(v := getattr(args, k, None), str) and os.path.isfile(v)]
+    inputs.check_output(value, flag, suffixes, replace=args.force, reading=reading)
+
+
+def _save_npz(path: str, arrays: dict, flag: str = "--trace") -> None:
+    """Write atomically (``cmrt.inputs.atomic_output``): a failed write never leaves a half-written file."""
+    import numpy as np
+
+    with inputs.atomic_output(path, flag) as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
+
+
+def simulate_report(task, curve, curve_name: str, trace: str | None = None) -> dict:
+    """Simulate one clip and score it: what ``cmrt simulate`` prints (optionally saving the trace)."""
+    from cmrt.sim.objective import evaluate
+    from cmrt.sim.simulate import simulate
+
+    if trace is not None:  # --trace '' is a bad path, not "no trace"
+        inputs.check_output(trace, "--trace")  # before the simulation, not after it
+    t0 = time.perf_counter()
+    traj = simulate(task, curve)
+    ev = evaluate(task, traj)
+    wall = time.perf_counter() - t0
+    if trace is not None:
+        _save_npz(trace, {**traj.as_npz_dict(), "dof_names": _dof_names(task)})
+    return {
+        "task": task.name,
+        "speed": task.speed,
+        "reference": task.reference_mode,
+        "params": task.params,
+        "curve": curve_name,
+        "cmrt": curve.to_dict(),
+        **evaluation_dict(ev),
+        "wall_s": round(wall, 4),
+    }
+
+
+# --- shared argument groups ------------------------------------------------------------
+def _task_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("task", help="a shipped task's name (cmrt tasks) or the path of a .toml task file")
+    p.add_argument("--speed", type=inputs.arg(inputs.SPEED), help="the task's speed parameter (bend: duration T in s)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a task parameter")
+    _reference_arg(p)
+
+
+def _reference_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--reference", choices=REFERENCE_MODES, default=None,
+                   help="where the controller's reference CoM/CoP come from: center (the support centre; ABC) or "
+                   "yu (GRF-weighted feet and Winter's CoP, reactive); default: the task file's, else center")
+
+
+_OPT_ARGS = ("seed", "max_evals", "min_evals", "popsize", "stall_generations", "sigma0")
+
+
+def _opt_args(p: argparse.ArgumentParser) -> None:
+    """The optimizer's options; their defaults are OptimizeSettings' (the only place they are written), filled
+    in by ``_opt_defaults`` after parsing."""
+    p.add_argument("--seed", type=inputs.arg(inputs.SEED))
+    p.add_argument("--max-evals", type=inputs.arg(inputs.MAX_EVALS))
+    p.add_argument("--min-evals", type=inputs.arg(inputs.MIN_EVALS), help="no slow-convergence stop before this")
+    p.add_argument("--popsize", type=inputs.arg(inputs.POPSIZE))
+    p.add_argument("--stall-generations", type=inputs.arg(inputs.STALL_GENERATIONS),
+                   help="a search whose best and best generation median improved < 0.1%% over this many "
+                   "generations has stalled: it restarts (BIPOP: a doubled population, or a small one around "
+                   "the best success) while budget remains")
+    p.add_argument("--sigma0", type=inputs.arg(inputs.SIGMA0))
+    p.add_argument("--robust", action="store_true",
+                   help="score every candidate on the task's ensemble of perturbed clips ([robust] table)")
+    p.add_argument("--init", type=_init_arg, default="auto", metavar="auto|none|RUN",
+                   help="start point: the nearest stored/library CMRT of the task (auto, default), "
+                   "the zero CMRT (none), or a stored run's best")
+
+
+def _backend_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--backend", choices=BACKENDS, default="batch")
+    p.add_argument("--workers", type=inputs.arg(inputs.WORKERS), default=os.cpu_count() or 1,
+                   help="processes (loky, LocalCluster)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="dask scheduler (default: a LocalCluster)")
+
+
+def _opt_defaults(args) -> None:
+    """The optimizer options not given on the command line: OptimizeSettings' defaults."""
+    from cmrt.optimize.driver import OptimizeSettings
+
+    defaults = OptimizeSettings()
+    for name in _OPT_ARGS:
+        if getattr(args, name) is None:
+            setattr(args, name, getattr(defaults, name))
+
+
+def _submit_kwargs(args) -> dict:
+    _opt_defaults(args)
+    return dict(seed=args.seed, max_evals=args.max_evals, popsize=args.popsize, sigma0=args.sigma0,
+                min_evals=args.min_evals, init=args.init, stall_generations=args.stall_generations)
+
+
+def _opt_task(args, speed: float | None) -> Task:
+    """The task an optimization runs: with ``--robust``, scored on its ensemble. A run id as ``--init`` must
+    exist before a store is created or written."""
+    _opt_defaults(args)
+    task = resolve_task(args.task, speed, args.set, args.reference)
+    if isinstance(args.init, int):
+        with _store(args.store, readonly=True) as store:
+            store.run(args.init)
+    return task.with_robust() if args.robust else task
+
+
+# --- the verbs -----------------------------------------------------------------------
+class Command:
+    """One verb: ``add_arguments`` declares its options, ``run`` acts and returns what to print."""
+
+    name = ""
+    help = ""
+    json_flag = True  # the verb has --json
+
+    def add_arguments(self, p: argparse.ArgumentParser) -> None:
+        """Declare the verb's own arguments (``--store`` and ``--json`` are added for every verb)."""
+
+    def run(self, args: argparse.Namespace) -> Output | None:
+        raise NotImplementedError
+
+
+class Tasks(Command):
+    name, help = "tasks", "list the shipped tasks"
+
+    def run(self, args):
+        from cmrt.motion.taskfile import available_tasks, load_task
+
+        rows = []
+        for name in available_tasks():
+            t = load_task(name)
+            rows.append({"name": name, "summary": t.summary, "speed_param": t.speed_param, "speed": t.speed,
+                         "params": t.params, "param_ranges": {k: list(v) for k, v in t.param_ranges.items()}})
+
+        def text(rows):
+            return "\n".join(
+                f"{r['name']:<10} {r['summary']}"
+                + (f" (speed: {r['speed_param']} = {r['speed']:g})" if r["speed_param"] else "") for r in rows)
+
+        return Output(rows, text)
+
+
+class Simulate(Command):
+    name, help = "simulate", "simulate one clip of a task with a CMRT"
+
+    def add_arguments(self, p):
+        _task_args(p)
+        p.add_argument("--curve", default="zero", help="zero | library (the paper's plain CMRT) | library-robust "
+                       "| RUN | FILE.json (default zero)")
+        p.add_argument("--trace", metavar="FILE.npz", help="save the trajectories")
+        _force_arg(p)
+
+    def run(self, args):
+        if args.trace is not None:
+            _check_out(args, args.trace, "--trace")
+        task = resolve_task(args.task, args.speed, args.set, args.reference)
+        curve, name = resolve_curve(args.curve, task, args.store)
+        return Output(simulate_report(task, curve, name, args.trace), _report_text)
+
+
+class Submit(Command):
+    name, help = "submit", "queue an optimization job"
+
+    def add_arguments(self, p):
+        _task_args(p)
+        _opt_args(p)
+
+    def run(self, args):
+        task = _opt_task(args, args.speed)
+        from cmrt.service import jobs
+
+        with _store(args.store) as store:
+            run_id = jobs.submit(store, task, **_submit_kwargs(args))
+        speed = f" --speed {task.speed:g}" if task.speed is not None else ""
+        return Output({"run_id": run_id, "task": task.name, "speed": task.speed, "status": "queued"},
+                      f"queued run {run_id}: {escape(task.name)}{speed}")
+
+
+class Optimize(Command):
+    name, help = "optimize", "run one optimization job (or a speed family) in the foreground"
+
+    def add_arguments(self, p):
+        _task_args(p)
+        _opt_args(p)
+        p.add_argument("--speeds", metavar="S1,S2,...", help="a speed family, each warm-started from the previous")
+        p.add_argument("--family-sigma0", type=inputs.arg(inputs.SIGMA0), default=0.15,
+                       help="step size of the warm-started members")
+        _backend_args(p)
+        p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    def run(self, args):
+        if args.speeds:
+            return self._family(args)
+        from cmrt.optimize.parallel import Evaluator
+        from cmrt.service import jobs
+
+        task = _opt_task(args, args.speed)
+        evaluator = Evaluator(args.backend, args.workers, args.scheduler)  # fails before the store is touched
+        try:
+            with _store(args.store) as store:
+                progress = _Progress(args.max_evals, enabled=not args.no_progress)
+                try:
+                    run = jobs.optimize_now(store, task, evaluator, progress, **_submit_kwargs(args))
+                finally:
+                    progress.close()
+        finally:
+            evaluator.close()
+        return Output(_result(run), _result_text)
+
+    @staticmethod
+    def _family(args) -> Output:
+        """--speeds a,b,c: ``jobs.optimize_family``; each member's result is printed as it finishes."""
+        from cmrt.optimize.parallel import Evaluator
+        from cmrt.service import jobs
+
+        items = args.speeds.split(",")
+        if len(items) > inputs.MAX_SPEEDS:
+            raise CmrtError(f"--speeds takes at most {inputs.MAX_SPEEDS} speeds, got {len(items)}")
+        speeds = [inputs.number(v.strip(), "--speeds") for v in items]
+        if args.speed is not None or isinstance(args.init, int):
+            raise CmrtError("--speeds replaces --speed and a run id as --init (each member starts from the previous)")
+        if args.family_sigma0 <= 0:
+            raise CmrtError("--family-sigma0 must be > 0")
+        tasks = [_opt_task(args, v) for v in speeds]  # validate every speed first
+
+        def on_run(run: Run) -> None:
+            if not args.json:
+                print(_result_text(_result(run)), flush=True)
+
+        evaluator = Evaluator(args.backend, args.workers, args.scheduler)
+        try:
+            with _store(args.store) as store:
+                progress = _Progress(args.max_evals, enabled=not args.no_progress)
+                try:
+                    runs = jobs.optimize_family(store, tasks, evaluator, family_sigma0=args.family_sigma0,
+                                                on_generation=progress, on_run=on_run, **_submit_kwargs(args))
+                finally:
+                    progress.close()
+        finally:
+            evaluator.close()
+        return Output([_result(r) for r in runs], "") if args.json else None
+
+
+class Worker(Command):
+    name, help = "worker", "claim and run queued (and orphaned) jobs"
+
+    def add_arguments(self, p):
+        p.add_argument("--until-idle", action="store_true", help="exit when the queue is empty")
+        p.add_argument("--once", action="store_true", help="run at most one job")
+        p.add_argument("--stale-after", type=inputs.arg(inputs.STALE_AFTER_S), metavar="SECONDS",
+                       help="resume a running job whose heartbeat is older than this (default 120)")
+        _backend_args(p)
+
+    def run(self, args):
+        from cmrt.optimize.parallel import Evaluator
+        from cmrt.service import jobs
+
+        if args.stale_after is None:
+            args.stale_after = jobs.DEFAULT_STALE_AFTER_S
+
+        def on_claim(c):
+            if not args.json:
+                print(f"worker {jobs.worker_id()}: run {c.run_id} (attempt {c.attempt})", flush=True)
+
+        def on_failure(run_id: int, message: str) -> None:
+            print(f"cmrt: worker: run {run_id}: {message}", file=sys.stderr, flush=True)
+
+        if not (math.isfinite(args.stale_after) and args.stale_after > 0):
+            raise CmrtError(f"--stale-after must be a finite number of seconds > 0, got '{args.stale_after}'")
+        evaluator = Evaluator(args.backend, args.workers, args.scheduler)
+        try:
+            with _store(args.store) as store:
+                done = jobs.work(store, evaluator, until_idle=args.until_idle, once=args.once,
+                                 stale_after_s=args.stale_after, on_claim=on_claim, on_failure=on_failure)
+        finally:
+            evaluator.close()
+        return Output({"finished": done}, f"worker finished runs: {', '.join(map(str, done)) or 'none'}")
+
+
+class Requeue(Command):
+    name, help = "requeue", "put a failed run back in the queue (it resumes from its last checkpoint)"
+
+    def add_arguments(self, p):
+        p.add_argument("run", type=int)
+
+    def run(self, args):
+        with _store(args.store) as store:
+            run = store.requeue(args.run)
+        return Output({"run_id": run.id, "status": run.status}, f"run {run.id} is queued again")
+
+
+class Jobs(Command):
+    name, help = "jobs", "list jobs and their status"
+    KEYS = ("id", "task", "speed", "status", "worker", "attempt", "evaluations", "heartbeat_at", "error")
+
+    def add_arguments(self, p):
+        p.add_argument("--status", choices=RUN_STATUSES)
+
+    def run(self, args):
+        with _store(args.store, readonly=True) as store:
+            rows = [{k: getattr(r, k) for k in self.KEYS} for r in store.runs(status=args.status)]
+        return Output(rows, _table(rows, self.KEYS[:-2]))
+
+
+class Runs(Command):
+    name, help = "runs", "list stored runs"
+    COLUMNS = ("id", "task", "speed", "reference", "status", "seed", "best_objective", "best_success",
+               "baseline_objective", "baseline_success", "evaluations", "stop_reason")
+
+    def add_arguments(self, p):
+        p.add_argument("--task")
+        p.add_argument("--reference", choices=REFERENCE_MODES, help="only runs with this reference mode")
+
+    def run(self, args):
+        from cmrt.service import query
+
+        with _store(args.store, readonly=True) as store:
+            rows = [query.run_summary(r) for r in store.runs(task=args.task, reference=args.reference)]
+        return Output(rows, _table(rows, self.COLUMNS))
+
+
+class Show(Command):
+    name, help = "show", "one run in detail"
+
+    def add_arguments(self, p):
+        p.add_argument("run", type=inputs.run_id_arg)
+
+    def run(self, args):
+        from cmrt.service import query
+
+        with _store(args.store, readonly=True) as store:
+            d = query.run_details(store, args.run)
+
+        def text(d):
+            return "\n".join(f"{k:20s} {escape(inputs.dumps(v) if isinstance(v, (dict, list)) else str(v))}"
+                             for k, v in d.items() if k != "task_definition")
+
+        return Output(d, text)
+
+
+class Best(Command):
+    name, help = "best", "the best finished run for a task and speed"
+
+    def add_arguments(self, p):
+        _task_args(p)
+
+    def run(self, args):
+        from cmrt.service import query
+
+        task = resolve_task(args.task, args.speed, args.set, args.reference)
+        with _store(args.store, readonly=True) as store:
+            return Output(_result(query.best_run(store, task)), _result_text)
+
+
+class Export(Command):
+    name, help, json_flag = "export", "export a run's evaluations", False
+
+    def add_arguments(self, p):
+        p.add_argument("run", type=inputs.run_id_arg)
+        p.add_argument("--format", choices=("json", "csv"), default="json")
+        p.add_argument("--out", metavar="FILE")
+        _force_arg(p)
+
+    def run(self, args):
+        from cmrt.service import query
+
+        if args.out is not None:
+            _check_out(args, args.out, "--out")
+        with _store(args.store, readonly=True) as store:
+            text = query.export_run(store, args.run, args.format)
+        if args.out is not None:
+            inputs.write_text(args.out, text, "--out")
+            return None
+        return Output(None, text.rstrip("\n"))
+
+
+class Interpolate(Command):
+    name, help = "interpolate", "a CMRT for a new speed (or other parameter) from stored or library results"
+
+    def add_arguments(self, p):
+        _task_args(p)
+        p.add_argument("--param", help="the parameter to interpolate over (default: the task's speed)")
+        p.add_argument("--from", dest="source", choices=("library", "store"), default="library")
+        p.add_argument("--out", metavar="FILE.json", help="write the CMRT (usable as --curve FILE.json)")
+        _force_arg(p)
+
+    def run(self, args):
+        from cmrt.service.interpolate import interpolate, to_json
+
+        if args.param is not None:
+            inputs.param_name(args.param, "--param")
+        if args.out is not None:
+            _check_out(args, args.out, "--out")
+        task = resolve_task(args.task, args.speed, args.set, args.reference)
+        store = _store(args.store, readonly=True) if args.source == "store" else None
+        try:
+            r = interpolate(task, args.param, args.source, store)
+        finally:
+            if store:
+                store.close()
+        text = to_json(r)
+        if args.out is not None:
+            inputs.write_text(args.out, text + "\n", "--out")
+        if r.extrapolated:
+            print(f"cmrt: warning: {r.param} = {r.value:g} is outside the optimized range "
+                  f"[{r.sources[0][0]:g}, {r.sources[1][0]:g}]: extrapolated", file=sys.stderr)
+        src = " and ".join(f"{lab}" for _, lab in r.sources)
+        human = (
+            f"{escape(task.name)} {r.param} = {r.value:g}: {'extrapolated' if r.extrapolated else 'interpolated'} "
+            f"from {src} (weight {r.weight:.3f})\n"
+            f"  knots {', '.join(f'{t:.3f}' for t in r.curve.knot_times_s)} s; values "
+            f"{', '.join(f'{100 * v:+.2f}' for v in r.curve.values_m)} cm"
+            + (f"; written to {escape(args.out)}" if args.out is not None else "")
+        )
+        return Output(json.loads(text), human)
+
+
+class Sequence(Command):
+    name, help = "sequence", "simulate a sequence of pose changes with superposed (or zero) CMRTs"
+
+    def add_arguments(self, p):
+        p.add_argument("file", help="a shipped sequence's name (four-poses) or the path of a .toml sequence file")
+        p.add_argument("--curve", choices=("superposed", "zero"), default="superposed")
+        p.add_argument("--trace", metavar="FILE.npz")
+        _force_arg(p)
+
+    def run(self, args):
+        from cmrt.motion.curve import Cmrt
+        from cmrt.motion.sequence import load_sequence
+        from cmrt.service.interpolate import superpose
+        from cmrt.sim.objective import evaluate
+        from cmrt.sim.simulate import simulate
+
+        if args.trace is not None:
+            _check_out(args, args.trace, "--trace")
+        seq = load_sequence(args.file)
+        curve = superpose(seq) if args.curve == "superposed" else Cmrt.zero(seq.clip_s)
+        t0 = time.perf_counter()
+        traj = simulate(seq, curve, record=args.trace is not None)
+        ev = evaluate(seq, traj)
+        if args.trace is not None:
+            _save_npz(args.trace, {**traj.as_npz_dict(), "dof_names": _dof_names(seq)})
+        r = {
+            "sequence": seq.name,
+            "curve": args.curve,
+            "clip_s": seq.clip_s,
+            "motions": [{"task": m.task.name, "speed": m.task.speed, "start_s": m.start_s} for m in seq.motions],
+            **evaluation_dict(ev),
+            "wall_s": round(time.perf_counter() - t0, 3),
+        }
+        return Output(r, lambda r: f"{escape(seq.name)} ({len(seq.motions)} motions, {seq.clip_s:.2f} s) "
+                      f"curve={args.curve}: {_outcome(r)}\n  objective {_n(r['objective'], '.4f')}  max |CoP error| "
+                      f"{_n(r['max_cop_error_m'], '.4f')} m  final pose error {_n(r['final_pose_error_rad'], '.4f')} "
+                      f"rad  timing lag {_n(r['timing_lag_s'], '.3f')} s"
+                      + ("" if r["fall_direction"] is None else "\n" + _after_fall_text(r)))
+
+
+class Plot(Command):
+    name, help = "plot", "figures of a stored run (CoP error, CMRT, convergence)"
+
+    def add_arguments(self, p):
+        p.add_argument("run", type=inputs.run_id_arg, nargs="?")
+        p.add_argument("--family", metavar="TASK", help="the task's speed family from the library (ABC Fig. 5)")
+        p.add_argument("--sequence", metavar="FILE", help="a sequence's superposed CMRTs (ABC Fig. 6)")
+        p.add_argument("--out", default="plots", metavar="DIR")
+        _force_arg(p)
+
+    def run(self, args):
+        from cmrt.viz import plot  # matplotlib: only this verb pays for it
+
+        if args.run is None and not args.family and not args.sequence:
+            raise CmrtError("plot what? give a RUN, --family TASK or --sequence FILE")
+        out = inputs.output_dir(args.out, "--out")  # created and checked before anything is simulated
+        family = out / f"{Path(args.family).stem}_family.png" if args.family else None
+        sequence = out / f"{Path(args.sequence).stem}_sequence.png" if args.sequence else None
+        targets = (plot.run_figure_paths(args.run, out) if args.run is not None else []) + [
+            t for t in (family, sequence) if t is not None]
+        for target in targets:  # every file it would write, before anything is simulated
+            _check_out(args, str(target), "--out")
+        paths = []
+        if args.run is not None:
+            with _store(args.store, readonly=True) as store:
+                paths += [str(p) for p in plot.plot_run(store, args.run, out)]
+        if family:
+            paths.append(str(plot.plot_family(args.family, family)))
+        if sequence:
+            paths.append(str(plot.plot_sequence(args.sequence, sequence)))
+        return Output({"run_id": args.run, "files": paths}, "\n".join(map(escape, paths)))
+
+
+class Render(Command):
+    name, help = "render", "render a clip (PNG filmstrip or MP4), optionally beside another"
+
+    def add_arguments(self, p):
+        _task_args(p)
+        p.add_argument("--curve", default="library", help="zero | library | RUN | FILE.json (default library)")
+        p.add_argument("--compare", help="a second CMRT to show beside it (e.g. zero)")
+        p.add_argument("--out", required=True, metavar="FILE.png|FILE.mp4")
+        p.add_argument("--frames", type=inputs.arg(inputs.FRAMES), default=8, help="filmstrip frames (PNG)")
+        p.add_argument("--fps", type=inputs.arg(inputs.FPS), default=30, help="video frame rate (MP4)")
+        _force_arg(p)
+
+    def run(self, args):
+        from cmrt.viz.render import OUT_SUFFIXES, render  # OpenGL: only this verb pays for it
+
+        _check_out(args, args.out, "--out", OUT_SUFFIXES)  # before anything is simulated
+        task = resolve_task(args.task, args.speed, args.set, args.reference)
+        curve, name = resolve_curve(args.curve, task, args.store)
+        compare, cname = resolve_curve(args.compare, task, args.store, "--compare") if args.compare else (None, "")
+        r = render(task, curve, args.out, compare, (f"{name} CMRT", f"{cname} CMRT"), n_frames=args.frames,
+                   fps=args.fps)
+        lines = [f"wrote {escape(r['out'])} ({r['frames']} frames)"] + [
+            f"  {escape(c['label'])}: {'lost balance' if c['fell'] else 'balanced'}, objective {c['objective']:.4f}"
+            for c in r["clips"]
+        ]
+        return Output(r, "\n".join(lines))
+
+
+class Bench(Command):
+    name, help = "bench", "time the physics floor, batched, serial and every backend"
+
+    def add_arguments(self, p):
+        p.add_argument("--task", default="bend")
+        p.add_argument("--speed", type=inputs.arg(inputs.SPEED), default=0.4)
+        p.add_argument("--set", action="append", metavar="KEY=VALUE")
+        _reference_arg(p)
+        p.add_argument("--population", type=inputs.arg(inputs.POPULATION), default=16)
+        p.add_argument("--repeat", type=inputs.arg(inputs.REPEAT), default=5)
+        p.add_argument("--backends", help=f"comma-separated subset of {','.join(BACKENDS)}")
+        p.add_argument("--workers", type=inputs.arg(inputs.WORKERS), default=os.cpu_count() or 1)
+        p.add_argument("--no-optimize", action="store_true",
+                       help="skip timing a full 'cmrt optimize TASK --seed 1 --init none' (throwaway store)")
+
+    def run(self, args):
+        from cmrt.optimize.bench import run_bench
+
+        backends = tuple(args.backends.split(",")) if args.backends else BACKENDS
+        unknown = [b for b in backends if b not in BACKENDS]
+        if unknown:
+            raise CmrtError(f"--backends must be a comma-separated subset of {', '.join(BACKENDS)}, got "
+                            f"{shown(args.backends)}")
+        task = resolve_task(args.task, args.speed, args.set, args.reference)
+        return Output(run_bench(task, args.population, args.repeat, backends, args.workers,
+                                None if args.no_optimize else _timed_optimization), self._text)
+
+    @staticmethod
+    def _text(r: dict) -> str:
+        floor = r["physics_only_s_per_clip"]
+        rows = [
+            ("physics only (floor: replay)", floor),
+            ("zero-torque collapse (old floor)", r["zero_torque_s_per_clip"]),
+            ("batched evaluator", r["batched_s_per_clip"]),
+            ("serial, one clip at a time", r["serial_s_per_clip"]),
+            (f"robust, per member ({r['robust_members']}/cand.)", r["robust_s_per_member"]),
+        ]
+        rows += [(f"generation, backend {b}", v) for b, v in r["generation_s_per_clip"].items()]
+        return "\n".join(
+            [f"{r['task']} speed {r['speed']}, population {r['population']}, {r['steps_per_clip']} steps/clip, "
+             f"control {r['control_hz']:.0f} Hz ({r['machine']}, median of {r['repeat']} alternating rounds)"]
+            + [f"  {name:32s} {1e3 * v:8.2f} ms/clip   x{v / floor:5.2f}" for name, v in rows]
+            + [f"  floor: the clips' recorded torques replayed open loop, {r['steps_replayed']} steps replayed, "
+               f"{r['steps_evaluated']} evaluated; replayed CoM off the closed loop's by at most "
+               f"{r['replay_max_divergence_m']:.2g} m",
+               f"  batched / floor within each round: median {r['ratio_batched_to_physics']:.2f} "
+               f"(min {r['ratio_batched_to_physics_min']:.2f}, max {r['ratio_batched_to_physics_max']:.2f})",
+               f"  robust ensemble member / plain clip within each round: median "
+               f"{r['ratio_robust_member_to_plain']:.2f}"]
+            + ([f"  full optimization (seed 1, cold): {r['optimize_evaluations']} evaluations in "
+                f"{r['optimize_wall_s']:.1f} s; evaluations x floor = {r['optimize_floor_s']:.1f} s "
+                f"(x{r['ratio_optimize_to_floor']:.2f})"] if "optimize_wall_s" in r else []))
+
+
+def _timed_optimization(task: Task) -> tuple[int, float]:
+    """``cmrt optimize TASK --seed 1 --init none`` (otherwise default settings, batched backend) into a
+    throwaway store: (evaluations, wall seconds). Cold, because a warm start from the shipped library
+    curve ends the fast bend after one generation - that would time start-up, not the optimization -
+    and the user's store is neither read nor written."""
+    from cmrt.service import jobs
+
+    with tempfile.TemporaryDirectory() as tmp, open_store(Path(tmp) / "bench.db") as store:
+        t0 = time.perf_counter()
+        run = jobs.optimize_now(store, task, seed=1, init="none")
+        return run.evaluations, time.perf_counter() - t0
+
+
+class Demo(Command):
+    name, help, json_flag = "demo", "the main job: optimize the fast bend into the store, show the result", False
+
+    def add_arguments(self, p):
+        _backend_args(p)
+
+    def run(self, args):
+        """Optimize the fast bend into the store and show the stored result (printed as it goes: it takes a
+        while)."""
+        from cmrt.motion.curve import Cmrt
+        from cmrt.motion.library import library_curve
+        from cmrt.motion.taskfile import load_task
+        from cmrt.optimize.driver import OptimizeSettings
+        from cmrt.optimize.parallel import Evaluator
+        from cmrt.service import jobs, query
+
+        task = load_task("bend").with_speed(0.4)
+        print("Fast bend (T = 0.4 s, trunk first, both feet planted). The reactive controller alone:")
+        print(_report_text(simulate_report(task, Cmrt.zero(task.clip_s), "zero")))
+        store_path = resolve_path(args.store)
+        print(f"\nOptimizing its CMRT with CMA-ES (seed 1) into {store_path} ...", flush=True)
+        evaluator = Evaluator(args.backend, args.workers, args.scheduler)
+        try:
+            with _store(args.store) as store:
+                progress = _Progress(OptimizeSettings().max_evals, enabled=sys.stderr.isatty())
+                try:
+                    run = jobs.optimize_now(store, task, evaluator, progress, seed=1, init="none")
+                finally:
+                    progress.close()
+                stored = query.best_run(store, task)
+                curve = query.run_curve(store, run.id)
+        finally:
+            evaluator.close()
+        print(f"\nStored in {store_path}; the best run for this task ('cmrt best bend --speed 0.4'):")
+        print(_result_text(_result(stored)))
+        print(f"\nReplaying run {run.id}'s CMRT ('cmrt simulate bend --speed 0.4 --curve {run.id}'):")
+        print(_report_text(simulate_report(task, curve, f"run {run.id}")))
+        print("\nThe library CMRT shipped with cmrt (a longer run; 'cmrt simulate bend --speed 0.4 --curve "
+              "library'):")
+        print(_report_text(simulate_report(task, library_curve(task), "library")))
+        return None
+
+
+COMMANDS: tuple[Command, ...] = (
+    Tasks(), Simulate(), Submit(), Optimize(), Worker(), Requeue(), Jobs(), Runs(), Show(), Best(), Export(),
+    Interpolate(), Sequence(), Plot(), Render(), Bench(), Demo(),
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser: one sub-command per :data:`COMMANDS` entry."""
+    p = _Parser(prog="cmrt", description="Anticipatory balance: center-of-mass reference trajectories.")
+    sub = p.add_subparsers(dest="verb", required=True, parser_class=_Parser)
+    common = _Parser(add_help=False)
+    common.add_argument("--store", metavar="PATH", help=f"SQLite store (default $CMRT_STORE or {DEFAULT_STORE})")
+    for command in COMMANDS:
+        sp = sub.add_parser(command.name, help=command.help, parents=[common])
+        if command.json_flag:
+            sp.add_argument("--json", action="store_true", help="machine-readable output")
+        command.add_arguments(sp)
+        sp.set_defaults(command=command)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run one verb; exit status 0, 2 for bad input (one line on stderr), 130 on Ctrl-C."""
+    args = None
+    clear_signals()
+    # a worker gives its run back, as on Ctrl-C: a closed terminal (SIGHUP) and SIGQUIT too, not only SIGTERM
+    previous = {sig: signal.signal(sig, _terminate) for sig in TERMINATING_SIGNALS}
+    try:
+        try:
+            args = build_parser().parse_args(argv)
+            _check_environment()
+            out = args.command.run(args)
+        except (CmrtError, sqlite3.DatabaseError) as exc:  # a signal inside an SQLite step ends as "interrupted"
+            terminated = pending_termination()
+            if terminated is not None:
+                raise terminated from exc
+            raise
+        if out is not None:
+            print(format_output(out, getattr(args, "json", False)))
+        return 0
+    except CmrtError as exc:
+        print(f"cmrt: error: {inputs.one_line(str(exc))}", file=sys.stderr)  # one line, control characters escaped
+        return EXIT_BAD_INPUT
+    except sqlite3.DatabaseError as exc:  # a damaged store (store.py refuses foreign files; damage shows in a query)
+        store = shown(str(resolve_path(getattr(args, "store", None))))
+        print(f"cmrt: error: {inputs.one_line(f'store {store} is damaged: {exc}')}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except TransientFault as exc:
+        print(f"cmrt: error: {exc}", file=sys.stderr)
+        return EXIT_TEMPFAIL
+    except Terminated as exc:
+        print(f"cmrt: terminated ({signal.Signals(exc.signum).name})", file=sys.stderr)
+        return 128 + exc.signum
+    except KeyboardInterrupt:
+        print("cmrt: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # output piped into `head` and the like
+        sys.stderr.close()
+        return 0
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+TERMINATING_SIGNALS = (signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
+THREADS = inputs.Range(1, 256, integer=True)
+
+
+def _check_environment() -> None:
+    """The environment variables cmrt reads, checked before anything runs (one line, exit 2), not deep
+    inside a worker's first generation."""
+    from cmrt.optimize.memory import memory_share
+
+    memory_share()
+    text = os.environ.get("CMRT_THREADS", "").strip()
+    if text:
+        THREADS.check(text, "$CMRT_THREADS")
+
+
+def _terminate(signum, frame) -> None:
+    note_signal(signum)  # seen even where sqlite3 swallows the exception (a signal inside an SQLite step)
+    raise Terminated(signum)
+

@@ -1,0 +1,377 @@
+"""The task record: reference motion, push, clip timing, objective settings.
+
+A task is data, not code (its files are read by ``cmrt.motion.taskfile``). Every number lives in
+``[params]`` so that ``--set KEY=VALUE`` can override any of them; poses are tables of joint angles in
+degrees.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from cmrt import inputs
+from cmrt.body.character import character, feet_flat_qpos, joint_angles_from_pose
+from cmrt.body.props import build_model, model_values, prop_class
+from cmrt.errors import CmrtError
+from cmrt.inputs import MAX_RUN_S, Range, param_range, shown
+from cmrt.modes import DEFAULT_REFERENCE_MODE, REFERENCE_MODES
+from cmrt.motion import reference as ref
+from cmrt.motion.ensemble import RobustSpec
+from cmrt.motion.reference import Schedule
+
+MIN_TAIL_S = 0.5
+
+#: Parameters every task has, with defaults (seconds, newtons, metres).
+DEFAULT_PARAMS: dict[str, float] = {
+    "clip_s": 2.6,  # L: whole clip
+    "preparation_s": 1.0,  # P: standing before the motion starts
+    "duration_s": 0.0,  # T: duration of the pose change (0: no pose change)
+    "cop_sample_step_s": 0.01,  # step of the CoP-error samples in the objective
+    "stop_threshold": 0.0,  # CMA-ES early-stop threshold on the objective (ABC Table 1)
+    "push_force_n": 0.0,  # horizontal push on the thorax, +x forward
+    "push_start_s": 0.0,
+    "push_duration_s": 0.0,
+    # the motion was performed if tracked over [P, P + T] at least as well as its own reference played
+    # this fraction of T late (RMS over the actuated joints; 0.1 of T: ~0.1 rad on the bend)
+    "max_tracking_lag": 0.1,
+    "tail_s": 0.5,  # standing after the clip (end pose held, no CMRT): must settle; not in the CoP objective
+    # stepping (cmrt.control.stepping, docs/stepping.md): 0 feet planted (the paper's setting), 1 the momentum
+    # supervisor (Wu-Zordan eq. 5), 2 its capture-point variant
+    "stepping": 0.0,
+    "step_time_s": 0.4,  # lift-off to touchdown
+    "step_height_m": 0.05,  # how high the swing foot's heel rises
+}
+#: Parameters that change nothing while ``stepping`` is 0: left out of the content hash then, so the hashes
+#: of planted-feet tasks (and the stored runs keyed by them) are those of before stepping existed.
+STEPPING_PARAMS = ("stepping", "step_time_s", "step_height_m")
+
+
+def active_params(params: dict) -> dict:
+    """``params`` without those that change nothing - the stepping ones while ``stepping`` is 0 (or absent, as
+    in runs and library entries made before stepping existed): what hashes and matches compare."""
+    if params.get("stepping"):
+        return dict(params)
+    return {k: v for k, v in params.items() if k not in STEPPING_PARAMS}
+
+
+#: Further thorax pushes a task file may declare, each as ``<prefix>_force_n``, ``_start_s``, ``_duration_s``.
+EXTRA_PUSHES = ("push2", "push3")
+
+
+@dataclass(frozen=True)
+class Task:
+    """A task: its parameters (a mapping, so ``--set`` reaches every number), poses, timing, prop and robust
+    ensemble. Immutable: ``with_params``/``with_speed``/``with_robust`` return validated copies."""
+
+    name: str
+    summary: str
+    params: dict[str, float]
+    param_ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
+    start_pose_deg: dict[str, float] = field(default_factory=dict)
+    end_pose_deg: dict[str, float] | None = None
+    via_pose_deg: dict[str, float] | None = None  # optional pose passed through at via_fraction of T
+    balance_joint: str | None = "ankle"
+    timing: dict[str, tuple[float, float]] = field(default_factory=dict)
+    prop: str | None = None
+    speed_param: str | None = None
+    source: str = ""
+    robust: RobustSpec = RobustSpec()  # the [robust] table: the ensemble a robust run is scored on
+    # where the controller's reference CoM and CoP come from (cmrt.control.references): "center" (the support
+    # centre, Macchietto; ABC) or "yu" (GRF-weighted feet and Winter's CoP, Yu eq. 3.2-3.4)
+    reference_mode: str = DEFAULT_REFERENCE_MODE
+
+    # --- parameters -------------------------------------------------------------
+    # Those every task has (DEFAULT_PARAMS) as typed properties; any other (a prop's, via_fraction) is read
+    # from the mapping: ``task.params["ball_mass_kg"]``.
+    @property
+    def clip_s(self) -> float:
+        """L: the whole clip (s)."""
+        return self.params["clip_s"]
+
+    @property
+    def preparation_s(self) -> float:
+        """P: standing before the motion starts (s)."""
+        return self.params["preparation_s"]
+
+    @property
+    def duration_s(self) -> float:
+        """T: duration of the pose change (s; 0: no pose change)."""
+        return self.params["duration_s"]
+
+    @property
+    def cop_sample_step_s(self) -> float:
+        """Step of the CoP-error samples in the objective (s)."""
+        return self.params["cop_sample_step_s"]
+
+    @property
+    def stop_threshold(self) -> float:
+        """CMA-ES early-stop threshold on the objective (objective units; ABC Table 1)."""
+        return self.params["stop_threshold"]
+
+    @property
+    def push_force_n(self) -> float:
+        """Horizontal push on the thorax (N, +x forward)."""
+        return self.params["push_force_n"]
+
+    @property
+    def push_start_s(self) -> float:
+        """When the push starts (s from the start of the clip)."""
+        return self.params["push_start_s"]
+
+    @property
+    def push_duration_s(self) -> float:
+        """How long the push lasts (s)."""
+        return self.params["push_duration_s"]
+
+    @property
+    def max_tracking_lag(self) -> float:
+        """Largest tracking lag that still counts as the motion performed (a fraction of T, dimensionless)."""
+        return self.params["max_tracking_lag"]
+
+    @property
+    def tail_s(self) -> float:
+        """Standing after the clip, end pose held without a CMRT (s; not in the CoP objective)."""
+        return self.params["tail_s"]
+
+    @property
+    def stepping(self) -> int:
+        """0: feet planted; 1: the momentum supervisor steps; 2: the capture-point supervisor does."""
+        return int(self.params["stepping"])
+
+    @property
+    def step_time_s(self) -> float:
+        """A step's duration, lift-off to touchdown (s; used when stepping)."""
+        return self.params["step_time_s"]
+
+    @property
+    def step_height_m(self) -> float:
+        """How high the swing foot's heel rises mid-step (m; used when stepping)."""
+        return self.params["step_height_m"]
+
+    @property
+    def speed(self) -> float | None:
+        """The value of the task's speed parameter (None if it has none)."""
+        return self.params[self.speed_param] if self.speed_param else None
+
+    @property
+    def decay_s(self) -> float:
+        """D = L - P - T: the clip after the motion (s)."""
+        return self.clip_s - self.preparation_s - self.duration_s
+
+    def with_params(self, **overrides: float | str) -> Task:
+        """A copy with parameters overridden (numbers, or text parsed strictly), validated against names and
+        ranges."""
+        params = dict(self.params)
+        for key, value in overrides.items():
+            if key not in params:
+                raise CmrtError(f"task {shown(self.name)} has no parameter {shown(key)} "
+                                f"(has: {', '.join(sorted(params))})")
+            params[key] = inputs.number(value, f"parameter {key}", self.limit(key))
+        task = replace(self, params=params)
+        task.validate()
+        return task
+
+    def limit(self, key: str) -> Range:
+        """The documented range of parameter ``key`` (``cmrt.inputs.TASK_PARAMS``, or the prop's ``LIMITS``)."""
+        return param_range(key, prop_class(self.prop).LIMITS)
+
+    def with_robust(self, enabled: bool = True) -> Task:
+        """A copy scored on its robust ensemble (``cmrt.motion.ensemble``), or on the nominal clip alone."""
+        return replace(self, robust=replace(self.robust, enabled=enabled))
+
+    def with_reference(self, mode: str | None) -> Task:
+        """A copy whose controller takes its reference CoM/CoP from ``mode`` (None: unchanged)."""
+        if mode is None:
+            return self
+        return replace(self, reference_mode=reference_mode(mode, "reference"))
+
+    def with_speed(self, speed: float | None) -> Task:
+        """A copy at this speed (None: unchanged)."""
+        if speed is None:
+            return self
+        if not self.speed_param:
+            raise CmrtError(f"task '{self.name}' has no speed parameter")
+        return self.with_params(**{self.speed_param: speed})
+
+    def validate(self) -> None:
+        """CmrtError if a parameter is not finite, outside its documented range (``limit``) or the task's own
+        ``param_ranges``, or the timing is impossible."""
+        p = self.params
+        for key, value in p.items():
+            inputs.number(value, f"parameter {key}", self.limit(key))
+        for key, (lo, hi) in self.param_ranges.items():
+            if not lo <= p[key] <= hi:
+                raise CmrtError(f"{key} = {p[key]:g} is outside task {shown(self.name)} range [{lo:g}, {hi:g}]")
+        if p["clip_s"] + p["tail_s"] > MAX_RUN_S:
+            raise CmrtError(f"clip_s + tail_s = {p['clip_s'] + p['tail_s']:g} s is longer than the longest clip "
+                            f"cmrt simulates ({MAX_RUN_S:g} s)")
+        if p["clip_s"] <= 0 or p["preparation_s"] < 0 or p["duration_s"] < 0:
+            raise CmrtError("clip_s must be > 0, preparation_s and duration_s >= 0")
+        if self.decay_s < -1e-12:
+            raise CmrtError(f"preparation_s + duration_s exceeds clip_s ({p['clip_s']:g} s)")
+        if self.end_pose_deg is not None and p["duration_s"] <= 0:
+            raise CmrtError("a pose-change task needs duration_s > 0")
+        if self.via_pose_deg is not None:
+            if self.end_pose_deg is None or self.timing:
+                raise CmrtError("a via pose needs an end pose and no [timing] (each segment eases as a whole)")
+            if not 0.0 < p.get("via_fraction", -1.0) < 1.0:
+                raise CmrtError("a via pose needs via_fraction in (0, 1) in [params]")
+        if p["cop_sample_step_s"] <= 0:
+            raise CmrtError("cop_sample_step_s must be > 0")
+        if not 0 < p["max_tracking_lag"] <= 1:
+            raise CmrtError("max_tracking_lag must be in (0, 1] (a fraction of duration_s)")
+        if p["tail_s"] < MIN_TAIL_S:
+            raise CmrtError(f"tail_s must be >= {MIN_TAIL_S:g} s (the character must be seen standing still)")
+        if p["push_duration_s"] < 0:
+            raise CmrtError("push_duration_s must be >= 0")
+        for prefix in EXTRA_PUSHES:
+            keys = [f"{prefix}_{k}" for k in ("force_n", "start_s", "duration_s")]
+            if any(k in p for k in keys) and not all(k in p for k in keys):
+                raise CmrtError(f"a second push needs all of {', '.join(keys)}")
+        if p["stepping"] not in (0, 1, 2):
+            raise CmrtError("stepping must be 0 (feet planted), 1 (momentum supervisor) or 2 (capture point)")
+
+    # --- model -------------------------------------------------------------------
+    def model(self):
+        """The character plus this task's prop (compiled once per distinct prop parameters)."""
+        return build_model(self.prop, model_values(self.prop, self.params))
+
+    @property
+    def has_goal(self) -> bool:
+        """Whether a prop judges the task (catch, topple, strike) besides the pose change."""
+        return self.prop is not None
+
+    # --- motion -----------------------------------------------------------------
+    def start_qpos(self) -> np.ndarray:
+        """The start pose as humanoid qpos, feet flat and balanced over the support."""
+        return _pose_qpos(tuple(sorted(self.start_pose_deg.items())), self.balance_joint)
+
+    def end_qpos(self) -> np.ndarray:
+        if self.end_pose_deg is None:
+            return self.start_qpos()
+        return _pose_qpos(tuple(sorted(self.end_pose_deg.items())), self.balance_joint)
+
+    def via_qpos(self) -> np.ndarray:
+        return _pose_qpos(tuple(sorted(self.via_pose_deg.items())), self.balance_joint)
+
+    def schedule(self) -> Schedule:
+        """What the reference motion is made of: the poses as qpos and their timing (``cmrt.motion.reference``)."""
+        end = None if self.end_pose_deg is None else self.end_qpos()
+        via = None if self.via_pose_deg is None else self.via_qpos()
+        return Schedule(key=self.content_hash(), start_qpos=self.start_qpos(), end_qpos=end, via_qpos=via,
+                        via_fraction=None if via is None else self.params["via_fraction"], timing=dict(self.timing),
+                        preparation_s=self.preparation_s, duration_s=self.duration_s)
+
+    def keyframes(self) -> list[tuple[float, np.ndarray]]:
+        """(fraction of T, qpos) of the poses the motion passes: start, [via], end."""
+        return [(f, q.copy()) for f, q in ref.keyframes(self.schedule())]
+
+    def reference(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Reference q, qd, qdd at times ``t_s`` (shape (n, nv)): see ``cmrt.motion.reference.reference``."""
+        return ref.reference(self.schedule(), t_s)
+
+    def joint_windows(self) -> dict[str, tuple[float, float]]:
+        """Per-dof easing window as fractions of T (bare names expand to both sides)."""
+        return ref.joint_windows(self.schedule())
+
+    def push_at(self, t_s: float) -> float:
+        """Horizontal push on the thorax at time t_s (N): the task's push plus, if its file declares them,
+        a second and third (``push2_*``, ``push3_*``: several pushes in one clip)."""
+        start = self.params["push_start_s"]
+        force = self.params["push_force_n"] if start <= t_s < start + self.params["push_duration_s"] else 0.0
+        for prefix in EXTRA_PUSHES:
+            if f"{prefix}_force_n" in self.params:
+                start = self.params[f"{prefix}_start_s"]
+                if start <= t_s < start + self.params[f"{prefix}_duration_s"]:
+                    force += self.params[f"{prefix}_force_n"]
+        return force
+
+    def pushes_n(self, t_s: np.ndarray) -> np.ndarray:
+        """``push_at`` at every time of ``t_s`` at once (the same sums in the same order)."""
+        t = np.asarray(t_s, dtype=float)
+        start = self.params["push_start_s"]
+        force = np.where((start <= t) & (t < start + self.params["push_duration_s"]), self.params["push_force_n"], 0.0)
+        for prefix in EXTRA_PUSHES:
+            if f"{prefix}_force_n" in self.params:
+                start = self.params[f"{prefix}_start_s"]
+                on = (start <= t) & (t < start + self.params[f"{prefix}_duration_s"])
+                force = np.where(on, force + self.params[f"{prefix}_force_n"], force)
+        return force
+
+    def to_dict(self) -> dict:
+        """The task as a task-file dict (``task_from_dict`` round-trips it): stored with runs."""
+        out = {
+            "name": self.name,
+            "summary": self.summary,
+            "params": dict(self.params),
+            "param_ranges": {k: list(v) for k, v in self.param_ranges.items()},
+            "start_pose_deg": dict(self.start_pose_deg),
+            "balance_joint": self.balance_joint or "",
+            "timing": {k: list(v) for k, v in self.timing.items()},
+        }
+        if self.end_pose_deg is not None:
+            out["end_pose_deg"] = dict(self.end_pose_deg)
+        if self.via_pose_deg is not None:
+            out["via_pose_deg"] = dict(self.via_pose_deg)
+        if self.prop:
+            out["prop"] = {"kind": self.prop}
+        if self.speed_param:
+            out["speed_param"] = self.speed_param
+        if self.robust != RobustSpec():
+            out["robust"] = self.robust.to_table()
+        if self.reference_mode != DEFAULT_REFERENCE_MODE:  # absent for the default: older hashes stay valid
+            out["reference"] = self.reference_mode
+        return out
+
+    def content_hash(self) -> str:
+        """Hash of everything that changes the physics of a clip or its score (not name or summary; the
+        ensemble only when robust scoring is on: a robust objective is another problem's)."""
+        skip = ("name", "summary") if self.robust.enabled else ("name", "summary", "robust")
+        body = {k: v for k, v in self.to_dict().items() if k not in skip}
+        body["params"] = active_params(body["params"])
+        return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()[:16]
+
+    def task_window_s(self) -> tuple[float, float]:
+        """[P, P + T]: where the motion happens (the whole clip for a task without one)."""
+        if self.duration_s > 0:
+            return self.preparation_s, self.preparation_s + self.duration_s
+        return 0.0, self.clip_s
+
+    def tracking_bound_rad(self, times_s: np.ndarray) -> float:
+        """RMS joint error (actuated joints, at ``times_s``) of the reference against itself played
+        ``max_tracking_lag`` x T late: the largest tracking error that still counts as the motion asked for."""
+        dofs = list(character().actuated_dofs)
+        lag = self.params["max_tracking_lag"] * self.duration_s
+        q, q_late = self.reference(times_s)[0], self.reference(times_s - lag)[0]
+        return float(np.sqrt(np.mean((q[:, dofs] - q_late[:, dofs]) ** 2))) if len(times_s) else 0.0
+
+    def final_pose_error_rad(self, qpos: np.ndarray) -> float:
+        """Euclidean distance of the actuated joint angles from the task's target pose."""
+        dofs = list(character().actuated_dofs)
+        return float(np.linalg.norm(qpos[dofs] - self.end_qpos()[dofs]))
+
+
+def _angles(pose_deg: dict[str, float]) -> dict[str, float]:
+    return joint_angles_from_pose({k: math.radians(v) for k, v in pose_deg.items()})
+
+
+_QPOS_CACHE: dict = {}
+
+
+def _pose_qpos(pose_items: tuple, balance_joint: str | None) -> np.ndarray:
+    key = (pose_items, balance_joint)
+    if key not in _QPOS_CACHE:
+        _QPOS_CACHE[key] = feet_flat_qpos(_angles(dict(pose_items)), balance_joint)
+    return _QPOS_CACHE[key].copy()
+
+
+def reference_mode(value: object, where: str) -> str:
+    """``value`` if it is one of ``REFERENCE_MODES``; CmrtError naming ``where`` otherwise."""
+    if not isinstance(value, str) or value not in REFERENCE_MODES:
+        raise CmrtError(f"{where} must be one of {', '.join(REFERENCE_MODES)}, got {shown(value)}")
+    return value

@@ -1,0 +1,163 @@
+"""Task files (TOML) -> a validated :class:`~cmrt.motion.task.Task`.
+
+The shipped tasks are package data (``cmrt/motion/tasks/*.toml``, read through ``importlib.resources`` so an
+installed cmrt has them too); a user's own task is a TOML file given by path (format in the README). Every
+value is checked (type, finiteness, documented range: ``cmrt.inputs``) and an error is one line naming the
+file; a stored run's definition (``Task.to_dict``) goes through the same ``task_from_dict``.
+"""
+
+from __future__ import annotations
+
+import importlib.resources
+from pathlib import Path
+
+from cmrt import inputs
+from cmrt.body.character import SIDED_JOINTS, joint_angles_from_pose
+from cmrt.body.props import PROPS, prop_class
+from cmrt.errors import CmrtError
+from cmrt.inputs import POSE_DEG, param_range, shown
+from cmrt.modes import DEFAULT_REFERENCE_MODE
+from cmrt.motion.ensemble import RobustSpec
+from cmrt.motion.task import DEFAULT_PARAMS, Task, reference_mode
+
+#: The shipped task files (package data: present in an installed cmrt, not only in a checkout).
+TASKS_DIR = importlib.resources.files("cmrt.motion") / "tasks"
+
+
+def available_tasks() -> list[str]:
+    """Names of the tasks shipped with cmrt (``load_task(name)`` loads each)."""
+    return sorted(f.name.removesuffix(".toml") for f in TASKS_DIR.iterdir() if f.name.endswith(".toml"))
+
+
+def load_task(name_or_path: str) -> Task:
+    """Load a shipped task by name (``bend``) or a user's task file by path (anything ending in ``.toml``): a
+    regular UTF-8 file of at most ``cmrt.inputs.MAX_FILE_BYTES`` (``cmrt.inputs.read_text``)."""
+    if not isinstance(name_or_path, str) or not name_or_path:
+        raise CmrtError(f"a task is a shipped task's name or a .toml file, got {shown(name_or_path)}")
+    path = Path(name_or_path)
+    if path.suffix != ".toml":
+        if name_or_path not in available_tasks():
+            raise CmrtError(f"unknown task {shown(name_or_path)} (known: {', '.join(available_tasks())})")
+        raw = inputs.parse_toml((TASKS_DIR / f"{name_or_path}.toml").read_text(), f"task file {name_or_path}.toml")
+        path = Path(str(TASKS_DIR / f"{name_or_path}.toml"))
+    else:
+        raw = inputs.load_toml(path, "task file")
+    return task_from_dict(raw, source=str(path), default_name=path.stem)
+
+
+#: The keys of a task file (README, *Task files*).
+TASK_KEYS = frozenset({"name", "summary", "speed_param", "balance_joint", "params", "param_ranges", "start_pose_deg",
+                       "end_pose_deg", "via_pose_deg", "timing", "prop", "robust", "reference"})
+MAX_TEXT = 1000  # characters of a task's name or summary
+
+
+def _table(raw: dict, key: str, where: str) -> dict | None:
+    """``raw[key]`` if it is a table (None if absent); CmrtError naming the file and the key otherwise."""
+    if key not in raw:
+        return None
+    value = raw[key]
+    if not isinstance(value, dict):
+        raise CmrtError(f"{where}: [{key}] must be a table, got {shown(value)}")
+    return value
+
+
+def _text(raw: dict, key: str, where: str, default: str) -> str:
+    value = raw.get(key, default)
+    if not isinstance(value, str) or len(value) > MAX_TEXT:
+        raise CmrtError(f"{where}: {key} must be a string of at most {MAX_TEXT} characters, got {shown(value)}")
+    return value
+
+
+def _pose(table: dict | None, key: str, where: str) -> dict[str, float] | None:
+    if table is None:
+        return None
+    return {str(k): inputs.number(v, f"{where}: {key}.{k}", POSE_DEG, text=False) for k, v in table.items()}
+
+
+def _pair(value: object, where: str) -> tuple[float, float] | None:
+    """``[a, b]`` of two finite numbers (not booleans), or None."""
+    if not (isinstance(value, list) and len(value) == 2):
+        return None
+    try:
+        return inputs.number(value[0], where, text=False), inputs.number(value[1], where, text=False)
+    except CmrtError:
+        return None
+
+
+def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task") -> Task:
+    """A task from a task-file dict (TOML, or a stored run's definition), validated: every value of the right
+    type, finite and in its documented range (``cmrt.inputs``); errors are one line naming ``source``."""
+    where = shown(source, 120).strip("'")
+    if not isinstance(raw, dict):
+        raise CmrtError(f"{where}: a task definition must be a table, got {shown(raw)}")
+    unknown = set(raw) - TASK_KEYS
+    if unknown:
+        raise CmrtError(f"{where}: unknown key(s) {', '.join(shown(k) for k in sorted(map(str, unknown)))}")
+    params = dict(DEFAULT_PARAMS)
+    prop = None
+    prop_table = _table(raw, "prop", where)
+    if prop_table is not None:
+        prop = prop_table.get("kind")
+        if set(prop_table) - {"kind"} or not isinstance(prop, str) or prop not in PROPS:
+            raise CmrtError(f"{where}: prop.kind must be one of {', '.join(PROPS)} (and [prop] nothing else), got "
+                            f"{shown(prop_table)}")
+        params.update(PROPS[prop].PARAMS)
+    limits = prop_class(prop).LIMITS
+    for key, value in (_table(raw, "params", where) or {}).items():
+        inputs.param_name(key, f"{where}: a key of [params]")
+        params[key] = inputs.number(value, f"{where}: parameter {key}", param_range(key, limits), text=False)
+    ranges = {}
+    for key, value in (_table(raw, "param_ranges", where) or {}).items():
+        pair = _pair(value, where)
+        if key not in params or pair is None or not pair[0] <= pair[1]:
+            raise CmrtError(f"{where}: param_ranges.{shown(key).strip(chr(39))} must be [low, high] (finite, "
+                            f"low <= high) of a known parameter, got {shown(value)}")
+        ranges[key] = pair
+    speed_param = raw.get("speed_param")
+    if speed_param is not None and (not isinstance(speed_param, str) or speed_param not in params):
+        raise CmrtError(f"{where}: speed_param must name a parameter, got {shown(speed_param)}")
+    balance_joint = raw.get("balance_joint", "ankle")
+    if balance_joint is None:
+        balance_joint = ""
+    if not isinstance(balance_joint, str) or balance_joint not in ("", *SIDED_JOINTS):
+        raise CmrtError(f"{where}: balance_joint must be one of {', '.join(SIDED_JOINTS)} or \"\", "
+                        f"got {shown(balance_joint)}")
+    poses = {key: _pose(_table(raw, key, where), key, where) for key in ("start_pose_deg", "end_pose_deg",
+                                                                          "via_pose_deg")}
+    timing = {}
+    for key, value in (_table(raw, "timing", where) or {}).items():
+        pair = _pair(value, where)
+        if pair is None or not 0.0 <= pair[0] < pair[1] <= 1.0:
+            raise CmrtError(f"{where}: timing.{shown(key).strip(chr(39))} must be [start, end] fractions of T with "
+                            f"0 <= start < end <= 1, got {shown(value)}")
+        timing[str(key)] = pair
+    robust_table = _table(raw, "robust", where)
+    task = Task(
+        name=_text(raw, "name", where, default_name),
+        summary=_text(raw, "summary", where, ""),
+        params=params,
+        param_ranges=ranges,
+        start_pose_deg=poses["start_pose_deg"] or {},
+        end_pose_deg=poses["end_pose_deg"],
+        via_pose_deg=poses["via_pose_deg"],
+        balance_joint=balance_joint or None,
+        timing=timing,
+        prop=prop,
+        speed_param=speed_param,
+        source=source,
+        robust=RobustSpec.from_table(robust_table, where) if robust_table is not None else RobustSpec(),
+        reference_mode=reference_mode(raw.get("reference", DEFAULT_REFERENCE_MODE), f"{where}: reference"),
+    )
+    try:
+        task.validate()
+        joint_angles_from_pose({k: 0.0 for k in timing})
+    except CmrtError as exc:
+        raise CmrtError(f"{where}: {exc}") from None
+    try:
+        task.start_qpos()  # fail now on unknown joints or unbalanceable poses
+        task.end_qpos()
+        if task.via_pose_deg is not None:
+            task.via_qpos()
+    except CmrtError as exc:
+        raise CmrtError(f"{where}: {exc}") from None
+    return task

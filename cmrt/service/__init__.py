@@ -1,0 +1,2 @@
+"""Runs kept and shared: the SQLite store, the job queue and its workers, queries, warm starts and
+interpolation between known CMRTs."""

@@ -1,0 +1,298 @@
+"""The job queue on the store: submit, claim, run with checkpoints, resume orphans.
+
+A run is a job. ``submit`` queues it with the full task definition (so later edits to a
+task file do not change a queued run). A worker ``claim``s the oldest queued run
+- or a ``running`` one whose heartbeat is older than ``stale_after_s`` (its worker
+died) - in one ``BEGIN IMMEDIATE`` transaction, bumping the run's ``attempt``. Every
+write the worker makes afterwards is fenced on (worker, attempt): if its claim was
+taken over, it stops instead of writing twice.
+
+Each generation commits its evaluations, the optimizer checkpoint and the run's
+progress atomically; a resumed run reloads the last checkpoint and continues exactly
+where the uninterrupted run would be.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import socket
+import time
+from collections.abc import Callable, Iterator, Sequence
+
+from cmrt import inputs
+from cmrt.errors import CmrtError, TransientFault, pending_termination
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.task import Task
+from cmrt.motion.taskfile import task_from_dict
+from cmrt.optimize.driver import CmaState, OptimizeSettings, best_cmrt, new_state, restart_if_stalled, step, stop_reason
+from cmrt.optimize.parallel import Evaluator
+from cmrt.service.store import Claim, Generation, LostClaim, Run, RunProgress, RunSpec, Store, StoredEvaluation
+from cmrt.service.warmstart import resolve_init
+from cmrt.sim.objective import evaluate
+from cmrt.sim.simulate import simulate
+from cmrt.sim.validate import robustness
+
+DEFAULT_STALE_AFTER_S = 120.0
+_DEFAULTS = OptimizeSettings()
+
+__all__ = ["Claim", "LostClaim", "claim", "optimize_family", "optimize_now", "run_claimed", "submit", "work"]
+
+
+def worker_id() -> str:
+    """host:pid, the name a worker claims runs under."""
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def submit(
+    store: Store,
+    task: Task,
+    *,
+    seed: int = _DEFAULTS.seed,
+    max_evals: int = _DEFAULTS.max_evals,
+    popsize: int = _DEFAULTS.popsize,
+    sigma0: float = _DEFAULTS.sigma0,
+    min_evals: int = _DEFAULTS.min_evals,
+    init: str | int | None = "auto",
+    backend: str = "batch",
+    stall_generations: int = _DEFAULTS.stall_generations,
+) -> int:
+    """Queue an optimization of ``task``; returns the run id. The optimizer's defaults are
+    :class:`OptimizeSettings`'.
+
+    ``init``: "auto" starts from the nearest known successful CMRT of the task (store, then
+    library; cold if none), "none" from the zero CMRT, a run id from that run's best."""
+    # the same ranges as the CLI's (cmrt.inputs): nothing non-finite or out of range reaches the store
+    for value, where, allowed in ((seed, "seed", inputs.SEED), (max_evals, "max_evals", inputs.MAX_EVALS),
+                                  (popsize, "popsize", inputs.POPSIZE), (sigma0, "sigma0", inputs.SIGMA0),
+                                  (min_evals, "min_evals", inputs.MIN_EVALS),
+                                  (stall_generations, "stall_generations", inputs.STALL_GENERATIONS)):
+        allowed.check(value, where, text=False)
+    start = resolve_init(store, task, init)
+    return store.add_run(RunSpec(
+        task=task.name, speed=task.speed, params=task.params, task_hash=task.content_hash(),
+        task_definition=task.to_dict(), seed=seed, max_evals=max_evals, popsize=popsize, sigma0=sigma0,
+        min_evals=min_evals, stop_threshold=task.stop_threshold, stall_generations=stall_generations,
+        backend=backend, init_source=start.source, init_params=start.params,
+        init_run=init if isinstance(init, int) and not isinstance(init, bool) else None,
+        robust=task.robust.to_table() if task.robust.enabled else None, reference=task.reference_mode,
+    ))
+
+
+def claim(store: Store, worker: str, stale_after_s: float = DEFAULT_STALE_AFTER_S,
+          run_id: int | None = None) -> Claim | None:
+    """Take the oldest queued run, else an orphaned running one; None if there is none."""
+    return store.claim(worker, stale_after_s, run_id)
+
+
+def settings_for(run: Run, x0: tuple[float, ...] | None = None) -> OptimizeSettings:
+    """The optimizer settings a stored run was queued with; a row outside the ranges ``submit`` accepts (a
+    store edited by someone else: a popsize of 20000) is refused with one line (the worker fails that run)."""
+    for value, where, allowed in ((run.seed, "seed", inputs.SEED), (run.max_evals, "max_evals", inputs.MAX_EVALS),
+                                  (run.popsize, "popsize", inputs.POPSIZE), (run.sigma0, "sigma0", inputs.SIGMA0),
+                                  (run.min_evals, "min_evals", inputs.MIN_EVALS)):
+        try:
+            if value is not None:
+                allowed.check(value, where, text=False)
+        except CmrtError as exc:
+            raise CmrtError(f"run {run.id} is outside what submit accepts: {exc}") from None
+    if run.stall_generations is not None:
+        inputs.STALL_GENERATIONS.check(run.stall_generations, "stall_generations", text=False)
+    return OptimizeSettings(
+        seed=run.seed, max_evals=run.max_evals, min_evals=run.min_evals, popsize=run.popsize,
+        sigma0=run.sigma0, stop_threshold=run.stop_threshold or 0.0, x0=x0,
+        stall_generations=run.stall_generations or _DEFAULTS.stall_generations,
+    )
+
+
+ProgressFn = Callable[[CmaState, list, float], None]
+
+
+def run_claimed(
+    store: Store,
+    claim: Claim,
+    evaluator: Evaluator,
+    on_generation: ProgressFn | None = None,
+    heartbeat_s: float = DEFAULT_STALE_AFTER_S / 4,
+) -> Run:
+    """Optimize a claimed run to its end (or until the claim is lost: LostClaim). Returns the finished run.
+    ``heartbeat_s``: how often the run's heartbeat is refreshed while a generation runs (a quarter of the
+    workers' ``stale_after_s``, so a healthy worker is never taken for dead)."""
+    with store.heartbeat(claim, heartbeat_s):
+        return _run_claimed(store, claim, evaluator, on_generation)
+
+
+def _run_claimed(store: Store, claim: Claim, evaluator: Evaluator, on_generation: ProgressFn | None) -> Run:
+    run = store.run(claim.run_id)
+    task = task_from_dict(run.task_definition, source=f"run {run.id}")
+    x0 = run.init_params
+    if x0 is None and run.init_run is not None:  # queued by a cmrt before schema 3
+        x0 = store.run(run.init_run).best_params
+    settings = settings_for(run, x0)
+    checkpoint = store.last_checkpoint(claim.run_id)
+    state = CmaState.loads(checkpoint[1], settings, run_id=run.id) if checkpoint else new_state(settings)
+
+    if run.baseline_objective is None:
+        base = evaluate(task, simulate(task, Cmrt.zero(task.clip_s), record=False))  # the score only
+        store.record_baseline(claim, base.objective, base.fell, base.success)
+
+    wall_before = run.wall_s or 0.0
+    t_start = time.perf_counter()
+    while (reason := stop_reason(state, settings)) is None:
+        xs, records = step(state, lambda xs: evaluator(task, xs))
+        restart_if_stalled(state, settings)
+        wall = wall_before + time.perf_counter() - t_start
+        gen = state.generation - 1
+        progress = RunProgress(
+            evaluations=state.evaluations, generations=state.generation, restarts=state.restarts,
+            best_objective=state.best_objective, best_params=tuple(state.best_x.tolist()),
+            best_fell=state.best_fell, best_success=state.best_success,
+            best_cmrt=best_cmrt(state, task.clip_s).to_dict(), wall_s=wall,
+            eval_s_added=sum(r.seconds for r in records),
+        )
+        generation = Generation(
+            gen=gen, sigma=float(state.es.sigma), best_objective=state.best_objective,
+            gen_best_objective=min(r.objective for r in records), mean=tuple(map(float, state.es.mean)),
+            evaluations=state.evaluations, created_at=time.time(),
+        )
+        evaluations = [StoredEvaluation(gen=gen, idx=i, params=tuple(x.tolist()), objective=r.objective,
+                                        fell=r.fell, success=r.success, seconds=r.seconds)
+                       for i, (x, r) in enumerate(zip(xs, records, strict=True))]
+        store.commit_generation(claim, progress, generation, evaluations, state.dumps())
+        if on_generation:
+            on_generation(state, records, wall)
+    store.finish(claim, reason, robustness(task, best_cmrt(state, task.clip_s)))  # the validation ensemble
+    return store.run(claim.run_id)
+
+
+def optimize_now(
+    store: Store,
+    task: Task,
+    evaluator: Evaluator | None = None,
+    on_generation: ProgressFn | None = None,
+    **submit_kwargs,
+) -> Run:
+    """Submit a run and optimize it in this process (``cmrt optimize``); returns the finished run.
+
+    Args:
+        evaluator: how candidates are simulated (default: the batched evaluator, closed afterwards).
+        on_generation: called after every committed generation with (state, records, wall_s).
+        submit_kwargs: as :func:`submit` (seed, max_evals, popsize, sigma0, min_evals, init, ...).
+    """
+    with _evaluator(evaluator) as ev:
+        run_id = submit(store, task, backend=ev.backend, **submit_kwargs)
+        c = claim(store, worker_id(), run_id=run_id)
+        try:
+            return run_claimed(store, c, ev, on_generation)
+        except KeyboardInterrupt:  # Ctrl-C, SIGTERM: back in the queue, a worker resumes it
+            store.release(c)
+            raise
+        except TransientFault as exc:
+            store.retry_later(c, str(exc))
+            raise TransientFault(f"run {run_id} is back in the queue ('cmrt worker' resumes it): {exc}") from exc
+        except Exception as exc:  # never leave the run 'running' until its heartbeat goes stale
+            if (terminated := pending_termination()) is not None:  # a signal inside an SQLite step
+                store.release(c)
+                raise terminated from exc
+            store.mark_failed(c, str(exc) if isinstance(exc, CmrtError) else f"{type(exc).__name__}: {exc}")
+            raise
+
+
+def optimize_family(
+    store: Store,
+    tasks: Sequence[Task],
+    evaluator: Evaluator | None = None,
+    *,
+    family_sigma0: float = 0.15,
+    on_generation: ProgressFn | None = None,
+    on_run: Callable[[Run], None] | None = None,
+    **submit_kwargs,
+) -> list[Run]:
+    """Optimize a family of tasks (e.g. one task at several speeds) in order, each member after the first
+    warm-started from the previous member's best with step size ``family_sigma0``: the members stay near
+    their neighbour, one family shape that interpolates well (ABC section 5).
+
+    ``submit_kwargs`` apply to every member (its ``init`` and ``sigma0`` to the first only)."""
+    inputs.SIGMA0.check(family_sigma0, "family_sigma0", text=False)
+    if isinstance(submit_kwargs.get("init"), int) and not isinstance(submit_kwargs.get("init"), bool):
+        raise CmrtError("a family's members start from each other: give no run id as init")
+    runs: list[Run] = []
+    with _evaluator(evaluator) as ev:
+        for task in tasks:
+            kwargs = dict(submit_kwargs)
+            if runs:
+                kwargs.update(init=runs[-1].id, sigma0=family_sigma0)
+            runs.append(optimize_now(store, task, ev, on_generation, **kwargs))
+            if on_run:
+                on_run(runs[-1])
+    return runs
+
+
+@contextlib.contextmanager
+def _evaluator(evaluator: Evaluator | None) -> Iterator[Evaluator]:
+    """The caller's evaluator, or a batched one of our own that we close."""
+    if evaluator is not None:
+        yield evaluator
+        return
+    own = Evaluator("batch")
+    try:
+        yield own
+    finally:
+        own.close()
+
+
+def work(
+    store: Store,
+    evaluator: Evaluator | None = None,
+    *,
+    until_idle: bool = False,
+    once: bool = False,
+    stale_after_s: float = DEFAULT_STALE_AFTER_S,
+    poll_s: float = 2.0,
+    on_claim: Callable[[Claim], None] | None = None,
+    on_generation: ProgressFn | None = None,
+    on_failure: Callable[[int, str], None] | None = None,
+) -> list[int]:
+    """The worker loop: claim, optimize, repeat. Returns the ids of the runs it finished.
+
+    A transient fault (full disk, lost worker process: :class:`TransientFault`) gives the run back to the
+    queue - it resumes from its last checkpoint - a bounded number of times (``store.MAX_RETRIES``); any
+    other error marks it failed with the message (``on_failure(run_id, message)``) and the worker goes on.
+    Ctrl-C and SIGTERM give the current run back to the queue and stop the worker. ``evaluator`` defaults
+    to the batched one, as in :func:`optimize_now`.
+    """
+    inputs.STALE_AFTER_S.check(stale_after_s, "stale_after_s", text=False)
+    me = worker_id()
+    finished = []
+    with _evaluator(evaluator) as ev:
+        while True:
+            c = claim(store, me, stale_after_s)
+            if c is None:
+                if until_idle or once:
+                    return finished
+                time.sleep(poll_s)
+                continue
+            if on_claim:
+                on_claim(c)
+            try:
+                run_claimed(store, c, ev, on_generation, heartbeat_s=stale_after_s / 4)
+                finished.append(c.run_id)
+            except LostClaim:
+                pass
+            except KeyboardInterrupt:  # Ctrl-C, SIGTERM (cmrt.errors.Terminated)
+                store.release(c)
+                raise
+            except TransientFault as exc:
+                store.retry_later(c, str(exc))
+                if on_failure:
+                    on_failure(c.run_id, f"transient fault, back in the queue: {exc}")
+            except Exception as exc:  # a bug or a bad stored run must not take the worker (and the queue) down
+                if (terminated := pending_termination()) is not None:  # a signal inside an SQLite step
+                    store.release(c)
+                    raise terminated from exc
+                message = str(exc) if isinstance(exc, CmrtError) else f"{type(exc).__name__}: {exc}"
+                store.mark_failed(c, message)
+                if on_failure:
+                    on_failure(c.run_id, message)
+            if once:
+                return finished

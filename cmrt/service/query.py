@@ -1,0 +1,86 @@
+"""Read-side of the store: runs, the best run for a task, curves, exports (all through ``Store``)."""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import asdict
+from typing import TYPE_CHECKING
+
+from cmrt import inputs
+from cmrt.errors import CmrtError
+from cmrt.service.store import Run, Store
+
+if TYPE_CHECKING:
+    from cmrt.motion.curve import Cmrt
+    from cmrt.motion.task import Task
+
+SUMMARY_KEYS = ("id", "task", "speed", "reference", "status", "seed", "best_objective", "best_success", "best_fell",
+                "baseline_objective", "baseline_success", "baseline_fell", "evaluations", "generations", "stop_reason",
+                "wall_s")
+
+
+def run_summary(run: Run) -> dict:
+    """The columns ``cmrt runs`` lists."""
+    return {k: getattr(run, k) for k in SUMMARY_KEYS}
+
+
+def run_details(store: Store, run_id: int) -> dict:
+    """Everything ``cmrt show`` prints: the run decoded, with its throughput."""
+    run = store.run(run_id)
+    out = run.to_dict()
+    eval_s = run.eval_s or 0.0
+    out["evaluations_per_s"] = run.evaluations / run.wall_s if run.wall_s else None
+    out["mean_eval_s"] = eval_s / run.evaluations if run.evaluations else None
+    return out
+
+
+def best_run(store: Store, task: Task) -> Run:
+    """The best finished run for exactly this task (same physics hash): successes first, then the
+    lowest objective."""
+    run = store.best_run(task.content_hash())
+    if run is None:
+        speed = f" at speed {task.speed:g}" if task.speed is not None else ""
+        raise CmrtError(f"no finished run for task '{task.name}'{speed} with these parameters in {store.path}")
+    return run
+
+
+def task_of(run: Run) -> Task:
+    """The task exactly as the run was queued with (not the task file as it is now)."""
+    from cmrt.motion.taskfile import task_from_dict  # MuJoCo: listing and showing runs do not load it
+
+    return task_from_dict(run.task_definition, source=f"run {run.id}")
+
+
+def run_curve(store: Store, run_id: int) -> Cmrt:
+    """The best CMRT a stored run found so far."""
+    run = store.run(run_id)
+    if not run.best_cmrt:
+        raise CmrtError(f"run {run_id} has no result yet (status {run.status})")
+    from cmrt.motion.curve import Cmrt  # scipy: listing and showing runs do not load it
+
+    return Cmrt.from_dict(run.best_cmrt)
+
+
+def export_run(store: Store, run_id: int, fmt: str) -> str:
+    """json: run, generations and evaluations (non-finite numbers as null: valid JSON); csv: one row per
+    evaluation."""
+    if fmt not in ("json", "csv"):
+        raise CmrtError(f"--format must be json or csv, got '{fmt}'")
+    with store.snapshot():  # one consistent state even while a worker commits generations
+        details, generations, evaluations = run_details(store, run_id), store.generations(run_id), \
+            store.evaluations(run_id)
+    if fmt == "json":
+        return inputs.dumps(
+            {"run": details, "generations": [asdict(g) for g in generations],
+             "evaluations": [asdict(e) for e in evaluations]},
+            indent=2,
+        )
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["run_id", "gen", "idx", "objective", "fell", "success", "seconds"] + [f"p{i}" for i in range(8)])
+    for e in evaluations:
+        success = "" if e.success is None else int(e.success)
+        row = [run_id, e.gen, e.idx, repr(e.objective), int(e.fell), success, e.seconds]
+        w.writerow(row + [repr(p) for p in e.params])
+    return buf.getvalue()

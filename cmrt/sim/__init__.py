@@ -1,0 +1,2 @@
+"""A clip played and judged: the batched simulation (set-up, Python and compiled control loops), the fall
+monitor, the objective and the robustness validation."""

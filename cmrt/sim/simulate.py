@@ -1,0 +1,934 @@
+"""Clips -> trajectories (CoM, CoP, support, contacts, balance loss), many at once.
+
+``simulate_batch`` steps n clips of one task that differ only in their CMRT in lockstep
+on ``mujoco.batch.Batch`` with one vectorised controller - one group of clips per core, each
+group in its own thread (docs/performance.md) - and, for a scoring run, one compiled call per
+control step (``cmrt.sim.tick``); ``simulate`` is the case n = 1. MuJoCo's batch is bit-identical
+to stepping each simulation alone, and the controller's arithmetic is row-wise, so a candidate's objective does not
+depend on what else is in its batch (tested).
+
+A simulated clip is the task's clip (preparation P + task T + decay D = L) followed by
+a standing tail of ``tail_s`` (the end pose held, no CMRT): the paper's objective only
+looks at [0, L]; the tail shows whether the character really comes to rest.
+It always starts from the task's settled standing state (the start pose held by the
+controller for ``SETTLE_S`` seconds), so no start-up transient enters the objective.
+
+Every control step the balance monitor (``cmrt.sim.balance``) checks for a loss of
+balance. When it finds one, a scoring run stops that simulation (nothing after a fall
+enters the score); a recorded run (``record=True``: traces, renders) switches it to a
+protective mode - a passive spring-damper holding the pose it fell in, which cannot
+add energy - and lets the topple play out to the end of the clip and tail, at least
+``POST_FALL_S`` past the fall.
+
+The CoP is measured from the contact forces MuJoCo applied during each step: touch
+sensors around the four heel/toe spheres read each point's normal force f_i, the
+contact lies straight under the sphere's centre x_i, so ``cop_x = sum f_i x_i / sum f_i``.
+Forces on the hands (a ball, a bag, a slab) never enter it.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import mujoco
+import mujoco.batch
+import numpy as np
+
+from cmrt.body.character import FOOT_POINT_RADIUS_M, character
+from cmrt.body.props import CONTACT_FORCE_N, model_values, prop_class
+from cmrt.control import ControllerConfig, MomentumBalanceController
+from cmrt.control.controller import read_only
+from cmrt.control.planar import PlanarKinematics
+from cmrt.control.references import MotionCom, Targets, YuReference, motion_com
+from cmrt.control.stepping import StepCommand, StepConfig, StepSupervisor
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.ensemble import NOMINAL, Perturbation
+from cmrt.motion.task import Task
+from cmrt.sim.balance import REASONS, BalanceLimits, FallReason, capture_point_x, check_balance
+from cmrt.sim.tick import control_tick, geometry, sample_support
+
+SETTLE_S = 1.5
+POST_FALL_S = 1.0  # a recorded clip runs at least this long past a fall, so the topple is seen
+CONTACT_HEIGHT_M = 0.001  # a heel/toe point whose lowest point is below this height touches the floor
+# Protective mode after a fall: a passive spring-damper about the pose at the fall, per joint (a fraction of
+# the motor's torque limit per rad and per rad/s): muscle tone, no goal. It is MuJoCo's own joint stiffness and
+# damping, set per simulation (``_go_limp``), so the implicit integrator carries the damping: as torques held
+# over a control step (v0.2) the damper was unstable on the light distal joints (ankle c T / I = 3.77 > 2:
+# ankles chattering at 79-100 rad/s, feet slapping the floor at 5-15 body weights). docs/controller.md.
+PROTECTIVE_STIFFNESS_PER_RAD = 0.1
+PROTECTIVE_DAMPING_PER_RAD_S = 0.1
+
+# Scoring runs in the center mode with feet planted do their control steps in one compiled call
+# (cmrt.sim.tick); False runs them on the Python path, as traces do (tests compare the two bit for bit).
+COMPILED_TICK = True
+# ...and step the batch through MuJoCo's bound C++ ``step`` (see ``direct_step``); False: ``Batch.step``.
+DIRECT_STEP = True
+CONTROL_FIELDS = ("qpos", "qvel", "cdof", "cdof_dot", "cvel", "cinert", "M", "qfrc_bias", "qfrc_passive",
+                  "subtree_com", "xpos", "geom_xpos")
+STATE_FIELDS = ("qpos", "qvel", "qacc_warmstart")
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Per-physics-step record of a clip and its tail; time-aligned arrays (n_steps, ...).
+
+    Without ``record`` only what the score needs is filled (CoP, support, the humanoid's
+    joint angles and CoM at the CoP sample steps; ground force every step; joint speed,
+    CoM and controls at control steps); the rest is NaN. Arrays end where the
+    simulation stopped: the end of the tail, or the fall when scoring."""
+
+    time_s: np.ndarray
+    qpos: np.ndarray
+    qvel: np.ndarray
+    com_m: np.ndarray  # (n, 2): x, z
+    com_vel_x_m_s: np.ndarray
+    capture_point_x_m: np.ndarray
+    cop_x_m: np.ndarray  # measured from the contact forces; NaN when the feet carry no load
+    support_center_x_m: np.ndarray
+    support_lo_x_m: np.ndarray
+    support_hi_x_m: np.ndarray
+    normal_force_n: np.ndarray  # total vertical ground force on the feet, every step
+    foot_normal_force_n: np.ndarray  # (n, 2): right, left
+    point_lift_m: np.ndarray  # (n, 4): heel_r, toe_r, heel_l, toe_l above settled height
+    point_contact: np.ndarray  # (n, 4): 1 where that point touches the floor (control steps), else 0
+    foot_roll_rad: np.ndarray  # (n, 2): pitch of each foot (0 flat; < 0 toes up)
+    prop_force_n: np.ndarray  # force between the character and the task's prop, every step (NaN: no prop)
+    max_joint_speed_rad_s: np.ndarray  # largest |qvel| of the actuated joints (control steps)
+    cmrt_displacement_m: np.ndarray
+    com_ref_x_m: np.ndarray  # the controller's reference CoM, CMRT included (control steps; held between them)
+    cop_ref_x_m: np.ndarray  # its reference CoP (the support centre, or Yu's eq. 3.4): at the CoP sample steps
+    ctrl_nm: np.ndarray  # (n, nu): the torques applied during the step (control steps; every step in traces)
+    plan_cop_x_m: np.ndarray  # the CoP the controller planned for them (control steps of traces; NaN: no plan,
+    # protective mode, a foot swinging)
+    lowest_body_z_m: np.ndarray  # lowest point of a body other than the feet above the floor (traces)
+    protective: np.ndarray  # (n,) bool: torques came from the protective mode (after a fall)
+    clip_s: float  # L: the end of the scored clip; the standing tail follows
+    fell: bool
+    fall_time_s: float | None
+    fall_reason: FallReason | None
+    diverged: bool
+    final_qpos: np.ndarray  # the humanoid's at the end of the tail, or at the fall
+    final_com_speed_m_s: float  # |CoM velocity| at the end of the tail, or at the fall
+    task_success: bool | None = None  # goal reached (ball caught and held, slab toppled, pad struck)
+    step_times_s: tuple[float, ...] = ()  # lift-off of every step the supervisor took (stepping tasks)
+    footprints: tuple[tuple[int, float, float], ...] = ()  # (foot 0 right / 1 left, touchdown s, heel x m)
+    prop_extras: dict[str, float] = field(default_factory=dict)  # e.g. grip_s, ball_sag_m for a ball
+    fall_capture_point_x_m: float | None = None  # at the fall (the direction of a fall not played out)
+    fall_com_vel_x_m_s: float | None = None
+
+    @property
+    def max_lift_m(self) -> float:
+        """Highest any heel/toe point rose above its settled height (m): a planted foot should not lift."""
+        lift = self.point_lift_m[np.isfinite(self.point_lift_m).all(axis=1)]
+        return float(lift.max()) if lift.size else 0.0
+
+    def as_npz_dict(self) -> dict[str, np.ndarray]:
+        """The arrays ``--trace`` saves."""
+        out = {k: v for k, v in self.__dict__.items() if isinstance(v, np.ndarray)}
+        for key in ("fell", "diverged", "clip_s", "final_com_speed_m_s"):
+            out[key] = np.array(getattr(self, key))
+        out["fall_time_s"] = np.array(np.nan if self.fall_time_s is None else self.fall_time_s)
+        for key in ("fall_capture_point_x_m", "fall_com_vel_x_m_s"):
+            out[key] = np.array(np.nan if getattr(self, key) is None else getattr(self, key))
+        out["fall_reason"] = np.array("" if self.fall_reason is None else self.fall_reason.value)
+        out["task_success"] = np.array(np.nan if self.task_success is None else float(self.task_success))
+        out.update({k: np.array(v) for k, v in self.prop_extras.items()})
+        out["step_times_s"] = np.array(self.step_times_s, float)
+        out["footprints"] = np.array(self.footprints, float).reshape(-1, 3)
+        return out
+
+
+class _Geometry:
+    """Constant per-model data for the balance checks."""
+
+    def __init__(self):
+        ch = character()
+        m = ch.model
+        self.points = np.array(ch.foot_point_geoms)  # heel_r, toe_r, heel_l, toe_l
+        feet = set(ch.foot_point_geoms) | {ch.floor_geom}
+        body = [g for g in range(m.ngeom) if g not in feet and m.geom_conaffinity[g] and m.geom_type[g]
+                == mujoco.mjtGeom.mjGEOM_CAPSULE]
+        self.body_geoms = np.array(body)
+        self.radius = m.geom_size[body, 0]
+        self.half = m.geom_size[body, 1]
+        self.leg_dofs = np.array([[ch.dof(f"{j}_{s}") for j in ("hip", "knee", "ankle")] for s in ("r", "l")])
+        self.root_pitch = ch.root_dofs[2]
+
+    def lowest_body_z(self, geom_xpos: np.ndarray, geom_xmat: np.ndarray) -> np.ndarray:
+        """Lowest point of any non-foot capsule, per simulation (numpy; the loop uses ``at_control``, which
+        is tested against this)."""
+        z = geom_xpos[:, self.body_geoms, 2] - np.abs(geom_xmat[:, self.body_geoms, 8]) * self.half - self.radius
+        return z.min(axis=1)
+
+    def at_control(self, geom_xpos, geom_xmat, qpos, qvel, act) -> tuple[np.ndarray, ...]:
+        """``cmrt.sim.tick.geometry`` of these rows: point_x, lo, hi, contact, roll, jspeed, lowest, grounded, c_lo,
+        c_hi (fresh arrays: the stepping supervisor and the records may keep them)."""
+        n = qpos.shape[0]
+        out = (np.empty((n, self.points.size)), np.empty(n), np.empty(n), np.empty((n, self.points.size), bool),
+               np.empty((n, 2)), np.empty(n), np.empty(n), np.empty(n, bool), np.empty(n), np.empty(n))
+        geometry(np.arange(n), geom_xpos, geom_xmat, qpos, qvel, self.points, self.body_geoms, self.half, self.radius,
+                 self.leg_dofs, self.root_pitch, act, FOOT_POINT_RADIUS_M, CONTACT_HEIGHT_M, *out)
+        return out
+
+    def foot_roll(self, qpos: np.ndarray) -> np.ndarray:
+        """(n, 2) foot pitch: root pitch plus the leg's hip, knee and ankle angles."""
+        return qpos[:, self.root_pitch, None] + qpos[:, self.leg_dofs].sum(axis=2)
+
+
+_SETTLED: dict = {}
+
+
+def thread_count(n: int) -> int:
+    """Threads for a batch of ``n`` simulations: ``$CMRT_THREADS`` (default: the CPUs), at most ``n``."""
+    return max(1, min(n, int(os.environ.get("CMRT_THREADS", os.cpu_count() or 1))))
+
+
+def _in_contact(geom_xpos: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return geom_xpos[:, points, 2] - FOOT_POINT_RADIUS_M < CONTACT_HEIGHT_M
+
+
+def settled_state(task: Task, config: ControllerConfig) -> dict[str, np.ndarray]:
+    """The start pose after the controller held it for SETTLE_S (cached per process and model)."""
+    q0 = task.start_qpos()
+    key = (q0.tobytes(), config, task.prop, model_values(task.prop, task.params))
+    if key not in _SETTLED:
+        ch = character()
+        m = task.model()
+        prop = prop_class(task.prop)(m, task.params)
+        batch = mujoco.batch.Batch(m, nsim=1, nthread=1, persistent=True)
+        f = {k: batch.bind(k) for k in set(CONTROL_FIELDS) | set(STATE_FIELDS) | {"ctrl"}}
+        f["qpos"][0, : q0.size] = q0
+        f["qpos"][0, 1] -= 0.002  # start just in contact: the feet sink ~2 mm under body weight
+        batch.forward(stage=mujoco.mjtStage.mjSTAGE_VEL)
+        ctrl = MomentumBalanceController(ch, config)
+        points = np.array(ch.foot_point_geoms)
+        lo, hi = _support(f["geom_xpos"], points)
+        center = 0.5 * (lo + hi)
+        zeros = np.zeros(q0.size)
+        for k in range(int(round(SETTLE_S / m.opt.timestep))):
+            if k % config.control_every == 0:
+                contact = _in_contact(f["geom_xpos"], points)
+                f["ctrl"][:] = ctrl.torques(f, q0, zeros, zeros, center, np.zeros(1), center, contact).torque_nm
+            prop.settle_hold(f)
+            batch.step(stage=mujoco.mjtStage.mjSTAGE_VEL)
+        _SETTLED[key] = {k: f[k][0].copy() for k in STATE_FIELDS}
+    return _SETTLED[key]
+
+
+def _support(geom_xpos: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    xs = geom_xpos[:, points, 0]
+    return xs.min(axis=1), xs.max(axis=1)
+
+
+def _ground_support(contact: np.ndarray, point_x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per simulation: is any heel/toe point on the floor, and [lo, hi] spanned by the feet that touch it
+    (NaN if none). A foot rolled onto its toe still spans heel to toe: a capture point between them brings
+    it back down flat; only beyond the rolling edge is the body going over. (numpy; the loop uses
+    ``_Geometry.at_control``, which is tested against this.)"""
+    foot_down = contact[:, 0::2] | contact[:, 1::2]  # (n, 2): right, left
+    on = np.repeat(foot_down, 2, axis=1)  # both points of a foot that touches
+    grounded = foot_down.any(axis=1)
+    lo = np.where(grounded, np.where(on, point_x, np.inf).min(axis=1), np.nan)
+    hi = np.where(grounded, np.where(on, point_x, -np.inf).max(axis=1), np.nan)
+    return grounded, lo, hi
+
+
+class _Limp:
+    """Protective mode: the fallen simulations' joints become passive springs and dampers about the pose they
+    fell in - muscle tone without a goal, so it cannot add energy (the CoM only goes down) - as MuJoCo's per-
+    simulation joint stiffness, damping and spring pose, integrated by MuJoCo (its damping implicitly). Their
+    motors are off."""
+
+    def __init__(self, batch, limits_nm: np.ndarray):
+        m = character().model
+        joints = m.actuator_trnid[:, 0]
+        self.dofs, self.qpos_adr = m.jnt_dofadr[joints], m.jnt_qposadr[joints]
+        self.joints, self.limits, self.batch = joints, limits_nm, batch
+        self.fields: tuple | None = None
+
+    def fall(self, sims: np.ndarray, qpos: np.ndarray) -> None:
+        """Simulations ``sims`` (batch rows) fell in pose ``qpos`` (their rows)."""
+        if self.fields is None:  # per-simulation values from the first fall on (the others keep the model's)
+            self.fields = tuple(self.batch.expand(k) for k in ("jnt_stiffness", "dof_damping", "qpos_spring"))
+        stiffness, damping, spring = self.fields
+        for row, q in zip(sims, qpos, strict=True):
+            stiffness[row, self.joints] = PROTECTIVE_STIFFNESS_PER_RAD * self.limits
+            damping[row, self.dofs] = PROTECTIVE_DAMPING_PER_RAD_S * self.limits
+            spring[row, self.qpos_adr] = q[self.qpos_adr]
+
+
+def _judge_prop(prop, b, rows, force, times, windows, goal, extras) -> None:
+    """The prop's verdict and figures for simulations ``rows`` as they are now (a fall freezes them, so
+    a recorded topple cannot change them). ``windows`` (n, 2): each simulation's task window."""
+    if rows.size == 0:
+        return
+    for window in np.unique(windows[rows], axis=0):
+        same = np.all(windows[rows] == window, axis=1)
+        verdict = prop.success(b, rows[same], force[same], times, tuple(window))
+        if verdict is not None:
+            goal[rows[same]] = verdict
+    for key, values in prop.extras(b, rows).items():
+        extras.setdefault(key, np.full(goal.size, np.nan))[rows] = values
+
+
+def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass, step: StepCommand | None = None,
+             warm: np.ndarray | None = None, ids: np.ndarray | None = None, load=None):
+    """Torques and the planned CoP (``ControlOutput.cop_x_m``) for the given rows; a row whose plan is singular or
+    non-finite gets zero torques, a NaN plan and bad=True. ``warm`` (all simulations, n_rows): the QPs' active
+    sets (``ControllerConfig.warm_start``), read and updated at rows ``ids`` (a row whose plan is singular keeps
+    its own, as the compiled tick does)."""
+    if step is not None:
+        com_ref, com_ref_vel = step.com_targets(com_ref, com_ref_vel)
+
+    def swing(rows):
+        return {} if step is None else {"swing_foot": step.swing_foot[rows], "swing_target": step.swing_target[rows]}
+
+    # no np.errstate here: the compiled kernel raises no numpy FP warnings, and entering one per control
+    # step cost more than a percent of an evaluation
+    active = None if warm is None else warm[ids]
+    try:
+        out = controller.torques(f, *refs, com_ref, com_ref_vel, cop_ref, contact, mass, **swing(slice(None)),
+                                 warm=active, load=load)
+        ctrl, plan_cop = out.torque_nm, out.cop_x_m
+        if warm is not None:
+            warm[ids] = active
+    except np.linalg.LinAlgError:  # find the culprits one by one; the others are unaffected
+        ctrl = np.full((com_ref.size, controller.limits.size), np.nan)
+        plan_cop = np.full(com_ref.size, np.nan)
+        for i in range(com_ref.size):
+            fi = {name: f[name][i : i + 1] for name in CONTROL_FIELDS}
+            one = None if warm is None else warm[ids[i : i + 1]]
+            try:
+                out = controller.torques(fi, *refs, com_ref[i : i + 1], com_ref_vel[i : i + 1],
+                                         cop_ref[i : i + 1], contact[i : i + 1], mass[i : i + 1],
+                                         **swing(slice(i, i + 1)), warm=one,
+                                         load=None if load is None else (load[0][i : i + 1], load[1][i : i + 1],
+                                                                         load[2]))
+                ctrl[i], plan_cop[i] = out.torque_nm[0], out.cop_x_m[0]
+                if warm is not None:
+                    warm[ids[i]] = one[0]
+            except np.linalg.LinAlgError:
+                pass
+    bad = ~np.all(np.isfinite(ctrl), axis=1)
+    ctrl[bad] = 0.0
+    plan_cop = np.where(bad, np.nan, plan_cop)
+    return ctrl, bad, plan_cop
+
+
+class _Recorder:
+    """Buffers (n, n_steps, ...) filled at the steps where each quantity is read; NaN elsewhere."""
+
+    SHAPES = {"com": (2,), "com_vel": (), "xi": (), "cop": (), "sc": (), "lo": (), "hi": (), "fz": (),
+              "ffz": (2,), "lift": (4,), "contact": (4,), "roll": (2,), "jspeed": (), "cref": (), "pref": (),
+              "plan_cop": (), "body_z": (), "ctrl": None, "prop_force": (),
+              "qpos": None, "qvel": None}
+
+    def __init__(self, n: int, n_steps: int, nq: int, nv: int, nu: int):
+        sizes = {"ctrl": (nu,), "qpos": (nq,), "qvel": (nv,)}
+        self.buf = {k: np.full((n, n_steps, *(sizes.get(k) if s is None else s)), np.nan)
+                    for k, s in self.SHAPES.items()}
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        return self.buf[key]
+
+    def cut(self, i: int, last: int) -> dict[str, np.ndarray]:
+        return {k: v[i, :last] for k, v in self.buf.items()}
+
+
+@dataclass(frozen=True)
+class _Drive:
+    """What drives each simulation of a batch: its CMRT, its reference motion (computed once per distinct
+    timing; rows index their variant), its thorax push, its prop mass and its task window."""
+
+    disp_m: np.ndarray  # (n, steps): CMRT displacement d(t)
+    disp_vel_m_s: np.ndarray  # (n, steps)
+    q_ref: np.ndarray  # (steps, nv), or (variants, steps, nv) when the rows differ in timing
+    qd_ref: np.ndarray
+    qdd_ref: np.ndarray
+    variant_of: np.ndarray | None  # (n,): each row's timing variant; None: one timing for all rows
+    push_n: np.ndarray  # (n, steps): horizontal force on the thorax
+    push_changes: np.ndarray  # (steps,): the push changes at this step (written to the batch only then)
+    mass_scale: np.ndarray  # (n,): the prop's mass as a multiple of the task's
+    windows_s: np.ndarray  # (n, 2): [P, P + T] of each row's timing
+    motion_com: list[MotionCom] | None = None  # per timing variant: the reference's foot-to-CoM (yu mode only)
+
+    def refs_at(self, k: int, rows) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Reference q, qd, qdd at step ``k`` for simulations ``rows``."""
+        if self.variant_of is None:
+            return self.q_ref[k], self.qd_ref[k], self.qdd_ref[k]
+        v = self.variant_of[rows]
+        return self.q_ref[v, k], self.qd_ref[v, k], self.qdd_ref[v, k]
+
+    def foot_to_com_at(self, k: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The reference motion's foot-to-CoM x and its rate at step ``k``, (rows, 2) each (yu mode)."""
+        v = np.zeros(rows.size, int) if self.variant_of is None else self.variant_of[rows]
+        x = np.stack([mc.foot_to_com_x_m[k] for mc in self.motion_com])
+        vel = np.stack([mc.foot_to_com_vel_x_m_s[k] for mc in self.motion_com])
+        return x[v], vel[v]
+
+
+def _drive(task: Task, curves: list[Cmrt], members: list[Perturbation], times: np.ndarray) -> _Drive:
+    nv = character().nv
+    scales = sorted({p.time_scale for p in members})
+    variant_tasks = [Perturbation(time_scale=s).task_variant(task) for s in scales]
+    variant_of = np.array([scales.index(p.time_scale) for p in members])
+    variant_refs = [vt.reference(times) for vt in variant_tasks]
+    if len(scales) == 1:
+        q_ref, qd_ref, qdd_ref = variant_refs[0]
+    else:
+        q_ref, qd_ref, qdd_ref = (np.stack([r[i] for r in variant_refs]) for i in range(3))
+    push = task.pushes_n(times)[None, :] + np.stack([p.push_at(times) for p in members])
+    return _Drive(
+        disp_m=np.stack([c.displacement_m(times) for c in curves]),  # zero after L
+        disp_vel_m_s=np.stack([c.velocity_m_s(times) for c in curves]),
+        q_ref=q_ref, qd_ref=qd_ref, qdd_ref=qdd_ref, variant_of=None if len(scales) == 1 else variant_of,
+        push_n=push, push_changes=np.concatenate([[True], np.any(np.diff(push, axis=1) != 0, axis=0)]),
+        mass_scale=np.array([p.prop_mass_scale for p in members]),
+        windows_s=np.array([vt.task_window_s() for vt in variant_tasks])[variant_of],
+        motion_com=[motion_com(character(), r[0][:, :nv], r[1][:, :nv]) for r in variant_refs]
+        if task.reference_mode == "yu" else None,
+    )
+
+
+class _Falls:
+    """The balance monitor's verdicts per simulation: whether and when it fell (and why), the state it is
+    judged by, the pose protective mode holds, and the step it stops at (moved on a fall)."""
+
+    def __init__(self, n: int, n_act: int, nq: int, run_steps: int):
+        self.code = np.zeros(n, int)  # 0: standing; else 1 + index into REASONS
+        self.step = np.full(n, -1)
+        self.hold = np.zeros((n, n_act))  # protective mode: the pose at the fall
+        self.qpos = np.zeros((n, nq))  # the state a fallen clip is judged by
+        self.speed_m_s = np.zeros(n)
+        self.capture_x = np.full(n, np.nan)  # the capture point and CoM velocity at the fall (its direction)
+        self.com_vel_x = np.full(n, np.nan)
+        self.airborne_for_s = np.zeros(n)
+        self.end = np.full(n, run_steps)
+
+    def check(self, limits: BalanceLimits, ids: np.ndarray, k: int, dt: float, control_dt: float, *, ok: np.ndarray,
+              grounded: np.ndarray, support_lo_x: np.ndarray, support_hi_x: np.ndarray, lowest_body_z: np.ndarray,
+              qpos: np.ndarray, com: np.ndarray, com_vel_x: np.ndarray, roll: np.ndarray,
+              time_s: np.ndarray) -> np.ndarray:
+        """Run the monitor on simulations ``ids`` at step ``k``; returns the mask of those that fell now."""
+        self.airborne_for_s[ids] = np.where(grounded, 0.0, self.airborne_for_s[ids] + control_dt)
+        finite = ok & np.all(np.isfinite(qpos), axis=1) & (np.abs(time_s - k * dt) < 1e-9)
+        code = check_balance(
+            limits, finite=finite, lowest_body_z=lowest_body_z, com_x=com[:, 0], com_z=com[:, 2],
+            com_vel_x=com_vel_x, airborne_for_s=self.airborne_for_s[ids], foot_roll_rad=roll,
+            support_lo_x=support_lo_x, support_hi_x=support_hi_x,
+        )
+        new = (code > 0) & (self.code[ids] == 0)
+        self.code[ids[new]] = code[new]
+        return new
+
+    def fell(self, sims: np.ndarray, k: int, qpos: np.ndarray, act: np.ndarray, speed_m_s: np.ndarray,
+             end: np.ndarray) -> None:
+        """Simulations ``sims`` fell at step ``k`` in state ``qpos`` (their rows): keep what they are judged by
+        and the pose protective mode holds; they stop stepping at ``end``."""
+        self.step[sims] = k
+        self.hold[sims] = qpos[:, act]
+        self.qpos[sims] = qpos[:, : self.qpos.shape[1]]
+        self.speed_m_s[sims] = speed_m_s
+        self.end[sims] = end
+
+
+def _targets(yu: YuReference | None, b: dict, sel, ids: np.ndarray, drive: _Drive, k: int, center: np.ndarray,
+             lo: np.ndarray, hi: np.ndarray, com: np.ndarray, com_vel_x: np.ndarray, nb: int) -> Targets:
+    """The controller's reference CoM (CMRT included), its rate and the reference CoP of simulations ``ids``
+    (batch rows ``sel``) at step ``k``, in the task's reference mode (``cmrt.control.references``)."""
+    if yu is None:  # center: the support centre (Macchietto; ABC)
+        return Targets(center + drive.disp_m[sel, k], drive.disp_vel_m_s[sel, k], center)
+    touch = b["sensordata"][sel, :4]  # the last step's normal force at heel_r, toe_r, heel_l, toe_l
+    rel, rel_vel = drive.foot_to_com_at(k, ids)
+    return yu.targets(foot_force_n=np.stack([touch[:, 0] + touch[:, 1], touch[:, 2] + touch[:, 3]], axis=1),
+                      ankle_xz=b["xpos"][sel][:, yu.feet][:, :, [0, 2]], foot_to_com_x=rel, foot_to_com_vel_x=rel_vel,
+                      disp_m=drive.disp_m[sel, k], disp_vel_m_s=drive.disp_vel_m_s[sel, k], com=com,
+                      com_vel_x=com_vel_x, cinert=b["cinert"][sel, :nb], support_lo_x=lo, support_hi_x=hi)
+
+
+def _delayed(targets: Targets, delay_steps: int, k: int, ids: np.ndarray, com_x_m: np.ndarray,
+             com_vel_x_m_s: np.ndarray, rec_com: np.ndarray, fb_vel: np.ndarray) -> Targets:
+    """The targets as the delayed balance feedback acts on them (``ControllerConfig.feedback_delay_s``): the
+    kernel's ``k_l m (c_r - c) + d_l (m c_r' - L)`` then sees the CoM of ``delay_steps`` ago, c(t - tau), while the
+    plan's dynamics and contact rows use the state of now (docs/controller.md). Before the clip's first
+    ``delay_steps`` the character stood still: the first control step stands in for them."""
+    if delay_steps == 0:
+        return targets
+    kd = max(k - delay_steps, 0)
+    return Targets(targets.com_x_m + (com_x_m - rec_com[ids, kd, 0]),
+                   targets.com_vel_x_m_s + (com_vel_x_m_s - fb_vel[ids, kd]), targets.cop_x_m)
+
+
+def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarray, fallen: np.ndarray,
+             drive: _Drive, k: int, targets: Targets, contact: np.ndarray, mass: np.ndarray,
+             hold: np.ndarray, act: np.ndarray, nu: int, step: StepCommand | None = None,
+             warm: np.ndarray | None = None, prop=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Torques of simulations ``ids`` (batch rows ``sel``): the controller for those standing, protective
+    mode for those that fell. ``bad``: the controller's plan was singular or non-finite; ``plan_cop``: the CoP
+    it planned (NaN in protective mode or for a bad plan). ``targets``: the
+    reference CoM/CoP of rows ``ids`` (``_targets``); ``step``: the stepping supervisor's command for rows
+    ``ids`` (None: feet planted)."""
+    t = targets
+    if not fallen.any():  # everyone under control: the bound arrays themselves, no copies
+        f = b if isinstance(sel, slice) else {name: b[name][sel] for name in CONTROL_FIELDS}
+        load = None if prop is None else prop.hand_load(b, ids)
+        return _control(controller, f, drive.refs_at(k, ids), t.com_x_m, t.com_vel_x_m_s, t.cop_x_m, contact,
+                        mass[sel], step, warm, ids, load)
+    ctrl = np.zeros((ids.size, nu))
+    bad = np.zeros(ids.size, bool)
+    plan_cop = np.full(ids.size, np.nan)
+    if not fallen.all():
+        up = np.flatnonzero(~fallen)
+        rows = ids[up]
+        f = {name: b[name][rows] for name in CONTROL_FIELDS}
+        ctrl[up], bad[up], plan_cop[up] = _control(
+            controller, f, drive.refs_at(k, rows), t.com_x_m[up], t.com_vel_x_m_s[up], t.cop_x_m[up], contact[up],
+            mass[rows], None if step is None else step.rows(up), warm, rows,
+            None if prop is None else prop.hand_load(b, rows))
+    return ctrl, bad, plan_cop  # the fallen: motors off, their joints passive (``_Limp``)
+
+
+def direct_step(batch: mujoco.batch.Batch, stage: mujoco.mjtStage):
+    """``step(ids32)``: ``batch.step(ids, stage=stage)`` without the checks ``Batch.step`` makes of its ids
+    on every call (dtype, order, uniqueness, range: 5 us, as much Python as the rest of a lean step), for
+    ids the scoring loop validated once when they changed - sorted, unique, in range, int32 - or None for
+    all rows. It calls the C++ batch ``Batch.step`` itself wraps (the private ``_b``), so the simulation is
+    the same call (tests/sim/test_tick.py compares the two bit for bit and checks this path is taken with
+    the installed MuJoCo); a MuJoCo without it gets the public ``Batch.step``. 11 % of the seed-1
+    optimization's evaluation time on 2 cores (docs/performance.md)."""
+    raw = getattr(getattr(batch, "_b", None), "step", None)
+    check = getattr(batch, "_check", None)
+    if not DIRECT_STEP or raw is None or check is None:
+        return lambda ids32: batch.step(ids=ids32, stage=stage)
+    stage_int = int(stage)
+
+    def step(ids32: np.ndarray | None) -> None:
+        failed = raw(ids32, 1, stage_int)
+        if failed:  # a simulation MuJoCo could not step: Batch.step's own error
+            check(ids32, failed)
+
+    return step
+
+
+def _ground_records(rec: _Recorder, touch: np.ndarray, sample_x: np.ndarray, sample_every: int) -> None:
+    """The ground-force records of the steps a compiled scoring loop ran, from its per-step heel/toe forces
+    ``touch`` (n, k, 4; a row's readings past its last step are cut off later) and heel/toe x at the sample
+    steps: the same sums, in the same order, as the Python loop makes step by step (numpy sums four terms
+    one by one)."""
+    k = touch.shape[1]
+    fz = touch.sum(axis=2)
+    rec["fz"][:, :k] = fz
+    samples = np.arange(0, k, sample_every)
+    t, f = touch[:, samples], fz[:, samples]
+    with np.errstate(all="ignore"):
+        rec["cop"][:, samples] = np.where(f > 1e-9, (t * sample_x[:, samples]).sum(axis=2) / f, np.nan)
+    rec["ffz"][:, samples, 0] = t[:, :, :2].sum(axis=2)
+    rec["ffz"][:, samples, 1] = t[:, :, 2:].sum(axis=2)
+
+
+@functools.lru_cache(maxsize=64)
+def _no_load(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """No load on the hands (``Prop.hand_load``), for the compiled tick's arguments, made once per n: writable like
+    a prop's load (the kernel only reads them; another array type would compile the tick a second time)."""
+    return np.zeros((n, 2)), np.zeros((n, 3)), np.zeros(0, np.int64)
+
+
+class _CompiledTick:
+    """The control step of a scoring run in the center mode with feet planted, as one compiled call
+    (``cmrt.sim.tick.control_tick``): everything that does not change during the run is bound here once."""
+
+    FIELDS = ("geom_xpos", "geom_xmat", "qpos", "qvel", "cdof", "cdof_dot", "cvel", "cinert", "M", "qfrc_bias",
+              "qfrc_passive", "subtree_com", "time")
+
+    def __init__(self, b: dict, geo: _Geometry, controller: MomentumBalanceController, limits: BalanceLimits,
+                 drive: _Drive, rec: _Recorder, falls: _Falls, act: np.ndarray, n: int, nb: int, mass_kg: float,
+                 dt: float, control_dt: float, lean_check: bool, delay_steps: int, fb_vel: np.ndarray,
+                 warm: np.ndarray):
+        c = controller
+        variants = drive.variant_of is not None
+        # Every row of the batch's fields, read-only and C-contiguous: one numba signature (each costs ~40 s
+        # to compile); the kernel reads the active rows, so rows that stop (falls) cost no copies. qpos, qvel
+        # and time lie in each simulation's state row (strided): they are copied into C-contiguous buffers
+        # per call (``strided``: (bound field, buffer)).
+        bound = [b[name] for name in self.FIELDS]
+        self.strided = [(f, np.empty(f.shape)) for f in bound if not f.flags.c_contiguous]
+        buffers = {id(f): buf for f, buf in self.strided}
+        self.fields = tuple(read_only(buffers.get(id(f), f)) for f in bound)
+        self.ctrl, self.dt, self.control_dt, self.nb, self.mass_kg = b["ctrl"], dt, control_dt, nb, mass_kg
+        self.geometry = (geo.points, geo.body_geoms, geo.half, geo.radius, geo.leg_dofs, geo.root_pitch, act,
+                         FOOT_POINT_RADIUS_M, CONTACT_HEIGHT_M, limits.com_height_m, limits.airborne_s,
+                         limits.roll_rad, limits.capture_margin_m)
+        self.controller = (c.chain, c.m_rows, c.m_cols, c.point_bodies, c.actuated, c.bounds, c.w2, c.params)
+        self.drive = (*(read_only(r if variants else r[None]) for r in (drive.q_ref, drive.qd_ref, drive.qdd_ref)),
+                      drive.variant_of.astype(np.int64) if variants else np.zeros(n, np.int64),
+                      drive.disp_m, drive.disp_vel_m_s)
+        self.lean = (lean_check, rec["prop_force"], CONTACT_FORCE_N)
+        self.state = (falls.airborne_for_s, falls.code, rec["sc"], rec["lo"], rec["hi"], rec["qpos"], rec["com"],
+                      rec["jspeed"], rec["cref"])
+        self.delay = (delay_steps, fb_vel)
+        self.warm = (warm, np.zeros_like(warm))  # the active sets, and where this step's are written first
+
+    def __call__(self, k: int, ids: np.ndarray, carried_kg: np.ndarray, com_ref_now: np.ndarray,
+                 cop_ref_now: np.ndarray, ctrl_all: np.ndarray, load: tuple | None = None):
+        """Control step ``k`` of rows ``ids``: (point_x, how many fell, the mask of those
+        that fell, momentum), or None when the Python path must do it (a fallen row, or a singular plan it
+        finds row by row)."""
+        for bound, buffer in self.strided:
+            np.copyto(buffer, bound)
+        n = ids.size
+        point_x, momentum, new = np.empty((n, self.geometry[0].size)), np.empty((n, 2)), np.empty(n, bool)
+        try:
+            fell = control_tick(k, ids, self.dt, self.control_dt, self.nb, self.mass_kg, *self.fields, *self.geometry,
+                                *self.controller, *self.drive, carried_kg, *self.lean, *self.state,
+                                com_ref_now, cop_ref_now, ctrl_all, *self.delay, *self.warm,
+                                *(_no_load(n) if load is None else load), point_x, momentum, new)
+        except np.linalg.LinAlgError:
+            return None
+        if fell < 0:
+            return None
+        np.copyto(self.ctrl, ctrl_all)  # rows that stopped are not stepped again: their torques do not matter
+        return point_x, fell, new, momentum
+
+
+def simulate_batch(
+    task: Task,
+    curves: list[Cmrt | None],
+    config: ControllerConfig = ControllerConfig(),
+    record: bool = False,
+    threads: int | None = None,
+    limits: BalanceLimits = BalanceLimits(),
+    perturbations: Sequence[Perturbation] | None = None,
+) -> list[Trajectory]:
+    """Simulate one clip (plus standing tail) of ``task`` per CMRT (None: zero CMRT), in lockstep.
+
+    ``record`` fills every array at every step and plays falls out in protective mode;
+    scores do not depend on it. ``threads``: how many cores to use (default: all cores,
+    or $CMRT_THREADS). ``perturbations``: one per CMRT (an ensemble member: an extra push,
+    the prop's mass scaled, the motion's timing scaled; default: the nominal clip).
+
+    With t threads the clips are split into t contiguous groups, each stepped in lockstep by its own
+    Python thread on a one-thread ``Batch``: MuJoCo and the compiled controller release the GIL, so
+    one group's control step (Python and kernel) runs while the other groups' physics runs. One batch
+    on t MuJoCo threads would leave the cores idle through every control step (docs/performance.md).
+    A clip's result does not depend on its group (each row is simulated independently; tested)."""
+    n = len(curves)
+    members = list(perturbations) if perturbations is not None else [NOMINAL] * n
+    if len(members) != n:
+        raise ValueError("one perturbation per CMRT")
+    groups = min(n, threads or thread_count(n))
+    if groups <= 1:
+        return _simulate_group(task, curves, config, record, limits, members)
+    settled_state(task, config)  # cached once, before the threads share it
+    bounds = np.linspace(0, n, groups + 1).round().astype(int)
+    parts = [(curves[a:b], members[a:b]) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    with ThreadPoolExecutor(max_workers=groups) as pool:
+        done = list(pool.map(lambda part: _simulate_group(task, part[0], config, record, limits, part[1]), parts))
+    return [tr for part in done for tr in part]
+
+
+def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerConfig, record: bool,
+                    limits: BalanceLimits, members: list[Perturbation]) -> list[Trajectory]:
+    """``simulate_batch`` for one group of clips on a one-thread ``Batch``, in the calling thread.
+
+    The loop below only steps and records; what drives each row is :class:`_Drive`, the torques
+    :func:`_torques`, the balance monitor :class:`_Falls`, the results :func:`_trajectories`."""
+    ch = character()
+    m = task.model()
+    n = len(curves)
+    dt = m.opt.timestep
+    clip_steps = int(round(task.clip_s / dt))
+    run_steps = clip_steps + int(round(task.tail_s / dt))
+    post_fall = int(round(POST_FALL_S / dt))
+    n_steps = run_steps + (post_fall if record else 0)
+    times = np.arange(n_steps) * dt
+    drive = _drive(task, [c or Cmrt.zero(task.clip_s) for c in curves], members, times)
+    disp = drive.disp_m
+    geo = _Geometry()
+    controller = MomentumBalanceController(ch, config)
+    yu = YuReference(ch, config.k_l, config.d_l) if task.reference_mode == "yu" else None
+    kin = PlanarKinematics(ch.model)
+    vel_stage = mujoco.mjtStage.mjSTAGE_VEL
+    nq, nb = ch.model.nq, ch.model.nbody  # the humanoid's: a prop's coordinates follow
+    act = np.array(ch.actuated_dofs)
+
+    batch = mujoco.batch.Batch(m, nsim=n, nthread=1, persistent=True)
+    prop = prop_class(task.prop)(m, task.params)
+    names = set(CONTROL_FIELDS) | set(STATE_FIELDS) | {"ctrl", "xfrc_applied", "sensordata", "geom_xmat", "time"}
+    b = {k: batch.bind(k) for k in names | prop.fields()}
+    for k, v in settled_state(task, config).items():
+        b[k][:] = v
+    b["time"][:] = 0.0
+    prop.start(batch, b, n, task.end_qpos(), drive.mass_scale)
+    batch.forward(stage=vel_stage)
+    settled_z = b["geom_xpos"][0, geo.points, 2].copy()
+
+    rec = _Recorder(n, n_steps, m.nq, m.nv, m.nu)
+    limp = _Limp(batch, controller.limits)
+    stepper = _stepper(task, n)
+    step = None
+    falls = _Falls(n, act.size, nq, run_steps)
+    next_end = run_steps
+    last = np.full(n, n_steps)
+    goal = np.full(n, np.nan)  # the prop's goal: 1/0 (NaN: a pose change), judged at the end or at the fall
+    extras: dict[str, np.ndarray] = {}
+    active = np.arange(n)
+    ctrl_all = np.zeros((n, m.nu))
+    com_ref_now, cop_ref_now = np.full(n, np.nan), np.full(n, np.nan)  # the references, held between control steps
+    control_dt = config.control_every * dt
+    sample_every = max(1, int(round(task.cop_sample_step_s / dt)))
+    n_points = geo.points.size
+    diverged_code = 1 + REASONS.index(FallReason.DIVERGED)
+    sel, ids, step_ids = slice(None), active, None
+    rec_fz, rec_com = rec["fz"], rec["com"]
+    has_contact_force = prop.contact_force(b, slice(None)) is not None
+    # the balance feedback's delay (ControllerConfig.feedback_delay_s), whole control steps; the CoM velocity at
+    # every control step so far (its position is in the records)
+    delay_steps = config.control_every * int(round(config.feedback_delay_s / control_dt))
+    fb_vel = np.full((n, n_steps), np.nan)
+    # each simulation's QP active set at its last control step: the next one starts from it (warm start)
+    warm = np.zeros((n, controller.n_rows), bool)
+    compiled = (_CompiledTick(b, geo, controller, limits, drive, rec, falls, act, n, nb, ch.mass_kg, dt, control_dt,
+                              has_contact_force, delay_steps, fb_vel, warm)
+                if COMPILED_TICK and yu is None and stepper is None and not record else None)
+
+    push_steps = set(np.flatnonzero(drive.push_changes).tolist())  # a set: cheaper per step than an array
+
+    def fell_now(k: int, new: np.ndarray, qpos: np.ndarray, momentum: np.ndarray) -> int:
+        """Rows ``new`` (of ``ids``) fell at step ``k``; returns the next step at which a row stops."""
+        sims = ids[new]
+        com = b["subtree_com"][sims, 1]
+        falls.com_vel_x[sims] = momentum[new, 0] / (ch.mass_kg + prop.carried_kg[sims])
+        with np.errstate(all="ignore"):  # a blow-up's NaNs
+            falls.capture_x[sims] = capture_point_x(com[:, 0], com[:, 2], falls.com_vel_x[sims])
+        # scoring: stop after this step; recording: play the topple out (not a blow-up: nothing to show)
+        falls.fell(sims, k, qpos[new], act,
+                   np.hypot(momentum[new, 0], momentum[new, 1]) / (ch.mass_kg + prop.carried_kg[sims]),
+                   np.where(record & (falls.code[sims] != diverged_code), np.maximum(run_steps, k + post_fall), k + 1))
+        _judge_prop(prop, b, sims, rec["prop_force"][sims, :k], times[:k], drive.windows_s, goal, extras)
+        if record:
+            played = falls.code[sims] != diverged_code
+            limp.fall(sims[played], qpos[new][played])
+        return falls.end[ids].min()
+
+    def still_running(k: int) -> np.ndarray:
+        """At the end of the tail, a fall (scoring: after its step) or a played-out topple: the rows that go on."""
+        done = falls.end[ids] <= k
+        last[ids[done]] = k
+        return ids[~done]
+
+    k, prop_stepped = 0, -1  # prop_stepped: the step whose prop.step the compiled loop made before handing over
+    if compiled is not None:  # a scoring run: compiled control steps (cmrt.sim.tick), ground forces summed at the end
+        touch = np.full((n, n_steps, n_points), np.nan)  # normal force at heel_r, toe_r, heel_l, toe_l, every step
+        sample_x = np.full((n, n_steps, n_points), np.nan)  # heel/toe x at the CoP sample steps
+        sensors = b["sensordata"][:, :n_points]
+        every, every_step, thorax = config.control_every, prop.every_step, ch.thorax_body
+        step_rows, rows32 = direct_step(batch, vel_stage), None  # rows32: the stepped rows, int32 (None: all)
+        while k < n_steps:
+            if k >= next_end:
+                ids = still_running(k)
+                if ids.size == 0:
+                    break
+                sel = step_ids = ids
+                rows32 = ids.astype(np.int32)  # sorted and unique: a subset of arange(n)
+                next_end = falls.end[ids].min()
+            control = k % every == 0
+            if control or every_step:
+                prop.step(batch, b, ids, times[k])
+            if control:
+                out = compiled(k, ids, prop.carried_kg, com_ref_now, cop_ref_now, ctrl_all, prop.hand_load(b, ids))
+                if out is None:  # a fallen row or a singular plan: the Python loop below goes on from here
+                    prop_stepped = k
+                    break
+                point_x, fell, new, momentum = out
+                if k % sample_every == 0:
+                    sample_x[ids, k] = point_x
+                    rec["pref"][ids, k] = cop_ref_now[ids]
+                if fell:
+                    next_end = fell_now(k, new, b["qpos"][sel], momentum)
+            elif k % sample_every == 0:
+                sample_support(k, ids, b["geom_xpos"], b["qpos"], b["subtree_com"], geo.points, cop_ref_now, rec["sc"],
+                               rec["lo"], rec["hi"], rec["qpos"], rec_com, rec["pref"], sample_x)
+            if k in push_steps:
+                b["xfrc_applied"][sel, thorax, 0] = drive.push_n[sel, k]
+            step_rows(rows32)
+            if has_contact_force:
+                rec["prop_force"][sel, k] = prop.contact_force(b, sel)
+            touch[:, k] = sensors  # rows that stopped repeat their last reading: cut off at ``last``
+            k += 1
+        _ground_records(rec, touch[:, :k], sample_x[:, :k], sample_every)
+
+    first = k  # where the compiled loop stopped (0 if it did not run); nothing left to do if no row is left
+    for k in range(first, n_steps if ids.size else first):  # the Python path: traces, yu, stepping
+        if k >= next_end:  # the end of the tail, a fall (scoring: after its step), or the topple played out
+            active = still_running(k)
+            if active.size == 0:
+                break
+            sel = ids = step_ids = active
+            next_end = falls.end[ids].min()
+        # Work happens on control steps (balance checks too), CoP sample steps, or every step when
+        # recording a trace; in between, the batch just steps and the ground force is read (the cost floor).
+        control = k % config.control_every == 0
+        sample = record or k % sample_every == 0
+        if (control or prop.every_step) and k != prop_stepped:
+            prop.step(batch, b, ids, times[k])
+        if control or sample:
+            geom_xpos = b["geom_xpos"][sel]
+            qpos = b["qpos"][sel]
+            if control:  # heel/toe x at the state the step starts from, and the monitor's inputs: one pass
+                point_x, lo, hi, contact, roll, jspeed, lowest, grounded, c_lo, c_hi = geo.at_control(
+                    geom_xpos, b["geom_xmat"][sel], qpos, b["qvel"][sel], act)
+            else:
+                point_x = geom_xpos[:, geo.points, 0]
+                lo, hi = point_x.min(axis=1), point_x.max(axis=1)
+            if stepper is not None:  # the support of the moment: the stance foot while the other swings
+                if control:
+                    step = _step_command(stepper, kin, b, sel, ids, times[k], ch.mass_kg + prop.carried_kg[ids],
+                                         contact, point_x)
+                lo, hi = stepper.support(ids, point_x, lo, hi)
+            center = 0.5 * (lo + hi)
+            rec["sc"][sel, k], rec["lo"][sel, k], rec["hi"][sel, k] = center, lo, hi
+            rec["qpos"][sel, k] = qpos
+            com = b["subtree_com"][sel, 1]
+            rec_com[sel, k, 0], rec_com[sel, k, 1] = com[:, 0], com[:, 2]  # x, z without a fancy-indexed copy
+        if control or record:
+            if not control:
+                contact = _in_contact(geom_xpos, geo.points)
+                roll = geo.foot_roll(qpos)
+            momentum = kin.linear_momentum(b["cinert"][sel, :nb], b["cvel"][sel, :nb])  # (k, 2): L_x, L_z
+            vel_x = momentum[:, 0] / (ch.mass_kg + prop.carried_kg[ids])
+            if record:  # trace-only quantities
+                rec["com_vel"][sel, k] = vel_x
+                rec["xi"][sel, k] = capture_point_x(com[:, 0], com[:, 2], vel_x)
+                rec["lift"][sel, k] = geom_xpos[:, geo.points, 2] - settled_z
+                rec["contact"][sel, k] = contact
+                rec["roll"][sel, k] = roll
+                rec["body_z"][sel, k] = lowest if control else geo.lowest_body_z(geom_xpos, b["geom_xmat"][sel])
+        if control:
+            rec["jspeed"][sel, k] = jspeed
+            mass = ch.mass_kg + prop.carried_kg  # what the controller knows it carries
+            targets = _targets(yu, b, sel, ids, drive, k, center, lo, hi, com, vel_x, nb)
+            com_ref_now[ids], cop_ref_now[ids] = targets.com_x_m, targets.cop_x_m
+            rec["cref"][sel, k] = targets.com_x_m
+            fb_vel[ids, k] = vel_x
+            felt = _delayed(targets, delay_steps, k, ids, com[:, 0], vel_x, rec_com, fb_vel)
+            ctrl, bad, plan_cop = _torques(controller, b, sel, ids, falls.code[ids] > 0, drive, k, felt, contact,
+                                           mass, falls.hold, act, m.nu, step, warm, prop)
+            if record:  # the plan against the CoP measured in the physics step these torques act in
+                swinging = np.zeros(ids.size, bool) if stepper is None else stepper.swinging(ids).any(axis=1)
+                rec["plan_cop"][sel, k] = np.where(swinging, np.nan, plan_cop)
+            ctrl_all[ids] = ctrl
+            b["ctrl"][sel] = ctrl
+
+            # the balance monitor
+            if stepper is not None:  # a swing foot is not a rolled foot; where it lands is support
+                c_lo, c_hi = stepper.landing_span(ids, c_lo, c_hi)
+                roll = np.where(stepper.swinging(ids), 0.0, roll)
+            if has_contact_force and k > 0:  # leaning on a prop: the pendulum's capture point does not apply
+                leaning = rec["prop_force"][ids, k - 1] > CONTACT_FORCE_N
+                c_lo, c_hi = np.where(leaning, -np.inf, c_lo), np.where(leaning, np.inf, c_hi)
+            new = falls.check(limits, ids, k, dt, control_dt, ok=~bad, grounded=grounded, support_lo_x=c_lo,
+                              support_hi_x=c_hi, lowest_body_z=lowest,
+                              qpos=qpos, com=com, com_vel_x=vel_x, roll=roll, time_s=b["time"][sel])
+            if new.any():
+                next_end = fell_now(k, new, qpos, momentum)
+        if record:
+            rec["ctrl"][sel, k] = ctrl_all[sel]
+            rec["cref"][sel, k] = com_ref_now[sel]
+            rec["qvel"][sel, k] = b["qvel"][sel]
+        if k in push_steps:
+            b["xfrc_applied"][sel, ch.thorax_body, 0] = drive.push_n[sel, k]
+
+        batch.step(ids=step_ids, stage=vel_stage)
+
+        if has_contact_force:
+            rec["prop_force"][sel, k] = prop.contact_force(b, sel)
+        touch = b["sensordata"][sel, :n_points]  # normal force at heel_r, toe_r, heel_l, toe_l
+        if not sample:  # the steps in between: the ground force only (peak force, time airborne)
+            if step_ids is None:  # all active: write straight into the buffer's column
+                np.add.reduce(touch, axis=1, out=rec_fz[:, k])
+            else:
+                rec_fz[sel, k] = touch.sum(axis=1)
+            continue
+        fz = touch.sum(axis=1)
+        rec_fz[sel, k] = fz
+        with np.errstate(all="ignore"):
+            rec["cop"][sel, k] = np.where(fz > 1e-9, (touch * point_x).sum(axis=1) / fz, np.nan)
+        rec["pref"][sel, k] = cop_ref_now[sel]
+        rec["ffz"][sel, k, 0] = touch[:, :2].sum(axis=1)
+        rec["ffz"][sel, k, 1] = touch[:, 2:].sum(axis=1)
+
+    momentum = kin.linear_momentum(b["cinert"][:, :nb], b["cvel"][:, :nb])
+    fallen = falls.code > 0  # judged at the fall, whatever a recorded topple did afterwards
+    final_qpos = np.where(fallen[:, None], falls.qpos, b["qpos"][:, :nq])
+    final_speed = np.where(fallen, falls.speed_m_s, np.hypot(momentum[:, 0], momentum[:, 1])
+                           / (ch.mass_kg + prop.carried_kg))
+    standing = np.flatnonzero(~fallen)  # the others were judged when they fell
+    _judge_prop(prop, b, standing, rec["prop_force"][standing, :run_steps], times[:run_steps], drive.windows_s, goal,
+                extras)
+    return _trajectories(task, rec, times, last, falls, disp, extras, goal, final_qpos, final_speed, stepper)
+
+
+def _stepper(task: Task, n: int) -> StepSupervisor | None:
+    """The stepping supervisor a task asks for (``stepping`` parameter; None: feet stay planted)."""
+    config = StepConfig.from_task(task.params)
+    if config is None:
+        return None
+    ch = character()
+    heel, toe = (ch.model.geom_pos[g, 0] for g in ch.foot_point_geoms[:2])
+    return StepSupervisor(n, config, heel_to_center_m=0.5 * (toe - heel), foot_length_m=toe - heel)
+
+
+def _step_command(stepper: StepSupervisor, kin: PlanarKinematics, b: dict, sel, ids: np.ndarray, time_s: float,
+                  mass: np.ndarray, contact: np.ndarray, point_x: np.ndarray) -> StepCommand:
+    """Advance the supervisor of simulations ``ids`` by one control step from their bound state."""
+    nb = kin.model.nbody
+    momentum = kin.momentum(b["cinert"][sel, :nb], b["cvel"][sel, :nb])  # (k, 3): H_y, L_x, L_z
+    com = b["subtree_com"][sel, 1]
+    return stepper.update(ids, time_s, com[:, 0], com[:, 2], momentum[:, 1], momentum[:, 0], mass, contact,
+                          point_x)
+
+
+def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarray, falls: _Falls, disp: np.ndarray,
+                  extras: dict[str, np.ndarray], goal: np.ndarray, final_qpos: np.ndarray,
+                  final_speed: np.ndarray, stepper: StepSupervisor | None = None) -> list[Trajectory]:
+    """One Trajectory per simulation, cut where it stopped."""
+    out = []
+    for i in range(last.size):
+        r = rec.cut(i, last[i])
+        code = falls.code[i]
+        reason = REASONS[code - 1] if code else None
+        protective = np.zeros(last[i], bool)
+        if code:
+            protective[falls.step[i] + 1 :] = True
+        out.append(Trajectory(
+            time_s=times[: last[i]], qpos=r["qpos"], qvel=r["qvel"], com_m=r["com"], com_vel_x_m_s=r["com_vel"],
+            capture_point_x_m=r["xi"], cop_x_m=r["cop"], support_center_x_m=r["sc"], support_lo_x_m=r["lo"],
+            support_hi_x_m=r["hi"], normal_force_n=r["fz"], foot_normal_force_n=r["ffz"], point_lift_m=r["lift"],
+            point_contact=r["contact"],
+            foot_roll_rad=r["roll"], prop_force_n=r["prop_force"], max_joint_speed_rad_s=r["jspeed"],
+            cmrt_displacement_m=disp[i, : last[i]], prop_extras={k: float(v[i]) for k, v in extras.items()},
+            com_ref_x_m=r["cref"], cop_ref_x_m=r["pref"], ctrl_nm=r["ctrl"], plan_cop_x_m=r["plan_cop"],
+            lowest_body_z_m=r["body_z"], protective=protective, clip_s=task.clip_s,
+            fell=bool(code), fall_time_s=float(times[falls.step[i]]) if code else None, fall_reason=reason,
+            diverged=reason is FallReason.DIVERGED, final_qpos=final_qpos[i],
+            final_com_speed_m_s=float(final_speed[i]),
+            fall_capture_point_x_m=float(falls.capture_x[i]) if code else None,
+            fall_com_vel_x_m_s=float(falls.com_vel_x[i]) if code else None,
+            task_success=None if np.isnan(goal[i]) else bool(goal[i]),
+            step_times_s=() if stepper is None else tuple(t for t in stepper.step_times[i]
+                                                          if not code or t <= times[falls.step[i]]),
+            footprints=() if stepper is None else tuple(f for f in stepper.footprints[i]
+                                                        if not code or f[1] <= times[falls.step[i]]),
+        ))
+    return out
+
+
+def simulate(
+    task: Task, curve: Cmrt | None = None, config: ControllerConfig = ControllerConfig(), record: bool = True
+) -> Trajectory:
+    """Simulate one clip of ``task`` with CMRT ``curve`` (None: zero CMRT), recording everything."""
+    return simulate_batch(task, [curve], config, record=record)[0]

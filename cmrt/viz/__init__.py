@@ -1,0 +1,1 @@
+"""Pictures: rendered clips (filmstrips, videos) and plots of stored runs."""

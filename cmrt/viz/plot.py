@@ -1,0 +1,219 @@
+"""Figures of a stored run (matplotlib, Agg): ABC Figs. 2-4.
+
+* ``cop_error.png``: CoP error e(t) = p - s over the clip for the zero CMRT and for the
+  run's best CMRT, with the support interval and the clip phases (Fig. 2);
+* ``cmrt.png``: the best CMRT d(t) with its knots and the preparation / task / decay
+  phases marked (Fig. 3);
+* ``convergence.png``: every evaluation's objective in order, best so far, the stop
+  threshold, falls marked (Fig. 4).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from cmrt import inputs  # noqa: E402
+from cmrt.errors import CmrtError  # noqa: E402
+from cmrt.motion.curve import Cmrt  # noqa: E402
+from cmrt.motion.sequence import load_sequence  # noqa: E402
+from cmrt.motion.task import Task
+from cmrt.motion.taskfile import load_task  # noqa: E402
+from cmrt.service.interpolate import candidates, interpolate, superpose  # noqa: E402
+from cmrt.service.query import task_of  # noqa: E402
+from cmrt.service.store import Store, StoredEvaluation  # noqa: E402
+from cmrt.sim.objective import evaluate  # noqa: E402
+from cmrt.sim.simulate import simulate  # noqa: E402
+
+
+def _save(fig, out: Path) -> Path:
+    """Write the figure atomically (``cmrt.inputs.atomic_output``): a failed write says so (one line) and
+    leaves no half-written PNG."""
+    try:
+        with inputs.atomic_output(out, "--out", (".png",)) as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
+    finally:
+        plt.close(fig)
+    return out
+
+
+def _phases(ax, task: Task) -> None:
+    P, T = task.preparation_s, task.duration_s
+    for x in (P, P + T):
+        ax.axvline(x, color="k", lw=0.8)
+    ax.axvspan(P, P + T, color="0.9", zorder=0)
+
+
+def plot_cop_error(task: Task, curves: list[tuple[str, Cmrt]], out: Path) -> Path:
+    """ABC Fig. 2: CoP and support centre over the clip, one panel per CMRT."""
+    fig, axes = plt.subplots(len(curves), 1, figsize=(7, 2.4 * len(curves)), sharex=True, squeeze=False)
+    for ax, (label, curve) in zip(axes[:, 0], curves, strict=True):
+        traj = simulate(task, curve)
+        ev = evaluate(task, traj)
+        t = traj.time_s
+        ax.plot(t, 100 * (traj.cop_x_m - traj.support_center_x_m), lw=1.2, label="CoP error")
+        ax.plot(t, 100 * (traj.support_lo_x_m - traj.support_center_x_m), "k--", lw=0.8, label="support edges")
+        ax.plot(t, 100 * (traj.support_hi_x_m - traj.support_center_x_m), "k--", lw=0.8)
+        if traj.fall_time_s is not None:
+            ax.axvline(traj.fall_time_s, color="r", ls=":", label="balance lost")
+        _phases(ax, task)
+        status = "success" if ev.success else ("lost balance" if ev.fell else "balanced, not a success")
+        ax.set_title(f"{label}: objective {ev.objective:.3f} ({status})", fontsize=10)
+        ax.set_ylabel("p - s (cm)")
+        ax.set_xlim(0, task.clip_s + task.tail_s)
+        ax.axvspan(task.clip_s, task.clip_s + task.tail_s, color="0.95", zorder=0)  # standing tail, not scored
+    axes[0, 0].legend(loc="upper right", fontsize=8)
+    axes[-1, 0].set_xlabel("time (s)")
+    fig.tight_layout()
+    return _save(fig, out)
+
+
+def plot_cmrt(task: Task, curve: Cmrt, out: Path, label: str = "best CMRT") -> Path:
+    """ABC Fig. 3: the CMRT with its knots and the task's phases."""
+    fig, ax = plt.subplots(figsize=(7, 2.8))
+    t = np.linspace(0, task.clip_s, 400)
+    ax.plot(t, 100 * curve.displacement_m(t), lw=1.5, label=label)
+    ax.plot(curve.knot_times_s, 100 * np.asarray(curve.values_m), "o", ms=5, label="knots")
+    _phases(ax, task)
+    top = ax.get_ylim()[1]
+    P, T = task.preparation_s, task.duration_s
+    for x, name in ((P / 2, "preparation"), (P + T / 2, "task"), ((P + T + task.clip_s) / 2, "decay")):
+        ax.text(x, top, name, ha="center", va="top", fontsize=8)
+    ax.axhline(0, color="0.5", lw=0.6)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("d(t) (cm)")
+    ax.set_xlim(0, task.clip_s)
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    return _save(fig, out)
+
+
+def plot_convergence(evaluations: list[StoredEvaluation], threshold: float, out: Path, title: str) -> Path:
+    """Objective of every evaluation in order (successes, falls, the rest) against the stop threshold."""
+    obj = np.array([e.objective for e in evaluations])
+    fell = np.array([e.fell for e in evaluations])
+    success = np.array([bool(e.success) for e in evaluations])
+    other = ~fell & ~success
+    idx = np.arange(1, obj.size + 1)
+    fig, ax = plt.subplots(figsize=(7, 3))
+    ax.semilogy(idx[success], obj[success], ".", ms=3, label="success")
+    ax.semilogy(idx[other], obj[other], ".", ms=3, color="0.6", label="balanced, not a success (penalised)")
+    ax.semilogy(idx[fell], obj[fell], "x", ms=3, color="r", label="lost balance (penalised)")
+    ax.semilogy(idx, np.minimum.accumulate(obj), "k-", lw=1, label="best so far")
+    if threshold > 0:
+        ax.axhline(threshold, color="g", ls="--", label=f"stop threshold {threshold:g}")
+    ax.set_xlabel("evaluation")
+    ax.set_ylabel("objective")
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return _save(fig, out)
+
+
+def run_figure_paths(run_id: int, out_dir: str | Path) -> list[Path]:
+    """The files :func:`plot_run` writes for ``run_id`` (so a caller can check them before any work)."""
+    return [Path(out_dir) / f"run{run_id}_{kind}.png" for kind in ("cop_error", "cmrt", "convergence")]
+
+
+def plot_run(store: Store, run_id: int, out_dir: str | Path) -> list[Path]:
+    """Write the run's figures to ``out_dir``; returns their paths."""
+    run = store.run(run_id)
+    if not run.best_cmrt:
+        raise CmrtError(f"run {run_id} has no result to plot yet (status {run.status})")
+    out = inputs.output_dir(out_dir, "--out")
+    task = task_of(run)
+    best = Cmrt.from_dict(run.best_cmrt)
+    speed = f" T = {task.speed:g} s" if task.speed is not None else ""
+    cop_path, cmrt_path, convergence_path = run_figure_paths(run_id, out)
+    return [
+        plot_cop_error(
+            task,
+            [("zero CMRT", Cmrt.zero(task.clip_s)), (f"run {run_id} best CMRT", best)],
+            cop_path,
+        ),
+        plot_cmrt(task, best, cmrt_path, f"run {run_id}: {task.name}{speed}"),
+        plot_convergence(
+            store.evaluations(run_id),
+            run.stop_threshold or 0.0,
+            convergence_path,
+            f"run {run_id}: {task.name}{speed}, {run.evaluations} evaluations ({run.stop_reason})",
+        ),
+    ]
+
+
+def plot_family(
+    task_name: str, out: Path, between: tuple[float, ...] = (), source: str = "library", store: Store | None = None
+) -> Path:
+    """ABC Fig. 5: CMRTs optimized at several speeds (solid) and interpolated between them (dashed)."""
+    base = load_task(task_name)
+    if base.speed_param is None:
+        raise CmrtError(f"task '{task_name}' has no speed parameter for a family figure")
+    pts = candidates(base, base.speed_param, source, store)
+    if len(pts) < 2:
+        raise CmrtError(f"need two {source} results for '{task_name}' at different speeds; found {len(pts)}")
+    speeds = [v for v, _, _ in pts]
+    between = between or tuple((a + b) / 2 for a, b in zip(speeds, speeds[1:], strict=False))
+    fig, ax = plt.subplots(figsize=(7.5, 3.6))
+    colors = plt.cm.viridis(np.linspace(0, 0.9, len(speeds) + len(between)))
+    t = np.linspace(0, base.clip_s, 400)
+    rows = sorted([(v, "opt", c) for v, c, _ in pts] + [(v, "int", None) for v in between], key=lambda r: r[0])
+    for color, (v, kind, curve) in zip(colors, rows, strict=True):
+        task = base.with_speed(v)
+        if kind == "int":
+            curve = interpolate(task, source=source, store=store).curve
+        ev = evaluate(task, simulate(task, curve, record=False))
+        style = "-" if kind == "opt" else "--"
+        ax.plot(
+            t,
+            100 * curve.displacement_m(t),
+            style,
+            color=color,
+            lw=1.4,
+            label=f"T={v:g} e={ev.objective:.3f}{'' if ev.success else ' (not a success)'}",
+        )
+        ax.axvline(task.preparation_s + v, color=color, lw=0.6)
+    ax.axvline(base.preparation_s, color="k", lw=1.0)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("d(t) (cm)")
+    ax.set_title(f"{task_name}: optimized (solid) and interpolated (dashed) CMRTs", fontsize=10)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    return _save(fig, out)
+
+
+def plot_sequence(seq_file: str, out: Path) -> Path:
+    """ABC Fig. 6: the motions' shifted CMRTs and their sum, and the CoP error with zero vs superposed."""
+    seq = load_sequence(seq_file)
+    sup = superpose(seq)
+    t = np.linspace(0, seq.clip_s, 800)
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7.5, 5), sharex=True)
+    for (off, c), m in zip(sup.parts, seq.motions, strict=True):
+        ax1.plot(
+            t, 100 * c.displacement_m(t - off), "--", lw=1, label=f"{m.task.name} T={m.task.speed:g} @ {m.start_s:g} s"
+        )
+    ax1.plot(t, 100 * sup.displacement_m(t), "k-", lw=1.8, label="superposed")
+    ax1.set_ylabel("d(t) (cm)")
+    ax1.legend(fontsize=7, ncol=2)
+    for label, curve in (("zero CMRTs", Cmrt.zero(seq.clip_s)), ("superposed CMRTs", sup)):
+        traj = simulate(seq, curve)
+        ev = evaluate(seq, traj)
+        ax2.plot(
+            traj.time_s,
+            100 * (traj.cop_x_m - traj.support_center_x_m),
+            lw=1,
+            label=f"{label}: e={ev.objective:.3f}{'' if ev.success else ' (not a success)'}",
+        )
+    for m in seq.motions:
+        for ax in (ax1, ax2):
+            ax.axvspan(m.start_s, m.start_s + m.task.duration_s, color="0.92", zorder=0)
+    ax2.set_ylabel("p - s (cm)")
+    ax2.set_xlabel("time (s)")
+    ax2.legend(fontsize=7)
+    ax1.set_title(f"sequence {seq.name}", fontsize=10)
+    fig.tight_layout()
+    return _save(fig, out)

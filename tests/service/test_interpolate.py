@@ -1,0 +1,103 @@
+import json
+
+import numpy as np
+import pytest
+
+from cmrt import Cmrt, evaluate, load_task, simulate
+from cmrt.errors import CmrtError
+from cmrt.motion.curve import MIN_GAP_S
+from cmrt.motion.library import load_entries
+from cmrt.motion.sequence import Motion, SequenceTask, load_sequence
+from cmrt.service.interpolate import blend, interpolate, superpose
+from tests.service_helpers import cmrt
+
+A = Cmrt(2.6, (0.8, 1.0, 1.2, 1.4), (0.02, 0.03, -0.01, -0.02))
+B = Cmrt(2.6, (0.5, 1.3, 1.9, 2.3), (0.01, -0.02, 0.015, 0.0))
+
+
+def test_blend_reproduces_end_points_exactly_and_is_linear():
+    assert blend(A, B, 0.0) == A and blend(A, B, 1.0) == B
+    mid = blend(A, B, 0.5)
+    np.testing.assert_allclose(mid.knot_times_s, (np.array(A.knot_times_s) + B.knot_times_s) / 2, atol=1e-15)
+    np.testing.assert_allclose(mid.values_m, (np.array(A.values_m) + B.values_m) / 2, atol=1e-15)
+    quarter, three = blend(A, B, 0.25), blend(A, B, 0.75)
+    np.testing.assert_allclose(np.array(quarter.values_m) + three.values_m, np.array(A.values_m) + B.values_m)
+
+
+@pytest.mark.parametrize("w", [-3.0, -0.5, 0.3, 1.7, 4.0])
+def test_knots_stay_ordered_and_inside_even_when_extrapolating(w):
+    c = blend(A, B, w)
+    t = np.array(c.knot_times_s)
+    assert t[0] >= MIN_GAP_S - 1e-12 and t[-1] <= 2.6 - MIN_GAP_S + 1e-12 and np.all(np.diff(t) >= MIN_GAP_S - 1e-12)
+
+
+def test_interpolating_the_library_family():
+    speeds = sorted(e["speed"] for e in load_entries() if e["task"] == "bend" and not e.get("robust")
+                    and e.get("reference", "center") == "center")
+    assert len(speeds) >= 2
+    at_node = interpolate(load_task("bend").with_speed(speeds[1]))
+    from cmrt import library_curve
+
+    assert at_node.curve == library_curve(load_task("bend").with_speed(speeds[1]))
+    mid = interpolate(load_task("bend").with_speed((speeds[0] + speeds[1]) / 2))
+    assert mid.weight == pytest.approx(0.5) and not mid.extrapolated
+    beyond = interpolate(load_task("bend").with_speed(min(1.6, speeds[-1] + 0.1)))
+    assert beyond.extrapolated
+    with pytest.raises(CmrtError, match="need two"):
+        interpolate(load_task("stand").with_params(push_force_n=10), param="push_force_n")
+
+
+def test_interpolating_over_ball_mass_and_mismatch_lookup():
+    from cmrt import library_curve
+
+    """Across ball mass the blend is made as across speeds (knots and values between the neighbours'). It is
+    not a success on the catch as shipped (README, *Interpolation*): with the held ball in the plan the 7 and 8 kg
+    CMRTs lean the CoM back 6.8 and 7.6 cm just before the ball arrives, and every blend between them tried
+    (7.25, 7.5, 7.75 kg) falls backward - the lean's timing is a knife edge (14/20 validation clips for 7 kg)."""
+    task = load_task("catch").with_params(ball_mass_kg=7.5)
+    r = interpolate(task, param="ball_mass_kg")
+    assert [v for v, _ in r.sources] == [7.0, 8.0] and r.weight == pytest.approx(0.5)
+    lo, hi = (library_curve(load_task("catch").with_params(ball_mass_kg=m)) for m in (7.0, 8.0))
+    for a, b, c in zip(lo.knot_times_s + lo.values_m, hi.knot_times_s + hi.values_m,
+                       r.curve.knot_times_s + r.curve.values_m, strict=True):
+        assert min(a, b) - 1e-12 <= c <= max(a, b) + 1e-12
+    ev = evaluate(task, simulate(task, r.curve, record=False))
+    assert ev.fell and ev.fall_direction == "backward"  # measured; see the docstring
+    # --curve library with another mass is the task file's own (7 kg) CMRT: the mismatch demo
+    assert library_curve(load_task("catch").with_params(ball_mass_kg=1.0)) == library_curve(load_task("catch"))
+
+
+def test_superposing_a_single_cmrt_is_that_cmrt():
+    task = load_task("bend").with_speed(0.5)
+    seq = SequenceTask(name="one", summary="", params=dict(task.params), end_pose_deg=task.end_pose_deg,
+                       motions=(Motion(task, task.preparation_s),))
+    sup = superpose(seq, [A])
+    t = np.linspace(-0.5, 3.0, 500)
+    np.testing.assert_array_equal(sup.displacement_m(t), A.displacement_m(t))
+    np.testing.assert_array_equal(sup.velocity_m_s(t), A.velocity_m_s(t))
+    # and the one-motion sequence simulates exactly like the task itself
+    alone = evaluate(task, simulate(task, A, record=False))
+    assert evaluate(seq, simulate(seq, sup, record=False)).objective == alone.objective
+
+
+def test_four_poses_superposed_succeed_zero_falls():
+    seq = load_sequence("four-poses")
+    zero = evaluate(seq, simulate(seq, record=False))
+    sup = evaluate(seq, simulate(seq, superpose(seq), record=False))
+    assert zero.fell and not zero.success
+    assert sup.success
+
+
+@pytest.mark.slow  # five cmrt processes
+def test_cli_interpolate_and_sequence(tmp_path):
+    out = tmp_path / "c.json"
+    r = cmrt("interpolate", "bend", "--speed", "0.5", "--out", str(out), "--json", check=True)
+    info = json.loads(r.stdout)
+    assert info["extrapolated"] is False and len(info["sources"]) == 2
+    sim = json.loads(cmrt("simulate", "bend", "--speed", "0.5", "--curve", str(out), "--json", check=True).stdout)
+    assert sim["objective"] > 0
+    r = cmrt("interpolate", "bend", "--speed", "1.4", "--json", check=True)
+    assert json.loads(r.stdout)["extrapolated"] is True and "extrapolated" in r.stderr
+    seq = json.loads(cmrt("sequence", "four-poses", "--json", check=True).stdout)
+    assert {"objective", "fell"} <= set(seq)
+    assert cmrt("sequence", "nope").returncode == 2

@@ -1,0 +1,124 @@
+"""The objective's diagnostics (docs/controller.md, *Diagnostics*): planned vs executed CoP, timing lag, fall
+direction and the topple after a fall - on synthetic trajectories where the answer is known, and on clips."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from cmrt import evaluate, load_task, simulate
+from cmrt.body.character import character
+from cmrt.sim.objective import TRACE_ONLY_FIELDS, timing_lag_s
+from cmrt.sim.simulate import Trajectory
+
+DT = 0.002
+
+
+@pytest.fixture(scope="module")
+def bend():
+    return load_task("bend").with_speed(0.4)
+
+
+def played(task, qpos: np.ndarray, fall_time_s: float | None = None) -> Trajectory:
+    """A trajectory whose joint angles are ``qpos`` (every step); what timing_lag_s does not read is NaN."""
+    n = qpos.shape[0]
+    arrays = {f.name: np.full(n, np.nan) for f in dataclasses.fields(Trajectory) if f.type == "np.ndarray"}
+    arrays.update(time_s=np.arange(n) * DT, qpos=qpos, protective=np.zeros(n, bool), final_qpos=qpos[-1])
+    return Trajectory(**arrays, clip_s=task.clip_s, fell=fall_time_s is not None, fall_time_s=fall_time_s,
+                      fall_reason=None, diverged=False, final_com_speed_m_s=0.0)
+
+
+def reference_at(task, t: np.ndarray) -> np.ndarray:
+    return np.array(task.reference(t)[0])
+
+
+def clip_times(task) -> np.ndarray:
+    return np.arange(int(round((task.clip_s + task.tail_s) / DT))) * DT
+
+
+def test_the_reference_itself_has_no_lag(bend):
+    t = clip_times(bend)
+    assert timing_lag_s(bend, played(bend, reference_at(bend, t))) == pytest.approx(0.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("delay_s", [0.05, 0.12])
+def test_a_delayed_reference_lags_by_its_delay(bend, delay_s):
+    t = clip_times(bend)
+    assert timing_lag_s(bend, played(bend, reference_at(bend, t - delay_s))) == pytest.approx(delay_s, abs=1e-6)
+
+
+def test_a_motion_done_half_way_or_slowed_down_lags_a_lot(bend):
+    """What a delay does not explain counts as lag: going half way, or at half speed, is not 'on time'."""
+    t = clip_times(bend)
+    start, q = bend.start_qpos(), reference_at(bend, t)
+    half = start + 0.5 * (q - start)
+    assert timing_lag_s(bend, played(bend, half)) > 0.1  # T = 0.4 s: a quarter of the motion's time and more
+    p = bend.preparation_s
+    slow = reference_at(bend, np.where(t > p, p + 0.5 * (t - p), t))
+    assert timing_lag_s(bend, played(bend, slow)) > 0.1
+    small_noise = q + 0.01 * np.sin(40 * t)[:, None]  # tracking noise of 0.01 rad: a few ms, not a lag
+    assert timing_lag_s(bend, played(bend, small_noise)) < 0.01
+
+
+def test_timing_lag_is_none_without_a_pose_change_or_a_window():
+    stand = load_task("stand")
+    t = clip_times(stand)[:500]
+    assert timing_lag_s(stand, played(stand, reference_at(stand, t))) is None
+    bend = load_task("bend").with_speed(0.4)
+    t = clip_times(bend)
+    assert timing_lag_s(bend, played(bend, reference_at(bend, t), fall_time_s=0.5)) is None  # fell before P
+
+
+def test_stand_plan_cop_is_met_and_scoring_runs_leave_the_trace_figures_out():
+    """Quiet standing: the CoP planned at each control step is the one the touch sensors measure in the step
+    its torques act in, to < 1 mm; an unrecorded run has no plan record (None)."""
+    task = load_task("stand").with_params(clip_s=3.0)
+    traj = simulate(task)
+    ev = evaluate(task, traj)
+    assert ev.max_plan_cop_error_m is not None and ev.max_plan_cop_error_m < 0.001
+    control = np.isfinite(traj.plan_cop_x_m)
+    assert control.sum() == pytest.approx(traj.time_s.size / 4, abs=1)  # every control step (125 Hz), no others
+    assert ev.timing_lag_s is None and ev.fall_direction is None and ev.after_fall_floor_contact_s is None
+    scored = evaluate(task, simulate(task, record=False))
+    assert all(getattr(scored, name) is None for name in TRACE_ONLY_FIELDS)
+    assert scored.scored() == ev.scored()
+
+
+@pytest.mark.parametrize("force_n, direction", [(250.0, "forward"), (-250.0, "backward")])
+def test_a_push_falls_the_way_it_pushes_and_the_topple_is_measured(force_n, direction):
+    task = load_task("stand").with_params(push_force_n=force_n, push_start_s=2.0, push_duration_s=0.1, clip_s=4.0)
+    traj = simulate(task)
+    ev = evaluate(task, traj)
+    assert ev.fell and ev.fall_direction == direction and ev.fall_direction_source == "topple"
+    scored = evaluate(task, simulate(task, record=False))
+    assert scored.fall_direction == direction and scored.fall_direction_source == "capture_point"
+    assert scored.after_fall_max_joint_speed_rad_s is None and scored.max_plan_cop_error_m is None
+    assert scored.scored() == ev.scored()
+    # the topple: from the fall to the first non-foot floor contact, which the trace shows
+    contact = ev.after_fall_floor_contact_s
+    assert contact is not None and ev.fall_time_s < contact <= traj.time_s[-1]
+    k, c = (int(np.searchsorted(traj.time_s, x - 1e-9)) for x in (ev.fall_time_s, contact))
+    assert traj.lowest_body_z_m[c] < 0.0 and np.all(traj.lowest_body_z_m[k:c] >= 0.0)
+    dofs = list(character().actuated_dofs)
+    assert ev.after_fall_max_joint_speed_rad_s == np.abs(traj.qvel[k : c + 1][:, dofs]).max() > 1.0
+    assert ev.after_fall_peak_foot_force_bw > 0.0 and ev.after_fall_max_foot_lift_m > 0.0
+    assert ev.max_plan_cop_error_m < 0.02  # measured 8 mm (+250 N), 1 mm (-250 N): the plan is carried out
+    assert np.sign(traj.com_m[c, 0] - traj.support_center_x_m[k]) == np.sign(force_n)
+
+
+def test_the_on_time_rule_when_enforced(monkeypatch):
+    """With ``ENFORCE_TIMING`` a pose change done within the RMS bound but late is not performed, and its
+    penalty grows with the lag; off (today), the lag is only reported."""
+    import cmrt.sim.objective as objective
+    from cmrt.sim.objective import evaluate
+
+    slow = load_task("bend").with_speed(1.2)  # RMS bound: the reference 120 ms late; lag bound: 50 ms
+    t = clip_times(slow)
+    late = played(slow, reference_at(slow, t - 0.08))
+    base = evaluate(slow, late)
+    assert base.timing_lag_s == pytest.approx(0.08, abs=1e-6) and base.timing_lag_bound_s == 0.05
+    assert base.performed  # within the RMS bound, so performed while the rule is off
+    monkeypatch.setattr(objective, "ENFORCE_TIMING", True)
+    enforced = evaluate(slow, late)
+    assert not enforced.performed and enforced.penalty > base.penalty
+    assert evaluate(slow, played(slow, reference_at(slow, t - 0.03))).performed  # 30 ms: on time
