@@ -208,8 +208,6 @@ STILL_TOO_BIG: dict[str, tuple[int, int]] = {
     "control.kernel:control_step": (263, 39),
     "sim.simulate:_simulate_group": (240, 6),
     "sim.tick:control_tick": (119, 72),
-    "sim.objective:evaluate": (89, 2),
-    "optimize.bench:run_bench": (84, 6),
     "sim.tick:geometry": (51, 24),
     "sim.simulate:_CompiledTick.__init__": (27, 18),
     "sim.simulate:_torques": (27, 16),
