@@ -209,9 +209,6 @@ STILL_TOO_BIG: dict[str, tuple[int, int]] = {
     "sim.simulate:_simulate_group": (240, 6),
     "sim.tick:control_tick": (119, 72),
     "sim.tick:geometry": (51, 24),
-    "sim.simulate:_CompiledTick.__init__": (27, 18),
-    "sim.simulate:_torques": (27, 16),
-    "sim.simulate:_Falls.check": (15, 16),
 }
 
 

@@ -398,7 +398,9 @@ class _Falls:
     """The balance monitor's verdicts per simulation: whether and when it fell (and why), the state it is
     judged by, the pose protective mode holds, and the step it stops at (moved on a fall)."""
 
-    def __init__(self, n: int, n_act: int, nq: int, run_steps: int):
+    def __init__(self, n: int, n_act: int, nq: int, run_steps: int, limits: BalanceLimits, dt: float,
+                 control_dt: float):
+        self.limits, self.dt, self.control_dt = limits, dt, control_dt  # what a fall is; the step, the control step
         self.code = np.zeros(n, int)  # 0: standing; else 1 + index into REASONS
         self.step = np.full(n, -1)
         self.hold = np.zeros((n, n_act))  # protective mode: the pose at the fall
@@ -409,15 +411,15 @@ class _Falls:
         self.airborne_for_s = np.zeros(n)
         self.end = np.full(n, run_steps)
 
-    def check(self, limits: BalanceLimits, ids: np.ndarray, k: int, dt: float, control_dt: float, *, ok: np.ndarray,
+    def check(self, ids: np.ndarray, k: int, *, ok: np.ndarray,
               grounded: np.ndarray, support_lo_x: np.ndarray, support_hi_x: np.ndarray, lowest_body_z: np.ndarray,
               qpos: np.ndarray, com: np.ndarray, com_vel_x: np.ndarray, roll: np.ndarray,
               time_s: np.ndarray) -> np.ndarray:
         """Run the monitor on simulations ``ids`` at step ``k``; returns the mask of those that fell now."""
-        self.airborne_for_s[ids] = np.where(grounded, 0.0, self.airborne_for_s[ids] + control_dt)
-        finite = ok & np.all(np.isfinite(qpos), axis=1) & (np.abs(time_s - k * dt) < 1e-9)
+        self.airborne_for_s[ids] = np.where(grounded, 0.0, self.airborne_for_s[ids] + self.control_dt)
+        finite = ok & np.all(np.isfinite(qpos), axis=1) & (np.abs(time_s - k * self.dt) < 1e-9)
         code = check_balance(
-            limits, finite=finite, lowest_body_z=lowest_body_z, com_x=com[:, 0], com_z=com[:, 2],
+            self.limits, finite=finite, lowest_body_z=lowest_body_z, com_x=com[:, 0], com_z=com[:, 2],
             com_vel_x=com_vel_x, airborne_for_s=self.airborne_for_s[ids], foot_roll_rad=roll,
             support_lo_x=support_lo_x, support_hi_x=support_hi_x,
         )
@@ -465,7 +467,7 @@ def _delayed(targets: Targets, delay_steps: int, k: int, ids: np.ndarray, com_x_
 
 def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarray, fallen: np.ndarray,
              drive: _Drive, k: int, targets: Targets, contact: np.ndarray, mass: np.ndarray,
-             hold: np.ndarray, act: np.ndarray, nu: int, step: StepCommand | None = None,
+             nu: int, step: StepCommand | None = None,
              warm: np.ndarray | None = None, prop=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Torques of simulations ``ids`` (batch rows ``sel``): the controller for those standing, protective
     mode for those that fell. ``bad``: the controller's plan was singular or non-finite; ``plan_cop``: the CoP
@@ -544,11 +546,11 @@ class _CompiledTick:
     FIELDS = ("geom_xpos", "geom_xmat", "qpos", "qvel", "cdof", "cdof_dot", "cvel", "cinert", "M", "qfrc_bias",
               "qfrc_passive", "subtree_com", "time")
 
-    def __init__(self, b: dict, geo: _Geometry, controller: MomentumBalanceController, limits: BalanceLimits,
-                 drive: _Drive, rec: _Recorder, falls: _Falls, act: np.ndarray, n: int, nb: int, mass_kg: float,
-                 dt: float, control_dt: float, lean_check: bool, delay_steps: int, fb_vel: np.ndarray,
-                 warm: np.ndarray):
-        c = controller
+    def __init__(self, b: dict, geo: _Geometry, controller: MomentumBalanceController, drive: _Drive,
+                 rec: _Recorder, falls: _Falls, act: np.ndarray, nb: int, mass_kg: float, lean_check: bool,
+                 delay_steps: int, fb_vel: np.ndarray, warm: np.ndarray):
+        """The monitor ``falls`` brings what a fall is and the clock (``limits``, ``dt``, ``control_dt``)."""
+        c, limits, dt, control_dt, n = controller, falls.limits, falls.dt, falls.control_dt, falls.code.size
         variants = drive.variant_of is not None
         # Every row of the batch's fields, read-only and C-contiguous: one numba signature (each costs ~40 s
         # to compile); the kernel reads the active rows, so rows that stop (falls) cost no copies. qpos, qvel
@@ -670,7 +672,8 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
     limp = _Limp(batch, controller.limits)
     stepper = _stepper(task, n)
     step = None
-    falls = _Falls(n, act.size, nq, run_steps)
+    control_dt = config.control_every * dt
+    falls = _Falls(n, act.size, nq, run_steps, limits, dt, control_dt)
     next_end = run_steps
     last = np.full(n, n_steps)
     goal = np.full(n, np.nan)  # the prop's goal: 1/0 (NaN: a pose change), judged at the end or at the fall
@@ -678,7 +681,6 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
     active = np.arange(n)
     ctrl_all = np.zeros((n, m.nu))
     com_ref_now, cop_ref_now = np.full(n, np.nan), np.full(n, np.nan)  # the references, held between control steps
-    control_dt = config.control_every * dt
     sample_every = max(1, int(round(task.cop_sample_step_s / dt)))
     n_points = geo.points.size
     diverged_code = 1 + REASONS.index(FallReason.DIVERGED)
@@ -691,8 +693,8 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
     fb_vel = np.full((n, n_steps), np.nan)
     # each simulation's QP active set at its last control step: the next one starts from it (warm start)
     warm = np.zeros((n, controller.n_rows), bool)
-    compiled = (_CompiledTick(b, geo, controller, limits, drive, rec, falls, act, n, nb, ch.mass_kg, dt, control_dt,
-                              has_contact_force, delay_steps, fb_vel, warm)
+    compiled = (_CompiledTick(b, geo, controller, drive, rec, falls, act, nb, ch.mass_kg, has_contact_force,
+                              delay_steps, fb_vel, warm)
                 if COMPILED_TICK and yu is None and stepper is None and not record else None)
 
     push_steps = set(np.flatnonzero(drive.push_changes).tolist())  # a set: cheaper per step than an array
@@ -816,7 +818,7 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
             fb_vel[ids, k] = vel_x
             felt = _delayed(targets, delay_steps, k, ids, com[:, 0], vel_x, rec_com, fb_vel)
             ctrl, bad, plan_cop = _torques(controller, b, sel, ids, falls.code[ids] > 0, drive, k, felt, contact,
-                                           mass, falls.hold, act, m.nu, step, warm, prop)
+                                           mass, m.nu, step, warm, prop)
             if record:  # the plan against the CoP measured in the physics step these torques act in
                 swinging = np.zeros(ids.size, bool) if stepper is None else stepper.swinging(ids).any(axis=1)
                 rec["plan_cop"][sel, k] = np.where(swinging, np.nan, plan_cop)
@@ -830,7 +832,7 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
             if has_contact_force and k > 0:  # leaning on a prop: the pendulum's capture point does not apply
                 leaning = rec["prop_force"][ids, k - 1] > CONTACT_FORCE_N
                 c_lo, c_hi = np.where(leaning, -np.inf, c_lo), np.where(leaning, np.inf, c_hi)
-            new = falls.check(limits, ids, k, dt, control_dt, ok=~bad, grounded=grounded, support_lo_x=c_lo,
+            new = falls.check(ids, k, ok=~bad, grounded=grounded, support_lo_x=c_lo,
                               support_hi_x=c_hi, lowest_body_z=lowest,
                               qpos=qpos, com=com, com_vel_x=vel_x, roll=roll, time_s=b["time"][sel])
             if new.any():
