@@ -48,20 +48,13 @@ from cmrt.control.stepping import StepCommand, StepConfig, StepSupervisor
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.ensemble import NOMINAL, Perturbation
 from cmrt.motion.task import Task
-from cmrt.sim.balance import REASONS, BalanceLimits, FallReason, capture_point_x, check_balance
+from cmrt.sim.balance import REASONS, BalanceLimits, FallReason, capture_point_x
+from cmrt.sim.monitor import FallMonitor, ProtectiveMode
 from cmrt.sim.tick import control_tick, geometry, sample_support
 
 SETTLE_S = 1.5
 POST_FALL_S = 1.0  # a recorded clip runs at least this long past a fall, so the topple is seen
 CONTACT_HEIGHT_M = 0.001  # a heel/toe point whose lowest point is below this height touches the floor
-# Protective mode after a fall: a passive spring-damper about the pose at the fall, per joint (a fraction of
-# the motor's torque limit per rad and per rad/s): muscle tone, no goal. It is MuJoCo's own joint stiffness and
-# damping, set per simulation (``_go_limp``), so the implicit integrator carries the damping: as torques held
-# over a control step (v0.2) the damper was unstable on the light distal joints (ankle c T / I = 3.77 > 2:
-# ankles chattering at 79-100 rad/s, feet slapping the floor at 5-15 body weights). docs/controller.md.
-PROTECTIVE_STIFFNESS_PER_RAD = 0.1
-PROTECTIVE_DAMPING_PER_RAD_S = 0.1
-
 # Scoring runs in the center mode with feet planted do their control steps in one compiled call
 # (cmrt.sim.tick); False runs them on the Python path, as traces do (tests compare the two bit for bit).
 COMPILED_TICK = True
@@ -237,30 +230,6 @@ def _ground_support(contact: np.ndarray, point_x: np.ndarray) -> tuple[np.ndarra
     return grounded, lo, hi
 
 
-class _Limp:
-    """Protective mode: the fallen simulations' joints become passive springs and dampers about the pose they
-    fell in - muscle tone without a goal, so it cannot add energy (the CoM only goes down) - as MuJoCo's per-
-    simulation joint stiffness, damping and spring pose, integrated by MuJoCo (its damping implicitly). Their
-    motors are off."""
-
-    def __init__(self, batch, limits_nm: np.ndarray):
-        m = character().model
-        joints = m.actuator_trnid[:, 0]
-        self.dofs, self.qpos_adr = m.jnt_dofadr[joints], m.jnt_qposadr[joints]
-        self.joints, self.limits, self.batch = joints, limits_nm, batch
-        self.fields: tuple | None = None
-
-    def fall(self, sims: np.ndarray, qpos: np.ndarray) -> None:
-        """Simulations ``sims`` (batch rows) fell in pose ``qpos`` (their rows)."""
-        if self.fields is None:  # per-simulation values from the first fall on (the others keep the model's)
-            self.fields = tuple(self.batch.expand(k) for k in ("jnt_stiffness", "dof_damping", "qpos_spring"))
-        stiffness, damping, spring = self.fields
-        for row, q in zip(sims, qpos, strict=True):
-            stiffness[row, self.joints] = PROTECTIVE_STIFFNESS_PER_RAD * self.limits
-            damping[row, self.dofs] = PROTECTIVE_DAMPING_PER_RAD_S * self.limits
-            spring[row, self.qpos_adr] = q[self.qpos_adr]
-
-
 def _judge_prop(prop, b, rows, force, times, windows, goal, extras) -> None:
     """The prop's verdict and figures for simulations ``rows`` as they are now (a fall freezes them, so
     a recorded topple cannot change them). ``windows`` (n, 2): each simulation's task window."""
@@ -394,50 +363,6 @@ def _drive(task: Task, curves: list[Cmrt], members: list[Perturbation], times: n
     )
 
 
-class _Falls:
-    """The balance monitor's verdicts per simulation: whether and when it fell (and why), the state it is
-    judged by, the pose protective mode holds, and the step it stops at (moved on a fall)."""
-
-    def __init__(self, n: int, n_act: int, nq: int, run_steps: int, limits: BalanceLimits, dt: float,
-                 control_dt: float):
-        self.limits, self.dt, self.control_dt = limits, dt, control_dt  # what a fall is; the step, the control step
-        self.code = np.zeros(n, int)  # 0: standing; else 1 + index into REASONS
-        self.step = np.full(n, -1)
-        self.hold = np.zeros((n, n_act))  # protective mode: the pose at the fall
-        self.qpos = np.zeros((n, nq))  # the state a fallen clip is judged by
-        self.speed_m_s = np.zeros(n)
-        self.capture_x = np.full(n, np.nan)  # the capture point and CoM velocity at the fall (its direction)
-        self.com_vel_x = np.full(n, np.nan)
-        self.airborne_for_s = np.zeros(n)
-        self.end = np.full(n, run_steps)
-
-    def check(self, ids: np.ndarray, k: int, *, ok: np.ndarray,
-              grounded: np.ndarray, support_lo_x: np.ndarray, support_hi_x: np.ndarray, lowest_body_z: np.ndarray,
-              qpos: np.ndarray, com: np.ndarray, com_vel_x: np.ndarray, roll: np.ndarray,
-              time_s: np.ndarray) -> np.ndarray:
-        """Run the monitor on simulations ``ids`` at step ``k``; returns the mask of those that fell now."""
-        self.airborne_for_s[ids] = np.where(grounded, 0.0, self.airborne_for_s[ids] + self.control_dt)
-        finite = ok & np.all(np.isfinite(qpos), axis=1) & (np.abs(time_s - k * self.dt) < 1e-9)
-        code = check_balance(
-            self.limits, finite=finite, lowest_body_z=lowest_body_z, com_x=com[:, 0], com_z=com[:, 2],
-            com_vel_x=com_vel_x, airborne_for_s=self.airborne_for_s[ids], foot_roll_rad=roll,
-            support_lo_x=support_lo_x, support_hi_x=support_hi_x,
-        )
-        new = (code > 0) & (self.code[ids] == 0)
-        self.code[ids[new]] = code[new]
-        return new
-
-    def fell(self, sims: np.ndarray, k: int, qpos: np.ndarray, act: np.ndarray, speed_m_s: np.ndarray,
-             end: np.ndarray) -> None:
-        """Simulations ``sims`` fell at step ``k`` in state ``qpos`` (their rows): keep what they are judged by
-        and the pose protective mode holds; they stop stepping at ``end``."""
-        self.step[sims] = k
-        self.hold[sims] = qpos[:, act]
-        self.qpos[sims] = qpos[:, : self.qpos.shape[1]]
-        self.speed_m_s[sims] = speed_m_s
-        self.end[sims] = end
-
-
 def _targets(yu: YuReference | None, b: dict, sel, ids: np.ndarray, drive: _Drive, k: int, center: np.ndarray,
              lo: np.ndarray, hi: np.ndarray, com: np.ndarray, com_vel_x: np.ndarray, nb: int) -> Targets:
     """The controller's reference CoM (CMRT included), its rate and the reference CoP of simulations ``ids``
@@ -491,7 +416,7 @@ def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarra
             controller, f, drive.refs_at(k, rows), t.com_x_m[up], t.com_vel_x_m_s[up], t.cop_x_m[up], contact[up],
             mass[rows], None if step is None else step.rows(up), warm, rows,
             None if prop is None else prop.hand_load(b, rows))
-    return ctrl, bad, plan_cop  # the fallen: motors off, their joints passive (``_Limp``)
+    return ctrl, bad, plan_cop  # the fallen: motors off, their joints passive (``ProtectiveMode``)
 
 
 def direct_step(batch: mujoco.batch.Batch, stage: mujoco.mjtStage):
@@ -547,7 +472,7 @@ class _CompiledTick:
               "qfrc_passive", "subtree_com", "time")
 
     def __init__(self, b: dict, geo: _Geometry, controller: MomentumBalanceController, drive: _Drive,
-                 rec: _Recorder, falls: _Falls, act: np.ndarray, nb: int, mass_kg: float, lean_check: bool,
+                 rec: _Recorder, falls: FallMonitor, act: np.ndarray, nb: int, mass_kg: float, lean_check: bool,
                  delay_steps: int, fb_vel: np.ndarray, warm: np.ndarray):
         """The monitor ``falls`` brings what a fall is and the clock (``limits``, ``dt``, ``control_dt``)."""
         c, limits, dt, control_dt, n = controller, falls.limits, falls.dt, falls.control_dt, falls.code.size
@@ -640,7 +565,7 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
     :class:`_Group`); the compiled scoring loop (:func:`_compiled_loop`) and then the Python loop
     (:func:`_python_loop`) step it, sharing where they are in a :class:`_LoopState`; :func:`_finish` judges
     and returns the trajectories. What drives each row is :class:`_Drive`, the torques :func:`_torques`, the
-    balance monitor :class:`_Falls`."""
+    balance monitor :class:`FallMonitor`."""
     g = _set_up(task, curves, config, record, limits, members)
     s = _LoopState(ids=np.arange(g.n), next_end=g.run_steps, last=np.full(g.n, g.n_steps))
     if g.compiled is not None:  # a scoring run: compiled control steps, then (a fall, a singular plan) Python
@@ -678,9 +603,9 @@ class _Group:
     b: dict
     settled_z: np.ndarray
     rec: _Recorder
-    limp: _Limp
+    limp: ProtectiveMode
     stepper: StepSupervisor | None
-    falls: _Falls
+    falls: FallMonitor
     goal: np.ndarray  # the prop's goal: 1/0 (NaN: a pose change), judged at the end or at the fall
     extras: dict
     ctrl_all: np.ndarray
@@ -750,7 +675,7 @@ def _set_up(task: Task, curves: list[Cmrt | None], config: ControllerConfig, rec
     rec = _Recorder(n, n_steps, m.nq, m.nv, m.nu)
     stepper = _stepper(task, n)
     control_dt = config.control_every * dt
-    falls = _Falls(n, act.size, nq, run_steps, limits, dt, control_dt)
+    falls = FallMonitor(n, act.size, nq, run_steps, limits, dt, control_dt)
     has_contact_force = prop.contact_force(b, slice(None)) is not None
     delay_steps = config.control_every * int(round(config.feedback_delay_s / control_dt))
     fb_vel = np.full((n, n_steps), np.nan)
@@ -762,7 +687,7 @@ def _set_up(task: Task, curves: list[Cmrt | None], config: ControllerConfig, rec
         task=task, config=config, record=record, ch=ch, m=m, n=n, dt=dt, run_steps=run_steps, post_fall=post_fall,
         n_steps=n_steps, times=times, drive=drive, geo=geo, controller=controller, yu=yu,
         kin=PlanarKinematics(ch.model), nq=nq, nb=nb, act=act, batch=batch, prop=prop, b=b, settled_z=settled_z,
-        rec=rec, limp=_Limp(batch, controller.limits), stepper=stepper, falls=falls, goal=np.full(n, np.nan),
+        rec=rec, limp=ProtectiveMode(batch, controller.limits), stepper=stepper, falls=falls, goal=np.full(n, np.nan),
         extras={}, ctrl_all=np.zeros((n, m.nu)), com_ref_now=np.full(n, np.nan), cop_ref_now=np.full(n, np.nan),
         control_dt=control_dt, sample_every=max(1, int(round(task.cop_sample_step_s / dt))),
         has_contact_force=has_contact_force, delay_steps=delay_steps, fb_vel=fb_vel, warm=warm, compiled=compiled,
@@ -1043,7 +968,7 @@ def _step_command(stepper: StepSupervisor, kin: PlanarKinematics, b: dict, sel, 
                           point_x)
 
 
-def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarray, falls: _Falls, disp: np.ndarray,
+def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarray, falls: FallMonitor, disp: np.ndarray,
                   extras: dict[str, np.ndarray], goal: np.ndarray, final_qpos: np.ndarray,
                   final_speed: np.ndarray, stepper: StepSupervisor | None = None) -> list[Trajectory]:
     """One Trajectory per simulation, cut where it stopped."""
