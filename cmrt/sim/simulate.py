@@ -163,8 +163,8 @@ class _Geometry:
         n = qpos.shape[0]
         out = (np.empty((n, self.points.size)), np.empty(n), np.empty(n), np.empty((n, self.points.size), bool),
                np.empty((n, 2)), np.empty(n), np.empty(n), np.empty(n, bool), np.empty(n), np.empty(n))
-        geometry(np.arange(n), geom_xpos, geom_xmat, qpos, qvel, self.points, self.body_geoms, self.half, self.radius,
-                 self.leg_dofs, self.root_pitch, act, FOOT_POINT_RADIUS_M, CONTACT_HEIGHT_M, *out)
+        geometry(np.arange(n), (geom_xpos, geom_xmat, qpos, qvel), (self.points, self.body_geoms, self.half,
+                 self.radius, self.leg_dofs, self.root_pitch, act, FOOT_POINT_RADIUS_M, CONTACT_HEIGHT_M), out)
         return out
 
     def foot_roll(self, qpos: np.ndarray) -> np.ndarray:
@@ -509,10 +509,10 @@ class _CompiledTick:
         n = ids.size
         point_x, momentum, new = np.empty((n, self.geometry[0].size)), np.empty((n, 2)), np.empty(n, bool)
         try:
-            fell = control_tick(k, ids, self.dt, self.control_dt, self.nb, self.mass_kg, *self.fields, *self.geometry,
-                                *self.controller, *self.drive, carried_kg, *self.lean, *self.state,
-                                com_ref_now, cop_ref_now, ctrl_all, *self.delay, *self.warm,
-                                *(_no_load(n) if load is None else load), point_x, momentum, new)
+            fell = control_tick(k, ids, (self.dt, self.control_dt, self.nb, self.mass_kg), self.fields,
+                                self.geometry, self.controller, self.drive, self.lean, self.state,
+                                (carried_kg, com_ref_now, cop_ref_now, ctrl_all), self.delay, self.warm,
+                                _no_load(n) if load is None else tuple(load), (point_x, momentum, new))
         except np.linalg.LinAlgError:
             return None
         if fell < 0:
