@@ -220,18 +220,21 @@ def solve_qp(Q, g, E, e, C, c, c_on, dual_reg, passes=MAX_PASSES, active=None):
     return x
 
 
+# control_step's arguments, grouped: ``fields`` (cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias,
+# qfrc_passive, com_all, geom_xpos) are the batch's bound MuJoCo fields, of which simulation ``i`` reads row
+# ``rows[i]`` (the compiled scoring loop passes the whole batch and its active rows: no copies when rows drop out)
+# - only the humanoid's leading slices are read; ``model`` (chain, m_rows, m_cols, points, point_bodies, leg_dofs,
+# actuated, limits, w2, params) the controller's constants; ``refs`` (q_ref, qd_ref, qdd_ref, com_ref_x,
+# com_ref_vel_x, cop_des_x) per-simulation targets (references (n, nv): an ensemble's members may play the motion
+# at different speeds); ``support`` (contact, mass_all, swing_foot, swing_target): ``mass_all`` (n,) is each
+# character's mass with what it carries (a caught ball's mass moves into the forearms); ``warm`` (warm_in,
+# warm_out); ``load`` (ext_f, ext_p, ext_bodies); ``out`` (tau_out, info_out). See controller.py for the
+# formulation.
 @njit(cache=True, nogil=True)
-def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, qfrc_passive, com_all, geom_xpos,
-                 chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, limits, w2, params,
-                 q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, contact, mass_all, swing_foot,
-                 swing_target, warm_in, warm_out, ext_f, ext_p, ext_bodies, tau_out, info_out):
-    """Torques (tau_out, (n, nu)) for n simulations; info_out (n, N_INFO) gets the plan's summary.
+def control_step(rows, fields, model, refs, support, warm, load, out):
+    """Torques (tau_out, (n, nu)) for n simulations; info_out (n, N_INFO) gets the plan's summary (the
+    arguments' groups: the comment above).
 
-    Arrays are the batch's bound MuJoCo fields, of which simulation ``i`` reads row ``rows[i]`` (the
-    compiled scoring loop passes the whole batch and its active rows: no copies when rows drop out) - only
-    the humanoid's leading slices are read - and per-simulation targets (references (n, nv): an
-    ensemble's members may play the motion at different speeds); ``mass_all`` (n,) is each character's mass with what it
-    carries (a caught ball's mass moves into the forearms); see controller.py for the formulation.
     A swinging foot (``swing_foot[i]`` >= 0) has no support rows and carries no load; its heel point and
     pitch track ``swing_target[i]`` as a weighted objective, and its leg's joint tracking is weakened.
     ``warm_in`` / ``warm_out`` (rows, n_rows(nu)) bool, read / written at row ``rows[i]``: the QP's active set
@@ -240,6 +243,11 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
     ``ext_f[i]`` (x, z) N acting at ``ext_p[i]`` (world, (x, y, z)) on the bodies ``ext_bodies`` (shared equally):
     a load the character holds (``Prop.hand_load``), known to the plan - the ground gives the momentum rate less
     it, and the torques take its generalized force out. Zero: the clip is computed as without it, bit for bit."""
+    cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, qfrc_passive, com_all, geom_xpos = fields
+    chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, limits, w2, params = model
+    q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x = refs
+    contact, mass_all, swing_foot, swing_target = support
+    (warm_in, warm_out), (ext_f, ext_p, ext_bodies), (tau_out, info_out) = warm, load, out
     n = rows.shape[0]
     nb, nv = chain.shape
     grav = params[P_G]

@@ -205,9 +205,7 @@ def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, 
     airborne_for_s, fall_code, rec_sc, rec_lo, rec_hi, rec_qpos, rec_com, rec_jspeed, rec_cref = state
     carried_kg, com_ref_now, cop_ref_now, ctrl_all = now
     delay_steps, fb_vel = delay
-    warm, warm_out = warm_sets
-    ext_f, ext_p, ext_bodies = load
-    point_x, momentum, new = out
+    (warm, warm_out), (ext_f, ext_p, ext_bodies), (point_x, momentum, new) = warm_sets, load, out
     n = ids.shape[0]
     for r in range(n):
         if fall_code[ids[r]] != 0:
@@ -255,10 +253,11 @@ def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, 
 
     tau = np.empty((n, nu))
     info = np.empty((n, N_INFO))
-    control_step(ids, cdof, cdof_dot, cvel, cinert, qpos, qvel, M, qfrc_bias, qfrc_passive, subtree_com, geom_xpos,
-                 chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, torque_limits, w2, params,
-                 qr, qdr, qddr, com_ref, com_ref_vel, cop_ref, contact, mass, np.full(n, -1.0),
-                 np.zeros((n, N_SWING)), warm, warm_out, ext_f, ext_p, ext_bodies, tau, info)
+    control_step(ids, (cdof, cdof_dot, cvel, cinert, qpos, qvel, M, qfrc_bias, qfrc_passive, subtree_com, geom_xpos),
+                 (chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, torque_limits, w2, params),
+                 (qr, qdr, qddr, com_ref, com_ref_vel, cop_ref),
+                 (contact, mass, np.full(n, -1.0), np.zeros((n, N_SWING))),
+                 (warm, warm_out), (ext_f, ext_p, ext_bodies), (tau, info))
     for r in range(n):  # every plan found: keep the active sets (a singular plan raised, keeping none)
         s = ids[r]
         for j in range(warm.shape[1]):
