@@ -201,7 +201,6 @@ def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, 
      airborne_s, roll_rad, capture_margin_m) = consts
     chain, m_rows, m_cols, point_bodies, actuated, torque_limits, w2, params = controller
     q_ref, qd_ref, qdd_ref, variant, disp_m, disp_vel_m_s = drive
-    lean_check, prop_force, leaning_n = lean
     airborne_for_s, fall_code, rec_sc, rec_lo, rec_hi, rec_qpos, rec_com, rec_jspeed, rec_cref = state
     carried_kg, com_ref_now, cop_ref_now, ctrl_all = now
     delay_steps, fb_vel = delay
@@ -262,7 +261,24 @@ def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, 
         s = ids[r]
         for j in range(warm.shape[1]):
             warm[s, j] = warm_out[s, j]
+    return _judge_tick(k, ids, clock, fields, consts, lean, state, now, tau,
+                       (grounded, c_lo, c_hi, lowest, vel_x, roll), new)
 
+
+@njit(cache=True, nogil=True)
+def _judge_tick(k, ids, clock, fields, consts, lean, state, now, tau, read, new):
+    """The end of ``control_tick``: the torques into ``ctrl_all`` (zero for a non-finite plan), then the balance
+    monitor on rows ``ids`` (``read``: what the tick's geometry read, (grounded, c_lo, c_hi, lowest, vel_x,
+    roll)); ``new`` gets the rows that fell now; returns how many."""
+    dt, control_dt = clock[0], clock[1]
+    qpos, subtree_com, time_s = fields[2], fields[11], fields[12]
+    com_height_m, airborne_s, roll_rad, capture_margin_m = consts[9], consts[10], consts[11], consts[12]
+    lean_check, prop_force, leaning_n = lean
+    airborne_for_s, fall_code = state[0], state[1]
+    ctrl_all = now[3]
+    grounded, c_lo, c_hi, lowest, vel_x, roll = read
+    n = ids.shape[0]
+    nu = tau.shape[1]
     finite = np.empty(n, np.bool_)
     air = np.empty(n)
     for r in range(n):
