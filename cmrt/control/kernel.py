@@ -231,6 +231,41 @@ def solve_qp(Q, g, E, e, C, c, c_on, dual_reg, passes=MAX_PASSES, active=None):
 # warm_out); ``load`` (ext_f, ext_p, ext_bodies); ``out`` (tau_out, info_out). See controller.py for the
 # formulation.
 @njit(cache=True, nogil=True)
+def _loaded_points(state, pts):
+    """Which of the four contact points carry load in the feet's states, how many (at least 1), and their
+    mean x and spread (the sum of squared deviations) - the inverse dynamics' split of the ground force."""
+    carries = np.zeros(4, np.bool_)
+    for foot in range(2):
+        carries[2 * foot] = state[foot] == FLAT or state[foot] == HEEL
+        carries[2 * foot + 1] = state[foot] == FLAT or state[foot] == TOE
+    count = max(1, carries.sum())
+    mean = 0.0
+    for p in range(4):
+        if carries[p]:
+            mean += pts[p, 0]
+    mean /= count
+    spread = 0.0
+    for p in range(4):
+        if carries[p]:
+            spread += (pts[p, 0] - mean) ** 2
+    return carries, count, mean, spread
+
+
+@njit(cache=True, nogil=True)
+def _dense_dynamics(row, M_sparse, m_rows, m_cols, qfrc_bias, qfrc_passive, nv):
+    """Batch row ``row``'s joint-space inertia, dense (nv, nv) from MuJoCo's sparse M, and its bias less
+    passive forces, h = qfrc_bias - qfrc_passive."""
+    M = np.zeros((nv, nv))
+    for k in range(m_rows.size):
+        M[m_rows[k], m_cols[k]] = M_sparse[row, k]
+        M[m_cols[k], m_rows[k]] = M_sparse[row, k]
+    h = np.empty(nv)
+    for j in range(nv):
+        h[j] = qfrc_bias[row, j] - qfrc_passive[row, j]
+    return M, h
+
+
+@njit(cache=True, nogil=True)
 def control_step(rows, fields, model, refs, support, warm, load, out):
     """Torques (tau_out, (n, nu)) for n simulations; info_out (n, N_INFO) gets the plan's summary (the
     arguments' groups: the comment above).
@@ -391,27 +426,8 @@ def control_step(rows, fields, model, refs, support, warm, load, out):
         # the torques are affine in the plan, tau = T qdd + t0 (inverse dynamics with the plan's ground
         # forces split over the loaded points, below): the motors' limits are rows of the QP, so the plan
         # is one the motors can carry out - nothing is clipped after the solve
-        carries = np.zeros(4, np.bool_)
-        for foot in range(2):
-            carries[2 * foot] = state[foot] == FLAT or state[foot] == HEEL
-            carries[2 * foot + 1] = state[foot] == FLAT or state[foot] == TOE
-        count = max(1, carries.sum())
-        mean = 0.0
-        for p in range(4):
-            if carries[p]:
-                mean += pts[p, 0]
-        mean /= count
-        spread = 0.0
-        for p in range(4):
-            if carries[p]:
-                spread += (pts[p, 0] - mean) ** 2
-        M = np.zeros((nv, nv))
-        for k in range(m_rows.size):
-            M[m_rows[k], m_cols[k]] = M_sparse[row, k]
-            M[m_cols[k], m_rows[k]] = M_sparse[row, k]
-        h = np.empty(nv)
-        for j in range(nv):
-            h[j] = qfrc_bias[row, j] - qfrc_passive[row, j]
+        carries, count, mean, spread = _loaded_points(state, pts)
+        M, h = _dense_dynamics(row, M_sparse, m_rows, m_cols, qfrc_bias, qfrc_passive, nv)
         # d tau / d qdd (rows: the actuated dofs only, the rows the QP needs) and tau at qdd = 0
         nu_rows = nu if in_plan else 0
         Tm = np.empty((nu_rows, nv))
