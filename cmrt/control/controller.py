@@ -231,16 +231,16 @@ class MomentumBalanceController:
         tau = np.empty((n, self.actuated.size))
         info = np.empty((n, kernel.N_INFO))
         kernel.control_step(
-            c["rows"], *(_as_kernel(f[k]) for k in _FIELDS),
-            self.chain, self.m_rows, self.m_cols, self.points, self.point_bodies, self.leg_dofs, self.actuated,
-            self.bounds, self.w2, self.params,
-            *(_shared_rows(r, buf, view) for r, (buf, view) in zip((q_ref, qd_ref, qdd_ref), c["refs"], strict=True)),
-            _as_kernel(com_ref_x), _as_kernel(com_ref_vel_x), _as_kernel(cop_des_x),
-            _as_kernel(in_contact, np.bool_), c["mass"] if mass_kg is None else _as_kernel(mass_kg),
-            c["no_swing"] if swing_foot is None else _as_kernel(swing_foot),
-            c["no_target"] if swing_target is None else _as_kernel(swing_target),
-            c["cold"] if warm is None else warm, c["warm_out"],
-            *(c["no_load"] if load is None else load), tau, info,
+            c["rows"], tuple(_as_kernel(f[k]) for k in _FIELDS),
+            (self.chain, self.m_rows, self.m_cols, self.points, self.point_bodies, self.leg_dofs, self.actuated,
+             self.bounds, self.w2, self.params),
+            (*(_shared_rows(r, buf, view) for r, (buf, view) in zip((q_ref, qd_ref, qdd_ref), c["refs"], strict=True)),
+             _as_kernel(com_ref_x), _as_kernel(com_ref_vel_x), _as_kernel(cop_des_x)),
+            (_as_kernel(in_contact, np.bool_), c["mass"] if mass_kg is None else _as_kernel(mass_kg),
+             c["no_swing"] if swing_foot is None else _as_kernel(swing_foot),
+             c["no_target"] if swing_target is None else _as_kernel(swing_target)),
+            (c["cold"] if warm is None else warm, c["warm_out"]),
+            tuple(c["no_load"] if load is None else load), (tau, info),
         )
         if warm is not None:
             np.copyto(warm, c["warm_out"])

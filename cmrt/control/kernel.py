@@ -221,17 +221,89 @@ def solve_qp(Q, g, E, e, C, c, c_on, dual_reg, passes=MAX_PASSES, active=None):
 
 
 @njit(cache=True, nogil=True)
-def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, qfrc_passive, com_all, geom_xpos,
-                 chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, limits, w2, params,
-                 q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, contact, mass_all, swing_foot,
-                 swing_target, warm_in, warm_out, ext_f, ext_p, ext_bodies, tau_out, info_out):
-    """Torques (tau_out, (n, nu)) for n simulations; info_out (n, N_INFO) gets the plan's summary.
+def _objective(A, a, qd, q, com, mass, mg, params, w2, leg_dofs, pts, swing, i, targets):
+    """The QP's objective (Q, g) of simulation ``i``: the momentum rates (the CoM toward its reference, the CoP's
+    angular momentum rate) and the joints' tracking, a swing leg's and a crouch's adjustments included.
+    ``targets``: (q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, swing_target), row ``i`` read."""
+    q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, swing_target = targets
+    nv = A.shape[1]
+    L_x = A[0] @ qd
+    ldot_x = params[P_KL] * mass * (com_ref_x[i] - com[0]) + params[P_DL] * (mass * com_ref_vel_x[i] - L_x)
+    hdot = -com[2] * ldot_x - (cop_des_x[i] - com[0]) * mg
+    Q = params[P_BL] * np.outer(A[0], A[0]) + params[P_BH] * np.outer(A[2], A[2])
+    g = params[P_BL] * (ldot_x - a[0]) * A[0] + params[P_BH] * (hdot - a[2]) * A[2]
+    for j in range(nv):
+        wj = w2[j]
+        qr = q_ref[i, j]
+        if swing >= 0:
+            if j == leg_dofs[swing, 0] or j == leg_dofs[swing, 1] or j == leg_dofs[swing, 2]:
+                wj *= params[P_SWT]  # the swing leg follows its foot's target, not the standing pose
+            elif j == leg_dofs[1 - swing, 1]:  # the stance knee bends (hip and ankle share the angle: the
+                qr += swing_target[i, S_CROUCH]  # foot stays flat, the trunk upright): a straight stance leg cannot
+            elif j == leg_dofs[1 - swing, 0] or j == leg_dofs[1 - swing, 2]:  # lower the hip, and a swing
+                qr -= 0.5 * swing_target[i, S_CROUCH]  # foot a hip too high cannot reach the floor
+        elif swing_target[i, S_CROUCH] != 0.0:  # both feet down after a forward step: the front knee bends,
+            front = 0 if pts[0, 0] > pts[2, 0] else 1  # so the rear leg can reach the floor with its heel too
+            if j == leg_dofs[front, 1]:
+                qr += swing_target[i, S_CROUCH]
+            elif j == leg_dofs[front, 0] or j == leg_dofs[front, 2]:
+                qr -= 0.5 * swing_target[i, S_CROUCH]
+        Q[j, j] += params[P_BT] * wj + params[P_EPS]
+        g[j] += params[P_BT] * wj * (params[P_KT] * (qr - q[j])
+                                     + params[P_DT] * (qd_ref[i, j] - qd[j]) + qdd_ref[i, j])
+    return Q, g
 
-    Arrays are the batch's bound MuJoCo fields, of which simulation ``i`` reads row ``rows[i]`` (the
-    compiled scoring loop passes the whole batch and its active rows: no copies when rows drop out) - only
-    the humanoid's leading slices are read - and per-simulation targets (references (n, nv): an
-    ensemble's members may play the motion at different speeds); ``mass_all`` (n,) is each character's mass with what it
-    carries (a caught ball's mass moves into the forearms); see controller.py for the formulation.
+
+@njit(cache=True, nogil=True)
+def _loaded_points(state, pts):
+    """Which of the four contact points carry load in the feet's states, how many (at least 1), and their
+    mean x and spread (the sum of squared deviations) - the inverse dynamics' split of the ground force."""
+    carries = np.zeros(4, np.bool_)
+    for foot in range(2):
+        carries[2 * foot] = state[foot] == FLAT or state[foot] == HEEL
+        carries[2 * foot + 1] = state[foot] == FLAT or state[foot] == TOE
+    count = max(1, carries.sum())
+    mean = 0.0
+    for p in range(4):
+        if carries[p]:
+            mean += pts[p, 0]
+    mean /= count
+    spread = 0.0
+    for p in range(4):
+        if carries[p]:
+            spread += (pts[p, 0] - mean) ** 2
+    return carries, count, mean, spread
+
+
+@njit(cache=True, nogil=True)
+def _dense_dynamics(row, M_sparse, m_rows, m_cols, qfrc_bias, qfrc_passive, nv):
+    """Batch row ``row``'s joint-space inertia, dense (nv, nv) from MuJoCo's sparse M, and its bias less
+    passive forces, h = qfrc_bias - qfrc_passive."""
+    M = np.zeros((nv, nv))
+    for k in range(m_rows.size):
+        M[m_rows[k], m_cols[k]] = M_sparse[row, k]
+        M[m_cols[k], m_rows[k]] = M_sparse[row, k]
+    h = np.empty(nv)
+    for j in range(nv):
+        h[j] = qfrc_bias[row, j] - qfrc_passive[row, j]
+    return M, h
+
+
+# control_step's arguments, grouped: ``fields`` (cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias,
+# qfrc_passive, com_all, geom_xpos) are the batch's bound MuJoCo fields, of which simulation ``i`` reads row
+# ``rows[i]`` (the compiled scoring loop passes the whole batch and its active rows: no copies when rows drop out)
+# - only the humanoid's leading slices are read; ``model`` (chain, m_rows, m_cols, points, point_bodies, leg_dofs,
+# actuated, limits, w2, params) the controller's constants; ``refs`` (q_ref, qd_ref, qdd_ref, com_ref_x,
+# com_ref_vel_x, cop_des_x) per-simulation targets (references (n, nv): an ensemble's members may play the motion
+# at different speeds); ``support`` (contact, mass_all, swing_foot, swing_target): ``mass_all`` (n,) is each
+# character's mass with what it carries (a caught ball's mass moves into the forearms); ``warm`` (warm_in,
+# warm_out); ``load`` (ext_f, ext_p, ext_bodies); ``out`` (tau_out, info_out). See controller.py for the
+# formulation.
+@njit(cache=True, nogil=True)
+def control_step(rows, fields, model, refs, support, warm, load, out):
+    """Torques (tau_out, (n, nu)) for n simulations; info_out (n, N_INFO) gets the plan's summary (the
+    arguments' groups: the comment above).
+
     A swinging foot (``swing_foot[i]`` >= 0) has no support rows and carries no load; its heel point and
     pitch track ``swing_target[i]`` as a weighted objective, and its leg's joint tracking is weakened.
     ``warm_in`` / ``warm_out`` (rows, n_rows(nu)) bool, read / written at row ``rows[i]``: the QP's active set
@@ -240,6 +312,11 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
     ``ext_f[i]`` (x, z) N acting at ``ext_p[i]`` (world, (x, y, z)) on the bodies ``ext_bodies`` (shared equally):
     a load the character holds (``Prop.hand_load``), known to the plan - the ground gives the momentum rate less
     it, and the torques take its generalized force out. Zero: the clip is computed as without it, bit for bit."""
+    cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, qfrc_passive, com_all, geom_xpos = fields
+    chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, limits, w2, params = model
+    q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x = refs
+    contact, mass_all, swing_foot, swing_target = support
+    (warm_in, warm_out), (ext_f, ext_p, ext_bodies), (tau_out, info_out) = warm, load, out
     n = rows.shape[0]
     nb, nv = chain.shape
     grav = params[P_G]
@@ -278,30 +355,8 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
                 state[foot] = AIR
 
         # objective
-        L_x = A[0] @ qd
-        ldot_x = params[P_KL] * mass * (com_ref_x[i] - com[0]) + params[P_DL] * (mass * com_ref_vel_x[i] - L_x)
-        hdot = -com[2] * ldot_x - (cop_des_x[i] - com[0]) * mg
-        Q = params[P_BL] * np.outer(A[0], A[0]) + params[P_BH] * np.outer(A[2], A[2])
-        g = params[P_BL] * (ldot_x - a[0]) * A[0] + params[P_BH] * (hdot - a[2]) * A[2]
-        for j in range(nv):
-            wj = w2[j]
-            qr = q_ref[i, j]
-            if swing >= 0:
-                if j == leg_dofs[swing, 0] or j == leg_dofs[swing, 1] or j == leg_dofs[swing, 2]:
-                    wj *= params[P_SWT]  # the swing leg follows its foot's target, not the standing pose
-                elif j == leg_dofs[1 - swing, 1]:  # the stance knee bends (hip and ankle share the angle: the
-                    qr += swing_target[i, S_CROUCH]  # foot stays flat, the trunk upright): a straight stance leg cannot
-                elif j == leg_dofs[1 - swing, 0] or j == leg_dofs[1 - swing, 2]:  # lower the hip, and a swing
-                    qr -= 0.5 * swing_target[i, S_CROUCH]  # foot a hip too high cannot reach the floor
-            elif swing_target[i, S_CROUCH] != 0.0:  # both feet down after a forward step: the front knee bends,
-                front = 0 if pts[0, 0] > pts[2, 0] else 1  # so the rear leg can reach the floor with its heel too
-                if j == leg_dofs[front, 1]:
-                    qr += swing_target[i, S_CROUCH]
-                elif j == leg_dofs[front, 0] or j == leg_dofs[front, 2]:
-                    qr -= 0.5 * swing_target[i, S_CROUCH]
-            Q[j, j] += params[P_BT] * wj + params[P_EPS]
-            g[j] += params[P_BT] * wj * (params[P_KT] * (qr - q[j])
-                                         + params[P_DT] * (qd_ref[i, j] - qd[j]) + qdd_ref[i, j])
+        Q, g = _objective(A, a, qd, q, com, mass, mg, params, w2, leg_dofs, pts, swing, i,
+                          (q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, swing_target))
 
         # support rows; a foot that is not flat gets a soft return-to-flat pitch target
         E = np.empty((9, nv))
@@ -383,27 +438,8 @@ def control_step(rows, cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_
         # the torques are affine in the plan, tau = T qdd + t0 (inverse dynamics with the plan's ground
         # forces split over the loaded points, below): the motors' limits are rows of the QP, so the plan
         # is one the motors can carry out - nothing is clipped after the solve
-        carries = np.zeros(4, np.bool_)
-        for foot in range(2):
-            carries[2 * foot] = state[foot] == FLAT or state[foot] == HEEL
-            carries[2 * foot + 1] = state[foot] == FLAT or state[foot] == TOE
-        count = max(1, carries.sum())
-        mean = 0.0
-        for p in range(4):
-            if carries[p]:
-                mean += pts[p, 0]
-        mean /= count
-        spread = 0.0
-        for p in range(4):
-            if carries[p]:
-                spread += (pts[p, 0] - mean) ** 2
-        M = np.zeros((nv, nv))
-        for k in range(m_rows.size):
-            M[m_rows[k], m_cols[k]] = M_sparse[row, k]
-            M[m_cols[k], m_rows[k]] = M_sparse[row, k]
-        h = np.empty(nv)
-        for j in range(nv):
-            h[j] = qfrc_bias[row, j] - qfrc_passive[row, j]
+        carries, count, mean, spread = _loaded_points(state, pts)
+        M, h = _dense_dynamics(row, M_sparse, m_rows, m_cols, qfrc_bias, qfrc_passive, nv)
         # d tau / d qdd (rows: the actuated dofs only, the rows the QP needs) and tau at qdd = 0
         nu_rows = nu if in_plan else 0
         Tm = np.empty((nu_rows, nv))

@@ -161,6 +161,13 @@ def _replay_group(task: Task, replay: Replay, rows: np.ndarray, config: Controll
     return np.rint(b["time"] / dt).astype(int)
 
 
+def _timed(fn) -> float:
+    """The wall time of ``fn()``, s."""
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
+
+
 def run_bench(task: Task, population: int = 16, repeat: int = 5, backends=BACKENDS, workers: int = 2,
               optimize: OptimizeFn | None = None) -> dict:
     """Time the physics floor, the batched and serial evaluators and a generation on each backend, in
@@ -195,23 +202,18 @@ def run_bench(task: Task, population: int = 16, repeat: int = 5, backends=BACKEN
     rounds: dict[str, list[float]] = {"physics": [], "zero_torque": [], "batched": [], "serial": [], "robust": []}
     generations: dict[str, list[float]] = {}
 
-    def timed(fn) -> float:
-        t0 = time.perf_counter()
-        fn()
-        return time.perf_counter() - t0
-
     fells = [tr.fell for tr in simulate_batch(task, curves)]
     for _ in range(repeat):  # alternate so machine noise hits each figure alike
-        rounds["physics"].append(timed(physics))
-        rounds["zero_torque"].append(timed(zero_torque))
-        rounds["batched"].append(timed(lambda: simulate_batch(task, curves)))
-        rounds["serial"].append(timed(lambda: [evaluate_candidate(task, x) for x in xs]))
-        rounds["robust"].append(timed(lambda: simulate_batch(robust, ensemble_curves,
+        rounds["physics"].append(_timed(physics))
+        rounds["zero_torque"].append(_timed(zero_torque))
+        rounds["batched"].append(_timed(lambda: simulate_batch(task, curves)))
+        rounds["serial"].append(_timed(lambda: [evaluate_candidate(task, x) for x in xs]))
+        rounds["robust"].append(_timed(lambda: simulate_batch(robust, ensemble_curves,
                                                              perturbations=members * population)))
     for b in backends:  # one backend alive at a time: idle workers/clusters would steal CPU
         with Evaluator(b, workers=workers) as ev:
             ev(task, xs[:2])  # warm-up: worker processes, clusters, per-process caches
-            generations[b] = [timed(lambda ev=ev: ev(task, xs)) for _ in range(repeat)]
+            generations[b] = [_timed(lambda ev=ev: ev(task, xs)) for _ in range(repeat)]
 
     ratios = np.array(rounds["batched"]) / np.array(rounds["physics"])
     per = {k: float(np.median(v)) / population for k, v in rounds.items()}
@@ -240,8 +242,13 @@ def run_bench(task: Task, population: int = 16, repeat: int = 5, backends=BACKEN
         "repeat": repeat,
     }
     if optimize is not None:
-        evaluations, wall_s = optimize(task)
-        floor_s = evaluations * out["physics_only_s_per_clip"]
-        out.update({"optimize_evaluations": evaluations, "optimize_wall_s": wall_s, "optimize_floor_s": floor_s,
-                    "ratio_optimize_to_floor": wall_s / floor_s if floor_s > 0 else float("nan")})
+        out.update(_time_optimize(task, optimize, out["physics_only_s_per_clip"]))
     return out
+
+
+def _time_optimize(task: Task, optimize: OptimizeFn, floor_s_per_clip: float) -> dict:
+    """One full optimization of ``task``, timed against its evaluations x the physics floor per clip."""
+    evaluations, wall_s = optimize(task)
+    floor_s = evaluations * floor_s_per_clip
+    return {"optimize_evaluations": evaluations, "optimize_wall_s": wall_s, "optimize_floor_s": floor_s,
+            "ratio_optimize_to_floor": wall_s / floor_s if floor_s > 0 else float("nan")}

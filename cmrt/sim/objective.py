@@ -188,6 +188,44 @@ def _before_fall(traj: Trajectory) -> np.ndarray:
     return traj.time_s < traj.fall_time_s - 1e-9
 
 
+def _performed(task: Task, traj: Trajectory, tracking: float | None, final_err: float,
+               lag: float | None) -> tuple[bool | None, float | None, float | None]:
+    """Whether the clip performed the motion (None: the task has no end pose to judge it by), with the
+    tracking bound and the timing-lag bound it was judged against (None when not used)."""
+    if traj.task_success is not None:
+        return traj.task_success, None, None
+    if task.end_pose_deg is None:
+        return None, None, None
+    start, stop = task.task_window_s()
+    bound = task.tracking_bound_rad(np.arange(start, stop + 1e-9, task.cop_sample_step_s))
+    lag_bound = timing_lag_bound_s(task)
+    performed = bool(final_err < FINAL_POSE_TOLERANCE_RAD and tracking is not None and tracking <= bound)
+    if ENFORCE_TIMING:
+        performed = performed and lag is not None and lag <= lag_bound
+    return performed, bound, lag_bound
+
+
+def _penalty(task: Task, traj: Trajectory, settled: bool, performed: bool | None, tracking: float | None,
+             bound: float | None, lag: float | None, lag_bound: float | None) -> float:
+    """The penalties added to the CoP-error norm: a divergence, a fall (the earlier the more), not settling,
+    a missed goal, a motion not performed (the further off the reference or the later, the more)."""
+    run_s = task.clip_s + task.tail_s
+    if traj.diverged:
+        penalty = DIVERGED_PENALTY
+    elif traj.fell:
+        penalty = FALL_PENALTY + 10.0 * max(run_s - (traj.fall_time_s or 0.0), 0.0) / run_s
+    else:
+        penalty = 0.0 if settled else NOT_SETTLED_PENALTY
+    if traj.task_success is False:
+        penalty += MISSED_GOAL_PENALTY
+    elif performed is False and not traj.fell:
+        excess = tracking / bound - 1.0 if tracking is not None and bound else 1.0
+        if ENFORCE_TIMING and lag_bound:  # late counts like off the reference: the worse of the two
+            excess = max(excess, lag / lag_bound - 1.0 if lag is not None else 1.0)
+        penalty += NOT_PERFORMED_PENALTY * (1.0 + float(np.clip(excess, 0.0, 1.0)))
+    return penalty
+
+
 def evaluate(task: Task, traj: Trajectory) -> Evaluation:
     """Score a simulated clip: the CoP-error 2-norm (the paper's objective) plus penalties for a fall, a
     missed goal, a motion not performed and not settling; never raises on a failed clip."""
@@ -213,35 +251,10 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
     final_ok = bool(np.all(np.isfinite(traj.final_qpos)))
     final_err = task.final_pose_error_rad(traj.final_qpos) if final_ok else float("inf")
 
-    bound = lag_bound = None
     lag = timing_lag_s(task, traj)
-    if traj.task_success is not None:
-        performed: bool | None = traj.task_success
-    elif task.end_pose_deg is not None:
-        start, stop = task.task_window_s()
-        bound = task.tracking_bound_rad(np.arange(start, stop + 1e-9, task.cop_sample_step_s))
-        lag_bound = timing_lag_bound_s(task)
-        performed = bool(final_err < FINAL_POSE_TOLERANCE_RAD and tracking is not None and tracking <= bound)
-        if ENFORCE_TIMING:
-            performed = performed and lag is not None and lag <= lag_bound
-    else:
-        performed = None
+    performed, bound, lag_bound = _performed(task, traj, tracking, final_err, lag)
     settled = not traj.fell and traj.final_com_speed_m_s < SETTLED_COM_SPEED_M_S
-
-    run_s = task.clip_s + task.tail_s
-    if traj.diverged:
-        penalty = DIVERGED_PENALTY
-    elif traj.fell:
-        penalty = FALL_PENALTY + 10.0 * max(run_s - (traj.fall_time_s or 0.0), 0.0) / run_s
-    else:
-        penalty = 0.0 if settled else NOT_SETTLED_PENALTY
-    if traj.task_success is False:
-        penalty += MISSED_GOAL_PENALTY
-    elif performed is False and not traj.fell:
-        excess = tracking / bound - 1.0 if tracking is not None and bound else 1.0
-        if ENFORCE_TIMING and lag_bound:  # late counts like off the reference: the worse of the two
-            excess = max(excess, lag / lag_bound - 1.0 if lag is not None else 1.0)
-        penalty += NOT_PERFORMED_PENALTY * (1.0 + float(np.clip(excess, 0.0, 1.0)))
+    penalty = _penalty(task, traj, settled, performed, tracking, bound, lag, lag_bound)
     return Evaluation(
         objective=norm + penalty,
         cop_error_norm=norm,

@@ -48,20 +48,13 @@ from cmrt.control.stepping import StepCommand, StepConfig, StepSupervisor
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.ensemble import NOMINAL, Perturbation
 from cmrt.motion.task import Task
-from cmrt.sim.balance import REASONS, BalanceLimits, FallReason, capture_point_x, check_balance
+from cmrt.sim.balance import REASONS, BalanceLimits, FallReason, capture_point_x
+from cmrt.sim.monitor import FallMonitor, ProtectiveMode
 from cmrt.sim.tick import control_tick, geometry, sample_support
 
 SETTLE_S = 1.5
 POST_FALL_S = 1.0  # a recorded clip runs at least this long past a fall, so the topple is seen
 CONTACT_HEIGHT_M = 0.001  # a heel/toe point whose lowest point is below this height touches the floor
-# Protective mode after a fall: a passive spring-damper about the pose at the fall, per joint (a fraction of
-# the motor's torque limit per rad and per rad/s): muscle tone, no goal. It is MuJoCo's own joint stiffness and
-# damping, set per simulation (``_go_limp``), so the implicit integrator carries the damping: as torques held
-# over a control step (v0.2) the damper was unstable on the light distal joints (ankle c T / I = 3.77 > 2:
-# ankles chattering at 79-100 rad/s, feet slapping the floor at 5-15 body weights). docs/controller.md.
-PROTECTIVE_STIFFNESS_PER_RAD = 0.1
-PROTECTIVE_DAMPING_PER_RAD_S = 0.1
-
 # Scoring runs in the center mode with feet planted do their control steps in one compiled call
 # (cmrt.sim.tick); False runs them on the Python path, as traces do (tests compare the two bit for bit).
 COMPILED_TICK = True
@@ -170,8 +163,8 @@ class _Geometry:
         n = qpos.shape[0]
         out = (np.empty((n, self.points.size)), np.empty(n), np.empty(n), np.empty((n, self.points.size), bool),
                np.empty((n, 2)), np.empty(n), np.empty(n), np.empty(n, bool), np.empty(n), np.empty(n))
-        geometry(np.arange(n), geom_xpos, geom_xmat, qpos, qvel, self.points, self.body_geoms, self.half, self.radius,
-                 self.leg_dofs, self.root_pitch, act, FOOT_POINT_RADIUS_M, CONTACT_HEIGHT_M, *out)
+        geometry(np.arange(n), (geom_xpos, geom_xmat, qpos, qvel), (self.points, self.body_geoms, self.half,
+                 self.radius, self.leg_dofs, self.root_pitch, act, FOOT_POINT_RADIUS_M, CONTACT_HEIGHT_M), out)
         return out
 
     def foot_roll(self, qpos: np.ndarray) -> np.ndarray:
@@ -235,30 +228,6 @@ def _ground_support(contact: np.ndarray, point_x: np.ndarray) -> tuple[np.ndarra
     lo = np.where(grounded, np.where(on, point_x, np.inf).min(axis=1), np.nan)
     hi = np.where(grounded, np.where(on, point_x, -np.inf).max(axis=1), np.nan)
     return grounded, lo, hi
-
-
-class _Limp:
-    """Protective mode: the fallen simulations' joints become passive springs and dampers about the pose they
-    fell in - muscle tone without a goal, so it cannot add energy (the CoM only goes down) - as MuJoCo's per-
-    simulation joint stiffness, damping and spring pose, integrated by MuJoCo (its damping implicitly). Their
-    motors are off."""
-
-    def __init__(self, batch, limits_nm: np.ndarray):
-        m = character().model
-        joints = m.actuator_trnid[:, 0]
-        self.dofs, self.qpos_adr = m.jnt_dofadr[joints], m.jnt_qposadr[joints]
-        self.joints, self.limits, self.batch = joints, limits_nm, batch
-        self.fields: tuple | None = None
-
-    def fall(self, sims: np.ndarray, qpos: np.ndarray) -> None:
-        """Simulations ``sims`` (batch rows) fell in pose ``qpos`` (their rows)."""
-        if self.fields is None:  # per-simulation values from the first fall on (the others keep the model's)
-            self.fields = tuple(self.batch.expand(k) for k in ("jnt_stiffness", "dof_damping", "qpos_spring"))
-        stiffness, damping, spring = self.fields
-        for row, q in zip(sims, qpos, strict=True):
-            stiffness[row, self.joints] = PROTECTIVE_STIFFNESS_PER_RAD * self.limits
-            damping[row, self.dofs] = PROTECTIVE_DAMPING_PER_RAD_S * self.limits
-            spring[row, self.qpos_adr] = q[self.qpos_adr]
 
 
 def _judge_prop(prop, b, rows, force, times, windows, goal, extras) -> None:
@@ -394,48 +363,6 @@ def _drive(task: Task, curves: list[Cmrt], members: list[Perturbation], times: n
     )
 
 
-class _Falls:
-    """The balance monitor's verdicts per simulation: whether and when it fell (and why), the state it is
-    judged by, the pose protective mode holds, and the step it stops at (moved on a fall)."""
-
-    def __init__(self, n: int, n_act: int, nq: int, run_steps: int):
-        self.code = np.zeros(n, int)  # 0: standing; else 1 + index into REASONS
-        self.step = np.full(n, -1)
-        self.hold = np.zeros((n, n_act))  # protective mode: the pose at the fall
-        self.qpos = np.zeros((n, nq))  # the state a fallen clip is judged by
-        self.speed_m_s = np.zeros(n)
-        self.capture_x = np.full(n, np.nan)  # the capture point and CoM velocity at the fall (its direction)
-        self.com_vel_x = np.full(n, np.nan)
-        self.airborne_for_s = np.zeros(n)
-        self.end = np.full(n, run_steps)
-
-    def check(self, limits: BalanceLimits, ids: np.ndarray, k: int, dt: float, control_dt: float, *, ok: np.ndarray,
-              grounded: np.ndarray, support_lo_x: np.ndarray, support_hi_x: np.ndarray, lowest_body_z: np.ndarray,
-              qpos: np.ndarray, com: np.ndarray, com_vel_x: np.ndarray, roll: np.ndarray,
-              time_s: np.ndarray) -> np.ndarray:
-        """Run the monitor on simulations ``ids`` at step ``k``; returns the mask of those that fell now."""
-        self.airborne_for_s[ids] = np.where(grounded, 0.0, self.airborne_for_s[ids] + control_dt)
-        finite = ok & np.all(np.isfinite(qpos), axis=1) & (np.abs(time_s - k * dt) < 1e-9)
-        code = check_balance(
-            limits, finite=finite, lowest_body_z=lowest_body_z, com_x=com[:, 0], com_z=com[:, 2],
-            com_vel_x=com_vel_x, airborne_for_s=self.airborne_for_s[ids], foot_roll_rad=roll,
-            support_lo_x=support_lo_x, support_hi_x=support_hi_x,
-        )
-        new = (code > 0) & (self.code[ids] == 0)
-        self.code[ids[new]] = code[new]
-        return new
-
-    def fell(self, sims: np.ndarray, k: int, qpos: np.ndarray, act: np.ndarray, speed_m_s: np.ndarray,
-             end: np.ndarray) -> None:
-        """Simulations ``sims`` fell at step ``k`` in state ``qpos`` (their rows): keep what they are judged by
-        and the pose protective mode holds; they stop stepping at ``end``."""
-        self.step[sims] = k
-        self.hold[sims] = qpos[:, act]
-        self.qpos[sims] = qpos[:, : self.qpos.shape[1]]
-        self.speed_m_s[sims] = speed_m_s
-        self.end[sims] = end
-
-
 def _targets(yu: YuReference | None, b: dict, sel, ids: np.ndarray, drive: _Drive, k: int, center: np.ndarray,
              lo: np.ndarray, hi: np.ndarray, com: np.ndarray, com_vel_x: np.ndarray, nb: int) -> Targets:
     """The controller's reference CoM (CMRT included), its rate and the reference CoP of simulations ``ids``
@@ -465,7 +392,7 @@ def _delayed(targets: Targets, delay_steps: int, k: int, ids: np.ndarray, com_x_
 
 def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarray, fallen: np.ndarray,
              drive: _Drive, k: int, targets: Targets, contact: np.ndarray, mass: np.ndarray,
-             hold: np.ndarray, act: np.ndarray, nu: int, step: StepCommand | None = None,
+             nu: int, step: StepCommand | None = None,
              warm: np.ndarray | None = None, prop=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Torques of simulations ``ids`` (batch rows ``sel``): the controller for those standing, protective
     mode for those that fell. ``bad``: the controller's plan was singular or non-finite; ``plan_cop``: the CoP
@@ -489,7 +416,7 @@ def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarra
             controller, f, drive.refs_at(k, rows), t.com_x_m[up], t.com_vel_x_m_s[up], t.cop_x_m[up], contact[up],
             mass[rows], None if step is None else step.rows(up), warm, rows,
             None if prop is None else prop.hand_load(b, rows))
-    return ctrl, bad, plan_cop  # the fallen: motors off, their joints passive (``_Limp``)
+    return ctrl, bad, plan_cop  # the fallen: motors off, their joints passive (``ProtectiveMode``)
 
 
 def direct_step(batch: mujoco.batch.Batch, stage: mujoco.mjtStage):
@@ -544,11 +471,11 @@ class _CompiledTick:
     FIELDS = ("geom_xpos", "geom_xmat", "qpos", "qvel", "cdof", "cdof_dot", "cvel", "cinert", "M", "qfrc_bias",
               "qfrc_passive", "subtree_com", "time")
 
-    def __init__(self, b: dict, geo: _Geometry, controller: MomentumBalanceController, limits: BalanceLimits,
-                 drive: _Drive, rec: _Recorder, falls: _Falls, act: np.ndarray, n: int, nb: int, mass_kg: float,
-                 dt: float, control_dt: float, lean_check: bool, delay_steps: int, fb_vel: np.ndarray,
-                 warm: np.ndarray):
-        c = controller
+    def __init__(self, b: dict, geo: _Geometry, controller: MomentumBalanceController, drive: _Drive,
+                 rec: _Recorder, falls: FallMonitor, act: np.ndarray, nb: int, mass_kg: float, lean_check: bool,
+                 delay_steps: int, fb_vel: np.ndarray, warm: np.ndarray):
+        """The monitor ``falls`` brings what a fall is and the clock (``limits``, ``dt``, ``control_dt``)."""
+        c, limits, dt, control_dt, n = controller, falls.limits, falls.dt, falls.control_dt, falls.code.size
         variants = drive.variant_of is not None
         # Every row of the batch's fields, read-only and C-contiguous: one numba signature (each costs ~40 s
         # to compile); the kernel reads the active rows, so rows that stop (falls) cost no copies. qpos, qvel
@@ -582,10 +509,10 @@ class _CompiledTick:
         n = ids.size
         point_x, momentum, new = np.empty((n, self.geometry[0].size)), np.empty((n, 2)), np.empty(n, bool)
         try:
-            fell = control_tick(k, ids, self.dt, self.control_dt, self.nb, self.mass_kg, *self.fields, *self.geometry,
-                                *self.controller, *self.drive, carried_kg, *self.lean, *self.state,
-                                com_ref_now, cop_ref_now, ctrl_all, *self.delay, *self.warm,
-                                *(_no_load(n) if load is None else load), point_x, momentum, new)
+            fell = control_tick(k, ids, (self.dt, self.control_dt, self.nb, self.mass_kg), self.fields,
+                                self.geometry, self.controller, self.drive, self.lean, self.state,
+                                (carried_kg, com_ref_now, cop_ref_now, ctrl_all), self.delay, self.warm,
+                                _no_load(n) if load is None else tuple(load), (point_x, momentum, new))
         except np.linalg.LinAlgError:
             return None
         if fell < 0:
@@ -634,8 +561,90 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
                     limits: BalanceLimits, members: list[Perturbation]) -> list[Trajectory]:
     """``simulate_batch`` for one group of clips on a one-thread ``Batch``, in the calling thread.
 
-    The loop below only steps and records; what drives each row is :class:`_Drive`, the torques
-    :func:`_torques`, the balance monitor :class:`_Falls`, the results :func:`_trajectories`."""
+    Three units hand over explicit state: :func:`_set_up` builds the batch and everything bound to it (a
+    :class:`_Group`); the compiled scoring loop (:func:`_compiled_loop`) and then the Python loop
+    (:func:`_python_loop`) step it, sharing where they are in a :class:`_LoopState`; :func:`_finish` judges
+    and returns the trajectories. What drives each row is :class:`_Drive`, the torques :func:`_torques`, the
+    balance monitor :class:`FallMonitor`."""
+    g = _set_up(task, curves, config, record, limits, members)
+    s = _LoopState(ids=np.arange(g.n), next_end=g.run_steps, last=np.full(g.n, g.n_steps))
+    if g.compiled is not None:  # a scoring run: compiled control steps, then (a fall, a singular plan) Python
+        _compiled_loop(g, s)
+    _python_loop(g, s)
+    return _finish(g, s)
+
+
+@dataclass
+class _Group:
+    """One group's batch and everything bound to it for the run: set up once by :func:`_set_up`, then only
+    its arrays' contents change."""
+
+    task: Task
+    config: ControllerConfig
+    record: bool
+    ch: object
+    m: mujoco.MjModel
+    n: int
+    dt: float
+    run_steps: int
+    post_fall: int
+    n_steps: int
+    times: np.ndarray
+    drive: _Drive
+    geo: _Geometry
+    controller: MomentumBalanceController
+    yu: YuReference | None
+    kin: PlanarKinematics
+    nq: int
+    nb: int
+    act: np.ndarray
+    batch: mujoco.batch.Batch
+    prop: object
+    b: dict
+    settled_z: np.ndarray
+    rec: _Recorder
+    limp: ProtectiveMode
+    stepper: StepSupervisor | None
+    falls: FallMonitor
+    goal: np.ndarray  # the prop's goal: 1/0 (NaN: a pose change), judged at the end or at the fall
+    extras: dict
+    ctrl_all: np.ndarray
+    com_ref_now: np.ndarray  # the references, held between control steps
+    cop_ref_now: np.ndarray
+    control_dt: float
+    sample_every: int
+    has_contact_force: bool
+    delay_steps: int  # the balance feedback's delay (ControllerConfig.feedback_delay_s), whole control steps
+    fb_vel: np.ndarray  # the CoM velocity at every control step so far (its position is in the records)
+    warm: np.ndarray  # each simulation's QP active set at its last control step: the next one starts from it
+    compiled: _CompiledTick | None
+    push_steps: set  # a set: cheaper per step than an array
+
+    @property
+    def diverged_code(self) -> int:
+        return 1 + REASONS.index(FallReason.DIVERGED)
+
+
+@dataclass
+class _LoopState:
+    """Where the stepping is, handed from the compiled loop to the Python loop: the step, the rows still
+    running (``ids``; ``sel`` their batch rows, ``step_ids`` the ids given to ``Batch.step``, None: all), the
+    next step at which a row stops, the step whose ``prop.step`` the compiled loop made before handing over,
+    the stepping supervisor's last command, and the step each row stopped at."""
+
+    ids: np.ndarray
+    next_end: int
+    last: np.ndarray
+    k: int = 0
+    sel: object = field(default_factory=lambda: slice(None))
+    step_ids: np.ndarray | None = None
+    prop_stepped: int = -1
+    step: StepCommand | None = None
+
+
+def _set_up(task: Task, curves: list[Cmrt | None], config: ControllerConfig, record: bool,
+            limits: BalanceLimits, members: list[Perturbation]) -> _Group:
+    """The batch of a group's clips in the settled state, its drive, controller, monitor and records."""
     ch = character()
     m = task.model()
     n = len(curves)
@@ -646,12 +655,9 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
     n_steps = run_steps + (post_fall if record else 0)
     times = np.arange(n_steps) * dt
     drive = _drive(task, [c or Cmrt.zero(task.clip_s) for c in curves], members, times)
-    disp = drive.disp_m
     geo = _Geometry()
     controller = MomentumBalanceController(ch, config)
     yu = YuReference(ch, config.k_l, config.d_l) if task.reference_mode == "yu" else None
-    kin = PlanarKinematics(ch.model)
-    vel_stage = mujoco.mjtStage.mjSTAGE_VEL
     nq, nb = ch.model.nq, ch.model.nbody  # the humanoid's: a prop's coordinates follow
     act = np.array(ch.actuated_dofs)
 
@@ -663,213 +669,283 @@ def _simulate_group(task: Task, curves: list[Cmrt | None], config: ControllerCon
         b[k][:] = v
     b["time"][:] = 0.0
     prop.start(batch, b, n, task.end_qpos(), drive.mass_scale)
-    batch.forward(stage=vel_stage)
+    batch.forward(stage=mujoco.mjtStage.mjSTAGE_VEL)
     settled_z = b["geom_xpos"][0, geo.points, 2].copy()
 
     rec = _Recorder(n, n_steps, m.nq, m.nv, m.nu)
-    limp = _Limp(batch, controller.limits)
     stepper = _stepper(task, n)
-    step = None
-    falls = _Falls(n, act.size, nq, run_steps)
-    next_end = run_steps
-    last = np.full(n, n_steps)
-    goal = np.full(n, np.nan)  # the prop's goal: 1/0 (NaN: a pose change), judged at the end or at the fall
-    extras: dict[str, np.ndarray] = {}
-    active = np.arange(n)
-    ctrl_all = np.zeros((n, m.nu))
-    com_ref_now, cop_ref_now = np.full(n, np.nan), np.full(n, np.nan)  # the references, held between control steps
     control_dt = config.control_every * dt
-    sample_every = max(1, int(round(task.cop_sample_step_s / dt)))
-    n_points = geo.points.size
-    diverged_code = 1 + REASONS.index(FallReason.DIVERGED)
-    sel, ids, step_ids = slice(None), active, None
-    rec_fz, rec_com = rec["fz"], rec["com"]
+    falls = FallMonitor(n, act.size, nq, run_steps, limits, dt, control_dt)
     has_contact_force = prop.contact_force(b, slice(None)) is not None
-    # the balance feedback's delay (ControllerConfig.feedback_delay_s), whole control steps; the CoM velocity at
-    # every control step so far (its position is in the records)
     delay_steps = config.control_every * int(round(config.feedback_delay_s / control_dt))
     fb_vel = np.full((n, n_steps), np.nan)
-    # each simulation's QP active set at its last control step: the next one starts from it (warm start)
     warm = np.zeros((n, controller.n_rows), bool)
-    compiled = (_CompiledTick(b, geo, controller, limits, drive, rec, falls, act, n, nb, ch.mass_kg, dt, control_dt,
-                              has_contact_force, delay_steps, fb_vel, warm)
+    compiled = (_CompiledTick(b, geo, controller, drive, rec, falls, act, nb, ch.mass_kg, has_contact_force,
+                              delay_steps, fb_vel, warm)
                 if COMPILED_TICK and yu is None and stepper is None and not record else None)
+    return _Group(
+        task=task, config=config, record=record, ch=ch, m=m, n=n, dt=dt, run_steps=run_steps, post_fall=post_fall,
+        n_steps=n_steps, times=times, drive=drive, geo=geo, controller=controller, yu=yu,
+        kin=PlanarKinematics(ch.model), nq=nq, nb=nb, act=act, batch=batch, prop=prop, b=b, settled_z=settled_z,
+        rec=rec, limp=ProtectiveMode(batch, controller.limits), stepper=stepper, falls=falls, goal=np.full(n, np.nan),
+        extras={}, ctrl_all=np.zeros((n, m.nu)), com_ref_now=np.full(n, np.nan), cop_ref_now=np.full(n, np.nan),
+        control_dt=control_dt, sample_every=max(1, int(round(task.cop_sample_step_s / dt))),
+        has_contact_force=has_contact_force, delay_steps=delay_steps, fb_vel=fb_vel, warm=warm, compiled=compiled,
+        push_steps=set(np.flatnonzero(drive.push_changes).tolist()),
+    )
 
-    push_steps = set(np.flatnonzero(drive.push_changes).tolist())  # a set: cheaper per step than an array
 
-    def fell_now(k: int, new: np.ndarray, qpos: np.ndarray, momentum: np.ndarray) -> int:
-        """Rows ``new`` (of ``ids``) fell at step ``k``; returns the next step at which a row stops."""
-        sims = ids[new]
-        com = b["subtree_com"][sims, 1]
-        falls.com_vel_x[sims] = momentum[new, 0] / (ch.mass_kg + prop.carried_kg[sims])
-        with np.errstate(all="ignore"):  # a blow-up's NaNs
-            falls.capture_x[sims] = capture_point_x(com[:, 0], com[:, 2], falls.com_vel_x[sims])
-        # scoring: stop after this step; recording: play the topple out (not a blow-up: nothing to show)
-        falls.fell(sims, k, qpos[new], act,
-                   np.hypot(momentum[new, 0], momentum[new, 1]) / (ch.mass_kg + prop.carried_kg[sims]),
-                   np.where(record & (falls.code[sims] != diverged_code), np.maximum(run_steps, k + post_fall), k + 1))
-        _judge_prop(prop, b, sims, rec["prop_force"][sims, :k], times[:k], drive.windows_s, goal, extras)
-        if record:
-            played = falls.code[sims] != diverged_code
-            limp.fall(sims[played], qpos[new][played])
-        return falls.end[ids].min()
+def _fell_now(g: _Group, s: _LoopState, k: int, new: np.ndarray, qpos: np.ndarray, momentum: np.ndarray) -> int:
+    """Rows ``new`` (of ``s.ids``) fell at step ``k``; returns the next step at which a row stops."""
+    b, falls, prop, ch = g.b, g.falls, g.prop, g.ch
+    sims = s.ids[new]
+    com = b["subtree_com"][sims, 1]
+    falls.com_vel_x[sims] = momentum[new, 0] / (ch.mass_kg + prop.carried_kg[sims])
+    with np.errstate(all="ignore"):  # a blow-up's NaNs
+        falls.capture_x[sims] = capture_point_x(com[:, 0], com[:, 2], falls.com_vel_x[sims])
+    # scoring: stop after this step; recording: play the topple out (not a blow-up: nothing to show)
+    falls.fell(sims, k, qpos[new], g.act,
+               np.hypot(momentum[new, 0], momentum[new, 1]) / (ch.mass_kg + prop.carried_kg[sims]),
+               np.where(g.record & (falls.code[sims] != g.diverged_code), np.maximum(g.run_steps, k + g.post_fall),
+                        k + 1))
+    _judge_prop(prop, b, sims, g.rec["prop_force"][sims, :k], g.times[:k], g.drive.windows_s, g.goal, g.extras)
+    if g.record:
+        played = falls.code[sims] != g.diverged_code
+        g.limp.fall(sims[played], qpos[new][played])
+    return falls.end[s.ids].min()
 
-    def still_running(k: int) -> np.ndarray:
-        """At the end of the tail, a fall (scoring: after its step) or a played-out topple: the rows that go on."""
-        done = falls.end[ids] <= k
-        last[ids[done]] = k
-        return ids[~done]
 
-    k, prop_stepped = 0, -1  # prop_stepped: the step whose prop.step the compiled loop made before handing over
-    if compiled is not None:  # a scoring run: compiled control steps (cmrt.sim.tick), ground forces summed at the end
-        touch = np.full((n, n_steps, n_points), np.nan)  # normal force at heel_r, toe_r, heel_l, toe_l, every step
-        sample_x = np.full((n, n_steps, n_points), np.nan)  # heel/toe x at the CoP sample steps
-        sensors = b["sensordata"][:, :n_points]
-        every, every_step, thorax = config.control_every, prop.every_step, ch.thorax_body
-        step_rows, rows32 = direct_step(batch, vel_stage), None  # rows32: the stepped rows, int32 (None: all)
-        while k < n_steps:
-            if k >= next_end:
-                ids = still_running(k)
-                if ids.size == 0:
-                    break
-                sel = step_ids = ids
-                rows32 = ids.astype(np.int32)  # sorted and unique: a subset of arange(n)
-                next_end = falls.end[ids].min()
-            control = k % every == 0
-            if control or every_step:
-                prop.step(batch, b, ids, times[k])
-            if control:
-                out = compiled(k, ids, prop.carried_kg, com_ref_now, cop_ref_now, ctrl_all, prop.hand_load(b, ids))
-                if out is None:  # a fallen row or a singular plan: the Python loop below goes on from here
-                    prop_stepped = k
-                    break
-                point_x, fell, new, momentum = out
-                if k % sample_every == 0:
-                    sample_x[ids, k] = point_x
-                    rec["pref"][ids, k] = cop_ref_now[ids]
-                if fell:
-                    next_end = fell_now(k, new, b["qpos"][sel], momentum)
-            elif k % sample_every == 0:
-                sample_support(k, ids, b["geom_xpos"], b["qpos"], b["subtree_com"], geo.points, cop_ref_now, rec["sc"],
-                               rec["lo"], rec["hi"], rec["qpos"], rec_com, rec["pref"], sample_x)
-            if k in push_steps:
-                b["xfrc_applied"][sel, thorax, 0] = drive.push_n[sel, k]
-            step_rows(rows32)
-            if has_contact_force:
-                rec["prop_force"][sel, k] = prop.contact_force(b, sel)
-            touch[:, k] = sensors  # rows that stopped repeat their last reading: cut off at ``last``
-            k += 1
-        _ground_records(rec, touch[:, :k], sample_x[:, :k], sample_every)
+def _still_running(g: _Group, s: _LoopState, k: int) -> np.ndarray:
+    """At the end of the tail, a fall (scoring: after its step) or a played-out topple: the rows that go on."""
+    done = g.falls.end[s.ids] <= k
+    s.last[s.ids[done]] = k
+    return s.ids[~done]
 
-    first = k  # where the compiled loop stopped (0 if it did not run); nothing left to do if no row is left
-    for k in range(first, n_steps if ids.size else first):  # the Python path: traces, yu, stepping
-        if k >= next_end:  # the end of the tail, a fall (scoring: after its step), or the topple played out
-            active = still_running(k)
+
+def _compiled_loop(g: _Group, s: _LoopState) -> None:
+    """The scoring loop with compiled control steps (cmrt.sim.tick), ground forces summed at the end; it
+    hands over to the Python loop at a fallen row or a singular plan (``s.prop_stepped``: that step's
+    ``prop.step`` is made)."""
+    b, rec, prop, n_steps = g.b, g.rec, g.prop, g.n_steps
+    n_points = g.geo.points.size
+    touch = np.full((g.n, n_steps, n_points), np.nan)  # normal force at heel_r, toe_r, heel_l, toe_l, every step
+    sample_x = np.full((g.n, n_steps, n_points), np.nan)  # heel/toe x at the CoP sample steps
+    sensors = b["sensordata"][:, :n_points]
+    every, every_step, thorax = g.config.control_every, prop.every_step, g.ch.thorax_body
+    step_rows, rows32 = direct_step(g.batch, mujoco.mjtStage.mjSTAGE_VEL), None  # rows32: stepped rows (None: all)
+    k = s.k
+    while k < n_steps:
+        if k >= s.next_end:
+            s.ids = _still_running(g, s, k)
+            if s.ids.size == 0:
+                break
+            s.sel = s.step_ids = s.ids
+            rows32 = s.ids.astype(np.int32)  # sorted and unique: a subset of arange(n)
+            s.next_end = g.falls.end[s.ids].min()
+        ids, sel = s.ids, s.sel
+        control = k % every == 0
+        if control or every_step:
+            prop.step(g.batch, b, ids, g.times[k])
+        if control:
+            out = g.compiled(k, ids, prop.carried_kg, g.com_ref_now, g.cop_ref_now, g.ctrl_all, prop.hand_load(b, ids))
+            if out is None:  # a fallen row or a singular plan: the Python loop goes on from here
+                s.prop_stepped = k
+                break
+            point_x, fell, new, momentum = out
+            if k % g.sample_every == 0:
+                sample_x[ids, k] = point_x
+                rec["pref"][ids, k] = g.cop_ref_now[ids]
+            if fell:
+                s.next_end = _fell_now(g, s, k, new, b["qpos"][sel], momentum)
+        elif k % g.sample_every == 0:
+            sample_support(k, ids, b["geom_xpos"], b["qpos"], b["subtree_com"], g.geo.points, g.cop_ref_now, rec["sc"],
+                           rec["lo"], rec["hi"], rec["qpos"], rec["com"], rec["pref"], sample_x)
+        if k in g.push_steps:
+            b["xfrc_applied"][sel, thorax, 0] = g.drive.push_n[sel, k]
+        step_rows(rows32)
+        if g.has_contact_force:
+            rec["prop_force"][sel, k] = prop.contact_force(b, sel)
+        touch[:, k] = sensors  # rows that stopped repeat their last reading: cut off at ``last``
+        k += 1
+    s.k = k
+    _ground_records(rec, touch[:, :k], sample_x[:, :k], g.sample_every)
+
+
+@dataclass
+class _Reading:
+    """What one step of the Python loop read of its rows' state (fields a step does not need stay None)."""
+
+    geom_xpos: np.ndarray
+    qpos: np.ndarray
+    point_x: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    center: np.ndarray | None = None
+    com: np.ndarray | None = None
+    contact: np.ndarray | None = None
+    roll: np.ndarray | None = None
+    jspeed: np.ndarray | None = None
+    lowest: np.ndarray | None = None
+    grounded: np.ndarray | None = None
+    c_lo: np.ndarray | None = None
+    c_hi: np.ndarray | None = None
+    momentum: np.ndarray | None = None
+    vel_x: np.ndarray | None = None
+
+
+def _python_loop(g: _Group, s: _LoopState) -> None:
+    """The Python path, from where the compiled loop stopped (step 0 if it did not run; nothing left to do if
+    no row is left): traces, the yu reference, stepping, and the steps the compiled tick hands back."""
+    first = s.k
+    for k in range(first, g.n_steps if s.ids.size else first):
+        if k >= s.next_end:  # the end of the tail, a fall (scoring: after its step), or the topple played out
+            active = _still_running(g, s, k)
             if active.size == 0:
                 break
-            sel = ids = step_ids = active
-            next_end = falls.end[ids].min()
-        # Work happens on control steps (balance checks too), CoP sample steps, or every step when
-        # recording a trace; in between, the batch just steps and the ground force is read (the cost floor).
-        control = k % config.control_every == 0
-        sample = record or k % sample_every == 0
-        if (control or prop.every_step) and k != prop_stepped:
-            prop.step(batch, b, ids, times[k])
-        if control or sample:
-            geom_xpos = b["geom_xpos"][sel]
-            qpos = b["qpos"][sel]
-            if control:  # heel/toe x at the state the step starts from, and the monitor's inputs: one pass
-                point_x, lo, hi, contact, roll, jspeed, lowest, grounded, c_lo, c_hi = geo.at_control(
-                    geom_xpos, b["geom_xmat"][sel], qpos, b["qvel"][sel], act)
-            else:
-                point_x = geom_xpos[:, geo.points, 0]
-                lo, hi = point_x.min(axis=1), point_x.max(axis=1)
-            if stepper is not None:  # the support of the moment: the stance foot while the other swings
-                if control:
-                    step = _step_command(stepper, kin, b, sel, ids, times[k], ch.mass_kg + prop.carried_kg[ids],
-                                         contact, point_x)
-                lo, hi = stepper.support(ids, point_x, lo, hi)
-            center = 0.5 * (lo + hi)
-            rec["sc"][sel, k], rec["lo"][sel, k], rec["hi"][sel, k] = center, lo, hi
-            rec["qpos"][sel, k] = qpos
-            com = b["subtree_com"][sel, 1]
-            rec_com[sel, k, 0], rec_com[sel, k, 1] = com[:, 0], com[:, 2]  # x, z without a fancy-indexed copy
-        if control or record:
-            if not control:
-                contact = _in_contact(geom_xpos, geo.points)
-                roll = geo.foot_roll(qpos)
-            momentum = kin.linear_momentum(b["cinert"][sel, :nb], b["cvel"][sel, :nb])  # (k, 2): L_x, L_z
-            vel_x = momentum[:, 0] / (ch.mass_kg + prop.carried_kg[ids])
-            if record:  # trace-only quantities
-                rec["com_vel"][sel, k] = vel_x
-                rec["xi"][sel, k] = capture_point_x(com[:, 0], com[:, 2], vel_x)
-                rec["lift"][sel, k] = geom_xpos[:, geo.points, 2] - settled_z
-                rec["contact"][sel, k] = contact
-                rec["roll"][sel, k] = roll
-                rec["body_z"][sel, k] = lowest if control else geo.lowest_body_z(geom_xpos, b["geom_xmat"][sel])
+            s.sel = s.ids = s.step_ids = active
+            s.next_end = g.falls.end[s.ids].min()
+        _python_step(g, s, k)
+
+
+def _python_step(g: _Group, s: _LoopState, k: int) -> None:
+    """One step of the Python loop. Work happens on control steps (balance checks too), CoP sample steps, or
+    every step when recording a trace; in between, the batch just steps and the ground force is read (the
+    cost floor)."""
+    b, sel = g.b, s.sel
+    control = k % g.config.control_every == 0
+    sample = g.record or k % g.sample_every == 0
+    if (control or g.prop.every_step) and k != s.prop_stepped:
+        g.prop.step(g.batch, b, s.ids, g.times[k])
+    r = _read(g, s, k, control) if control or sample else None
+    if control or g.record:
+        _read_motion(g, s, k, r, control)
+    if control:
+        _control_and_monitor(g, s, k, r)
+    if g.record:
+        g.rec["ctrl"][sel, k] = g.ctrl_all[sel]
+        g.rec["cref"][sel, k] = g.com_ref_now[sel]
+        g.rec["qvel"][sel, k] = b["qvel"][sel]
+    if k in g.push_steps:
+        b["xfrc_applied"][sel, g.ch.thorax_body, 0] = g.drive.push_n[sel, k]
+
+    g.batch.step(ids=s.step_ids, stage=mujoco.mjtStage.mjSTAGE_VEL)
+
+    if g.has_contact_force:
+        g.rec["prop_force"][sel, k] = g.prop.contact_force(b, sel)
+    _record_ground(g, s, k, None if r is None else r.point_x, sample)
+
+
+def _read(g: _Group, s: _LoopState, k: int, control: bool) -> _Reading:
+    """The support and CoM of rows ``s.ids`` at the state step ``k`` starts from, recorded; on a control step
+    also the monitor's inputs (one pass) and the stepping supervisor's command."""
+    b, sel, ids, rec = g.b, s.sel, s.ids, g.rec
+    geom_xpos = b["geom_xpos"][sel]
+    qpos = b["qpos"][sel]
+    if control:  # heel/toe x at the state the step starts from, and the monitor's inputs: one pass
+        point_x, lo, hi, contact, roll, jspeed, lowest, grounded, c_lo, c_hi = g.geo.at_control(
+            geom_xpos, b["geom_xmat"][sel], qpos, b["qvel"][sel], g.act)
+        r = _Reading(geom_xpos, qpos, point_x, lo, hi, contact=contact, roll=roll, jspeed=jspeed, lowest=lowest,
+                     grounded=grounded, c_lo=c_lo, c_hi=c_hi)
+    else:
+        point_x = geom_xpos[:, g.geo.points, 0]
+        r = _Reading(geom_xpos, qpos, point_x, point_x.min(axis=1), point_x.max(axis=1))
+    if g.stepper is not None:  # the support of the moment: the stance foot while the other swings
         if control:
-            rec["jspeed"][sel, k] = jspeed
-            mass = ch.mass_kg + prop.carried_kg  # what the controller knows it carries
-            targets = _targets(yu, b, sel, ids, drive, k, center, lo, hi, com, vel_x, nb)
-            com_ref_now[ids], cop_ref_now[ids] = targets.com_x_m, targets.cop_x_m
-            rec["cref"][sel, k] = targets.com_x_m
-            fb_vel[ids, k] = vel_x
-            felt = _delayed(targets, delay_steps, k, ids, com[:, 0], vel_x, rec_com, fb_vel)
-            ctrl, bad, plan_cop = _torques(controller, b, sel, ids, falls.code[ids] > 0, drive, k, felt, contact,
-                                           mass, falls.hold, act, m.nu, step, warm, prop)
-            if record:  # the plan against the CoP measured in the physics step these torques act in
-                swinging = np.zeros(ids.size, bool) if stepper is None else stepper.swinging(ids).any(axis=1)
-                rec["plan_cop"][sel, k] = np.where(swinging, np.nan, plan_cop)
-            ctrl_all[ids] = ctrl
-            b["ctrl"][sel] = ctrl
+            s.step = _step_command(g.stepper, g.kin, b, sel, ids, g.times[k], g.ch.mass_kg + g.prop.carried_kg[ids],
+                                   r.contact, r.point_x)
+        r.lo, r.hi = g.stepper.support(ids, r.point_x, r.lo, r.hi)
+    r.center = 0.5 * (r.lo + r.hi)
+    rec["sc"][sel, k], rec["lo"][sel, k], rec["hi"][sel, k] = r.center, r.lo, r.hi
+    rec["qpos"][sel, k] = qpos
+    r.com = b["subtree_com"][sel, 1]
+    rec["com"][sel, k, 0], rec["com"][sel, k, 1] = r.com[:, 0], r.com[:, 2]  # x, z without a fancy-indexed copy
+    return r
 
-            # the balance monitor
-            if stepper is not None:  # a swing foot is not a rolled foot; where it lands is support
-                c_lo, c_hi = stepper.landing_span(ids, c_lo, c_hi)
-                roll = np.where(stepper.swinging(ids), 0.0, roll)
-            if has_contact_force and k > 0:  # leaning on a prop: the pendulum's capture point does not apply
-                leaning = rec["prop_force"][ids, k - 1] > CONTACT_FORCE_N
-                c_lo, c_hi = np.where(leaning, -np.inf, c_lo), np.where(leaning, np.inf, c_hi)
-            new = falls.check(limits, ids, k, dt, control_dt, ok=~bad, grounded=grounded, support_lo_x=c_lo,
-                              support_hi_x=c_hi, lowest_body_z=lowest,
-                              qpos=qpos, com=com, com_vel_x=vel_x, roll=roll, time_s=b["time"][sel])
-            if new.any():
-                next_end = fell_now(k, new, qpos, momentum)
-        if record:
-            rec["ctrl"][sel, k] = ctrl_all[sel]
-            rec["cref"][sel, k] = com_ref_now[sel]
-            rec["qvel"][sel, k] = b["qvel"][sel]
-        if k in push_steps:
-            b["xfrc_applied"][sel, ch.thorax_body, 0] = drive.push_n[sel, k]
 
-        batch.step(ids=step_ids, stage=vel_stage)
+def _read_motion(g: _Group, s: _LoopState, k: int, r: _Reading, control: bool) -> None:
+    """The linear momentum and CoM velocity of a control or recorded step, and the trace-only quantities."""
+    b, sel, rec = g.b, s.sel, g.rec
+    if not control:
+        r.contact = _in_contact(r.geom_xpos, g.geo.points)
+        r.roll = g.geo.foot_roll(r.qpos)
+    r.momentum = g.kin.linear_momentum(b["cinert"][sel, :g.nb], b["cvel"][sel, :g.nb])  # (k, 2): L_x, L_z
+    r.vel_x = r.momentum[:, 0] / (g.ch.mass_kg + g.prop.carried_kg[s.ids])
+    if g.record:  # trace-only quantities
+        rec["com_vel"][sel, k] = r.vel_x
+        rec["xi"][sel, k] = capture_point_x(r.com[:, 0], r.com[:, 2], r.vel_x)
+        rec["lift"][sel, k] = r.geom_xpos[:, g.geo.points, 2] - g.settled_z
+        rec["contact"][sel, k] = r.contact
+        rec["roll"][sel, k] = r.roll
+        rec["body_z"][sel, k] = r.lowest if control else g.geo.lowest_body_z(r.geom_xpos, b["geom_xmat"][sel])
 
-        if has_contact_force:
-            rec["prop_force"][sel, k] = prop.contact_force(b, sel)
-        touch = b["sensordata"][sel, :n_points]  # normal force at heel_r, toe_r, heel_l, toe_l
-        if not sample:  # the steps in between: the ground force only (peak force, time airborne)
-            if step_ids is None:  # all active: write straight into the buffer's column
-                np.add.reduce(touch, axis=1, out=rec_fz[:, k])
-            else:
-                rec_fz[sel, k] = touch.sum(axis=1)
-            continue
-        fz = touch.sum(axis=1)
-        rec_fz[sel, k] = fz
-        with np.errstate(all="ignore"):
-            rec["cop"][sel, k] = np.where(fz > 1e-9, (touch * point_x).sum(axis=1) / fz, np.nan)
-        rec["pref"][sel, k] = cop_ref_now[sel]
-        rec["ffz"][sel, k, 0] = touch[:, :2].sum(axis=1)
-        rec["ffz"][sel, k, 1] = touch[:, 2:].sum(axis=1)
 
-    momentum = kin.linear_momentum(b["cinert"][:, :nb], b["cvel"][:, :nb])
+def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
+    """A control step of rows ``s.ids``: the references, the torques, then the balance monitor."""
+    b, sel, ids, rec, stepper = g.b, s.sel, s.ids, g.rec, g.stepper
+    rec["jspeed"][sel, k] = r.jspeed
+    mass = g.ch.mass_kg + g.prop.carried_kg  # what the controller knows it carries
+    targets = _targets(g.yu, b, sel, ids, g.drive, k, r.center, r.lo, r.hi, r.com, r.vel_x, g.nb)
+    g.com_ref_now[ids], g.cop_ref_now[ids] = targets.com_x_m, targets.cop_x_m
+    rec["cref"][sel, k] = targets.com_x_m
+    g.fb_vel[ids, k] = r.vel_x
+    felt = _delayed(targets, g.delay_steps, k, ids, r.com[:, 0], r.vel_x, rec["com"], g.fb_vel)
+    ctrl, bad, plan_cop = _torques(g.controller, b, sel, ids, g.falls.code[ids] > 0, g.drive, k, felt, r.contact,
+                                   mass, g.m.nu, s.step, g.warm, g.prop)
+    if g.record:  # the plan against the CoP measured in the physics step these torques act in
+        swinging = np.zeros(ids.size, bool) if stepper is None else stepper.swinging(ids).any(axis=1)
+        rec["plan_cop"][sel, k] = np.where(swinging, np.nan, plan_cop)
+    g.ctrl_all[ids] = ctrl
+    b["ctrl"][sel] = ctrl
+
+    # the balance monitor
+    c_lo, c_hi, roll = r.c_lo, r.c_hi, r.roll
+    if stepper is not None:  # a swing foot is not a rolled foot; where it lands is support
+        c_lo, c_hi = stepper.landing_span(ids, c_lo, c_hi)
+        roll = np.where(stepper.swinging(ids), 0.0, roll)
+    if g.has_contact_force and k > 0:  # leaning on a prop: the pendulum's capture point does not apply
+        leaning = rec["prop_force"][ids, k - 1] > CONTACT_FORCE_N
+        c_lo, c_hi = np.where(leaning, -np.inf, c_lo), np.where(leaning, np.inf, c_hi)
+    new = g.falls.check(ids, k, ok=~bad, grounded=r.grounded, support_lo_x=c_lo, support_hi_x=c_hi,
+                        lowest_body_z=r.lowest, qpos=r.qpos, com=r.com, com_vel_x=r.vel_x, roll=roll,
+                        time_s=b["time"][sel])
+    if new.any():
+        s.next_end = _fell_now(g, s, k, new, r.qpos, r.momentum)
+
+
+def _record_ground(g: _Group, s: _LoopState, k: int, point_x: np.ndarray | None, sample: bool) -> None:
+    """The ground force after step ``k`` (every step: peak force, time airborne) and, at the sample steps, the
+    measured CoP, the reference CoP and each foot's force."""
+    sel, rec = s.sel, g.rec
+    rec_fz = rec["fz"]
+    touch = g.b["sensordata"][sel, :g.geo.points.size]  # normal force at heel_r, toe_r, heel_l, toe_l
+    if not sample:  # the steps in between: the ground force only (peak force, time airborne)
+        if s.step_ids is None:  # all active: write straight into the buffer's column
+            np.add.reduce(touch, axis=1, out=rec_fz[:, k])
+        else:
+            rec_fz[sel, k] = touch.sum(axis=1)
+        return
+    fz = touch.sum(axis=1)
+    rec_fz[sel, k] = fz
+    with np.errstate(all="ignore"):
+        rec["cop"][sel, k] = np.where(fz > 1e-9, (touch * point_x).sum(axis=1) / fz, np.nan)
+    rec["pref"][sel, k] = g.cop_ref_now[sel]
+    rec["ffz"][sel, k, 0] = touch[:, :2].sum(axis=1)
+    rec["ffz"][sel, k, 1] = touch[:, 2:].sum(axis=1)
+
+
+def _finish(g: _Group, s: _LoopState) -> list[Trajectory]:
+    """The trajectories: each row judged at its fall or, standing, as the run left it."""
+    b, falls, nb = g.b, g.falls, g.nb
+    momentum = g.kin.linear_momentum(b["cinert"][:, :nb], b["cvel"][:, :nb])
     fallen = falls.code > 0  # judged at the fall, whatever a recorded topple did afterwards
-    final_qpos = np.where(fallen[:, None], falls.qpos, b["qpos"][:, :nq])
+    final_qpos = np.where(fallen[:, None], falls.qpos, b["qpos"][:, :g.nq])
     final_speed = np.where(fallen, falls.speed_m_s, np.hypot(momentum[:, 0], momentum[:, 1])
-                           / (ch.mass_kg + prop.carried_kg))
+                           / (g.ch.mass_kg + g.prop.carried_kg))
     standing = np.flatnonzero(~fallen)  # the others were judged when they fell
-    _judge_prop(prop, b, standing, rec["prop_force"][standing, :run_steps], times[:run_steps], drive.windows_s, goal,
-                extras)
-    return _trajectories(task, rec, times, last, falls, disp, extras, goal, final_qpos, final_speed, stepper)
+    _judge_prop(g.prop, b, standing, g.rec["prop_force"][standing, :g.run_steps], g.times[:g.run_steps],
+                g.drive.windows_s, g.goal, g.extras)
+    return _trajectories(g.task, g.rec, g.times, s.last, falls, g.drive.disp_m, g.extras, g.goal, final_qpos,
+                         final_speed, g.stepper)
 
 
 def _stepper(task: Task, n: int) -> StepSupervisor | None:
@@ -892,7 +968,7 @@ def _step_command(stepper: StepSupervisor, kin: PlanarKinematics, b: dict, sel, 
                           point_x)
 
 
-def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarray, falls: _Falls, disp: np.ndarray,
+def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarray, falls: FallMonitor, disp: np.ndarray,
                   extras: dict[str, np.ndarray], goal: np.ndarray, final_qpos: np.ndarray,
                   final_speed: np.ndarray, stepper: StepSupervisor | None = None) -> list[Trajectory]:
     """One Trajectory per simulation, cut where it stopped."""

@@ -65,14 +65,20 @@ drop_stale_cache()  # before the first call loads the cache
 
 
 @njit(cache=True, nogil=True)
-def geometry(rows, geom_xpos, geom_xmat, qpos, qvel, points, body_geoms, half, radius, leg_dofs, root_pitch, act,
-             point_radius, contact_height, point_x, lo, hi, contact, roll, jspeed, lowest, grounded, c_lo, c_hi):
+def geometry(rows, fields, consts, out):
     """What a control step reads of the batch's geometry, for every row, in one compiled pass instead of
     ~30 numpy calls (each a few microseconds, ~400 times per clip): heel/toe x and their span, which points
     touch the floor, foot pitch, the fastest actuated joint, the lowest body point and the span of the feet
     on the ground. The same IEEE operations in the same order as the numpy code it replaces
     (``_Geometry``, ``_in_contact``, ``_ground_support``), NaNs propagated as numpy's min/max do, so
-    results are bit for bit those of before. Output row ``i`` is batch row ``rows[i]``."""
+    results are bit for bit those of before. Output row ``i`` is batch row ``rows[i]``.
+
+    ``fields``: (geom_xpos, geom_xmat, qpos, qvel), the batch's; ``consts``: (points, body_geoms, half, radius,
+    leg_dofs, root_pitch, act, point_radius, contact_height); ``out``, rows ``rows``: (point_x, lo, hi, contact,
+    roll, jspeed, lowest, grounded, c_lo, c_hi)."""
+    geom_xpos, geom_xmat, qpos, qvel = fields
+    points, body_geoms, half, radius, leg_dofs, root_pitch, act, point_radius, contact_height = consts
+    point_x, lo, hi, contact, roll, jspeed, lowest, grounded, c_lo, c_hi = out
     n = point_x.shape[0]
     npt = points.shape[0]
     for i in range(n):
@@ -162,30 +168,23 @@ def linear_momentum(rows, cinert, cvel, nb, out):
         out[i, 1] = _pairwise_sum(terms)
 
 
+# The arguments, grouped (``simulate._CompiledTick`` binds all but ``k``, ``ids``, ``now`` and ``out``): ``clock``
+# (dt, control_dt, nb, mass_kg); ``fields``, the batch's bound fields, every row (simulation ``s`` is batch row
+# ``s``): (geom_xpos, geom_xmat, qpos, qvel, cdof, cdof_dot, cvel, cinert, M, qfrc_bias, qfrc_passive, subtree_com,
+# time_s); ``consts``, geometry and monitor constants: (points, body_geoms, half, radius, leg_dofs, root_pitch, act,
+# point_radius, contact_height, com_height_m, airborne_s, roll_rad, capture_margin_m); ``controller``'s constants:
+# (chain, m_rows, m_cols, point_bodies, actuated, torque_limits, w2, params); ``drive``, what drives each row -
+# references (variants, steps, nv), each row's variant, the CMRT: (q_ref, qd_ref, qdd_ref, variant, disp_m,
+# disp_vel_m_s); ``lean``, whether to look for leaning on a prop (last step's force > leaning_n): (lean_check,
+# prop_force, leaning_n); ``state``, monitor state and records, (n_all, ...): (airborne_for_s, fall_code, rec_sc,
+# rec_lo, rec_hi, rec_qpos, rec_com, rec_jspeed, rec_cref); ``now``, the mass the character carries, the held
+# references and the torques: (carried_kg, com_ref_now, cop_ref_now, ctrl_all); ``delay``, the balance feedback's
+# delay (steps) and the CoM velocity at past control steps (n_all, steps): (delay_steps, fb_vel); ``warm_sets``, the
+# QPs' active sets (n_all, rows), kept from the last control step, and this step's first: (warm, warm_out);
+# ``load``, a held load's pull on the hands, rows ``ids``: (ext_f, ext_p, ext_bodies) - force (n, 2), point (n, 3),
+# the bodies sharing it; ``out``, rows ``ids``: (point_x, momentum, new).
 @njit(cache=True, nogil=True)
-def control_tick(k, ids, dt, control_dt, nb, mass_kg,
-                 # the batch's bound fields, every row (simulation ``s`` is batch row ``s``)
-                 geom_xpos, geom_xmat, qpos, qvel, cdof, cdof_dot, cvel, cinert, M, qfrc_bias, qfrc_passive,
-                 subtree_com, time_s,
-                 # geometry and monitor constants
-                 points, body_geoms, half, radius, leg_dofs, root_pitch, act, point_radius, contact_height,
-                 com_height_m, airborne_s, roll_rad, capture_margin_m,
-                 # controller constants
-                 chain, m_rows, m_cols, point_bodies, actuated, torque_limits, w2, params,
-                 # what drives each row: references (variants, steps, nv) and each row's variant, the CMRT,
-                 # the mass the character carries; whether to look for leaning on a prop (last step's force > leaning_n)
-                 q_ref, qd_ref, qdd_ref, variant, disp_m, disp_vel_m_s, carried_kg, lean_check, prop_force, leaning_n,
-                 # monitor state and records, (n_all, ...)
-                 airborne_for_s, fall_code, rec_sc, rec_lo, rec_hi, rec_qpos, rec_com, rec_jspeed, rec_cref,
-                 com_ref_now, cop_ref_now, ctrl_all,
-                 # the balance feedback's delay (steps) and the CoM velocity at past control steps (n_all, steps)
-                 delay_steps, fb_vel,
-                 # the QPs' active sets (n_all, rows): kept from the last control step, and this step's first
-                 warm, warm_out,
-                 # a held load's pull on the hands, rows ``ids``: force (n, 2), point (n, 3), the bodies sharing it
-                 ext_f, ext_p, ext_bodies,
-                 # out, rows ``ids``
-                 point_x, momentum, new):
+def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, now, delay, warm_sets, load, out):
     """Control step ``k`` of a scoring run, rows ``ids`` (center reference, feet planted, nobody fallen),
     in the Python loop's order: geometry, records, CoM velocity, targets ``c_r = s + d(t)``, ``p_r = s``,
     torques (into ``ctrl_all``; the caller copies them into the batch) and the balance monitor.
@@ -194,7 +193,18 @@ def control_tick(k, ids, dt, control_dt, nb, mass_kg,
     (the step's CoP sample needs them). Returns how many rows fell now, or -1, having done nothing, if a
     row had fallen before (protective mode is the Python path's). A singular plan raises ``LinAlgError``
     before the monitor has changed anything: the caller redoes the step on the Python path, which finds
-    the row."""
+    the row. Its arguments, grouped: the comment above."""
+    dt, control_dt, nb, mass_kg = clock
+    (geom_xpos, geom_xmat, qpos, qvel, cdof, cdof_dot, cvel, cinert, M, qfrc_bias, qfrc_passive, subtree_com,
+     time_s) = fields
+    (points, body_geoms, half, radius, leg_dofs, root_pitch, act, point_radius, contact_height, com_height_m,
+     airborne_s, roll_rad, capture_margin_m) = consts
+    chain, m_rows, m_cols, point_bodies, actuated, torque_limits, w2, params = controller
+    q_ref, qd_ref, qdd_ref, variant, disp_m, disp_vel_m_s = drive
+    airborne_for_s, fall_code, rec_sc, rec_lo, rec_hi, rec_qpos, rec_com, rec_jspeed, rec_cref = state
+    carried_kg, com_ref_now, cop_ref_now, ctrl_all = now
+    delay_steps, fb_vel = delay
+    (warm, warm_out), (ext_f, ext_p, ext_bodies), (point_x, momentum, new) = warm_sets, load, out
     n = ids.shape[0]
     for r in range(n):
         if fall_code[ids[r]] != 0:
@@ -207,8 +217,9 @@ def control_tick(k, ids, dt, control_dt, nb, mass_kg,
     contact = np.empty((n, npt), np.bool_)
     grounded = np.empty(n, np.bool_)
     roll = np.empty((n, 2))
-    geometry(ids, geom_xpos, geom_xmat, qpos, qvel, points, body_geoms, half, radius, leg_dofs, root_pitch, act,
-             point_radius, contact_height, point_x, lo, hi, contact, roll, jspeed, lowest, grounded, c_lo, c_hi)
+    geometry(ids, (geom_xpos, geom_xmat, qpos, qvel),
+             (points, body_geoms, half, radius, leg_dofs, root_pitch, act, point_radius, contact_height),
+             (point_x, lo, hi, contact, roll, jspeed, lowest, grounded, c_lo, c_hi))
     linear_momentum(ids, cinert, cvel, nb, momentum)
     vel_x = np.empty(n)
     mass = np.empty(n)
@@ -241,15 +252,33 @@ def control_tick(k, ids, dt, control_dt, nb, mass_kg,
 
     tau = np.empty((n, nu))
     info = np.empty((n, N_INFO))
-    control_step(ids, cdof, cdof_dot, cvel, cinert, qpos, qvel, M, qfrc_bias, qfrc_passive, subtree_com, geom_xpos,
-                 chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, torque_limits, w2, params,
-                 qr, qdr, qddr, com_ref, com_ref_vel, cop_ref, contact, mass, np.full(n, -1.0),
-                 np.zeros((n, N_SWING)), warm, warm_out, ext_f, ext_p, ext_bodies, tau, info)
+    control_step(ids, (cdof, cdof_dot, cvel, cinert, qpos, qvel, M, qfrc_bias, qfrc_passive, subtree_com, geom_xpos),
+                 (chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, torque_limits, w2, params),
+                 (qr, qdr, qddr, com_ref, com_ref_vel, cop_ref),
+                 (contact, mass, np.full(n, -1.0), np.zeros((n, N_SWING))),
+                 (warm, warm_out), (ext_f, ext_p, ext_bodies), (tau, info))
     for r in range(n):  # every plan found: keep the active sets (a singular plan raised, keeping none)
         s = ids[r]
         for j in range(warm.shape[1]):
             warm[s, j] = warm_out[s, j]
+    return _judge_tick(k, ids, clock, fields, consts, lean, state, now, tau,
+                       (grounded, c_lo, c_hi, lowest, vel_x, roll), new)
 
+
+@njit(cache=True, nogil=True)
+def _judge_tick(k, ids, clock, fields, consts, lean, state, now, tau, read, new):
+    """The end of ``control_tick``: the torques into ``ctrl_all`` (zero for a non-finite plan), then the balance
+    monitor on rows ``ids`` (``read``: what the tick's geometry read, (grounded, c_lo, c_hi, lowest, vel_x,
+    roll)); ``new`` gets the rows that fell now; returns how many."""
+    dt, control_dt = clock[0], clock[1]
+    qpos, subtree_com, time_s = fields[2], fields[11], fields[12]
+    com_height_m, airborne_s, roll_rad, capture_margin_m = consts[9], consts[10], consts[11], consts[12]
+    lean_check, prop_force, leaning_n = lean
+    airborne_for_s, fall_code = state[0], state[1]
+    ctrl_all = now[3]
+    grounded, c_lo, c_hi, lowest, vel_x, roll = read
+    n = ids.shape[0]
+    nu = tau.shape[1]
     finite = np.empty(n, np.bool_)
     air = np.empty(n)
     for r in range(n):
