@@ -32,23 +32,11 @@ from cmrt.optimize.parallel import Evaluator
 from cmrt.service.jobs import claim, submit, work
 from cmrt.service.store import Generation, RunProgress, StoredEvaluation, open_store
 from cmrt.sim.objective import EvalRecord
+from tests.optimize.toy_objectives import rugged, sphere
 from tests.service_helpers import spawn_worker
 
 TASK = load_task("bend").with_speed(0.4)
 RUGGED = OptimizeSettings(seed=4, max_evals=2000, stall_generations=3, min_evals=0, stop_threshold=10.0)
-
-
-def sphere(xs):
-    return [EvalRecord(float(np.sum((x - 0.3) ** 2)), False, 0.0, success=True) for x in xs]
-
-
-def rugged(xs):
-    """Stall-prone (see test_optimize): the search restarts (IPOP) every few generations."""
-    out = []
-    for x in xs:
-        d = float(np.sum((x - 1.5) ** 2))
-        out.append(EvalRecord(1.0 + 0.001 * np.floor(d), d > 0.05, 0.0, success=d < 0.05))
-    return out
 
 
 def drive(state, settings, n_gen, objective=rugged):
@@ -577,7 +565,6 @@ def test_a_checkpoint_carries_no_machine_paths_or_wall_clock_times(tmp_path, mon
     import zlib
 
     from cmrt.optimize.driver import step
-    from cmrt.sim.objective import EvalRecord
 
     monkeypatch.chdir(tmp_path)
     state = new_state(OptimizeSettings(seed=3))

@@ -11,10 +11,7 @@ from cmrt.optimize.driver import (
     step,
     stop_reason,
 )
-
-
-def sphere(xs):
-    return [EvalRecord(float(np.sum((x - 0.3) ** 2)), False, 0.0, success=True) for x in xs]
+from tests.optimize.toy_objectives import rugged, sphere
 
 
 def run(settings, n_gen, state=None):
@@ -139,15 +136,6 @@ def test_budget_is_never_exceeded_by_a_grown_population():
     assert state.restarts >= 1 and state.evaluations <= 200
 
 
-def _rugged(xs):
-    """A stall-prone objective: succeeds only in a narrow well far from the start."""
-    out = []
-    for x in xs:
-        d = float(np.sum((x - 1.5) ** 2))
-        out.append(EvalRecord(1.0 + 0.001 * np.floor(d), d > 0.05, 0.0, success=d < 0.05))
-    return out
-
-
 def test_resume_across_restarts_is_bit_identical():
     s = OptimizeSettings(seed=4, max_evals=2000, stall_generations=3, min_evals=0, stop_threshold=10.0)
 
@@ -156,7 +144,7 @@ def test_resume_across_restarts_is_bit_identical():
         for g in range(n_gen):
             if stop_reason(state, s) is not None:
                 break
-            step(state, _rugged)
+            step(state, rugged)
             restart_if_stalled(state, s)
             if g == snapshot_at:
                 snap = state.dumps()
