@@ -18,11 +18,11 @@ import numpy as np
 
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import MIN_GAP_S, N_KNOTS, Cmrt
-from cmrt.motion.library import library_curve, load_entries
+from cmrt.motion.library import KnownCmrt, library_curve
 from cmrt.motion.sequence import SequenceTask, SuperposedCmrt
 from cmrt.motion.task import Task, active_params
-from cmrt.motion.taskfile import load_task
-from cmrt.service.store import Run, Store
+from cmrt.service.known import SOURCES, known_cmrts
+from cmrt.service.store import Store
 
 IGNORED_PARAMS = ("stop_threshold",)  # do not change the physics of a clip
 
@@ -66,41 +66,24 @@ def _physics(params: dict, skip: str) -> dict:
 
 
 def candidates(task: Task, param: str, source: str, store: Store | None = None) -> list[tuple[float, Cmrt, str]]:
-    """(value of ``param``, CMRT, label) of every result matching ``task`` except in ``param``."""
-    want = _physics(task.params, param)
-    out: dict[float, tuple[float, Cmrt, str]] = {}
-    if source == "library":
-        for e in load_entries():
-            if (e["task"] != task.name or e.get("robust", False) != task.robust.enabled
-                    or e.get("reference", "center") != task.reference_mode):
-                continue  # one family: plain CMRTs for a plain task, robust ones for a robust task, one mode
-            params = e.get("params") or load_task(task.name).with_speed(e["speed"]).params
-            if _physics(params, param) == want:
-                out[params[param]] = (
-                    params[param],
-                    Cmrt.from_dict(e["cmrt"]),
-                    f"library {task.name} {param}={params[param]:g}",
-                )
-    elif source == "store":
-        if store is None:
-            raise CmrtError("interpolating from the store needs a store")
-        best: dict[float, tuple[float, Run]] = {}
-        for run in store.runs(task=task.name, status="done", reference=task.reference_mode):
-            if run.best_cmrt is None or not run.best_success:
-                continue  # only CMRTs that made the motion a success
-            if (run.robust is not None) != task.robust.enabled:
-                continue  # and of the task's own kind (plain or robust)
-            params = run.params
-            if _physics(params, param) != want:
-                continue
-            v = params[param]
-            if v not in best or run.best_objective < best[v][0]:
-                best[v] = (run.best_objective, run)
-        for v, (_, run) in best.items():
-            out[v] = (v, Cmrt.from_dict(run.best_cmrt), f"run {run.id} {param}={v:g}")
-    else:
+    """(value of ``param``, CMRT, label) of every successful CMRT of the task's own kind (plain or robust)
+    from ``source`` that matches ``task`` in every other physical parameter; per value the lowest objective
+    (the oldest on ties)."""
+    if source not in SOURCES:
         raise CmrtError(f"--from must be store or library, got '{source}'")
-    return [out[v] for v in sorted(out)]
+    if source == "store" and store is None:
+        raise CmrtError("interpolating from the store needs a store")
+    want = _physics(task.params, param)
+    best: dict[float, KnownCmrt] = {}
+    for known in known_cmrts(task, store, sources=(source,), robust=task.robust.enabled, same_clip=False):
+        if _physics(known.params, param) != want:
+            continue
+        v = known.params[param]
+        if source == "library" or v not in best or known.objective < best[v].objective:
+            best[v] = known  # the library has one entry per value (the last one written wins)
+    label = (lambda k, v: f"library {task.name} {param}={v:g}") if source == "library" else (
+        lambda k, v: f"{k.source} {param}={v:g}")
+    return [(v, best[v].curve, label(best[v], v)) for v in sorted(best)]
 
 
 def interpolate(

@@ -10,16 +10,13 @@ stored with the run, so a resumed run never re-resolves it (the store may have c
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 from cmrt.errors import CmrtError
-from cmrt.motion.curve import Cmrt
-from cmrt.motion.library import load_entries
 from cmrt.motion.task import Task
+from cmrt.service.known import CLIP_TOLERANCE_S, known_cmrts
 from cmrt.service.store import Store
 
-CLIP_TOLERANCE_S = 1e-9
 IGNORED_PARAMS = frozenset({"stop_threshold"})  # optimizer settings, not physics
 
 
@@ -51,26 +48,15 @@ def task_distance(task: Task, other_params: dict[str, float]) -> float:
 def _candidates(store: Store | None, task: Task) -> list[tuple[float, int, bool, float, Start]]:
     """(distance, other kind (robust vs plain) than the run, 0 store / 1 library, objective, start)."""
     found = []
-    if store is not None:
-        for run in store.successful_runs(task.name, task.reference_mode):  # a CMRT belongs to its mode
-            if abs(run.params.get("clip_s", math.nan) - task.clip_s) > CLIP_TOLERANCE_S:
-                continue
-            d = task_distance(task, run.params)
-            other = (run.robust is not None) != task.robust.enabled
-            found.append((d, other, 0, run.best_objective, Start(run.best_params, f"run {run.id}", d)))
-    for entry in load_entries():
-        if (entry["task"] != task.name or not entry.get("success") or "params" not in entry
-                or entry.get("reference", "center") != task.reference_mode):
-            continue
-        curve = Cmrt.from_dict(entry["cmrt"])
-        if abs(curve.clip_s - task.clip_s) > CLIP_TOLERANCE_S:
-            continue
-        d = task_distance(task, entry["params"])
-        robust = entry.get("robust", False)
-        label = f"library{' robust' if robust else ''}"
-        label += f" ({task.speed_param} {entry['speed']:g})" if task.speed_param else ""
-        found.append((d, robust != task.robust.enabled, 1, entry["objective"],
-                      Start(tuple(map(float, curve.to_params())), label, d)))
+    for known in known_cmrts(task, store):
+        d = task_distance(task, known.params)
+        if known.source == "library":
+            label = f"library{' robust' if known.robust else ''}"
+            label += f" ({task.speed_param} {known.speed:g})" if task.speed_param else ""
+        else:
+            label = known.source
+        found.append((d, known.robust != task.robust.enabled, int(known.source == "library"), known.objective,
+                      Start(known.cma_params, label, d)))
     return found
 
 

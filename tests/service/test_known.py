@@ -1,0 +1,54 @@
+"""One filter for the CMRTs known for a task (warm starts and interpolation read it)."""
+
+import json
+
+import numpy as np
+
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.library import library_cmrts, load_entries
+from cmrt.motion.taskfile import load_task
+from cmrt.service.jobs import submit
+from cmrt.service.known import known_cmrts
+from cmrt.service.store import open_store
+
+BEND = load_task("bend").with_speed(0.4)
+
+
+def _done(store, task, objective, success=True, robust=False):
+    rid = submit(store, task, init="none")
+    curve = Cmrt.from_params(np.full(8, 0.1), task.clip_s)
+    with store.transaction() as conn:
+        conn.execute("UPDATE runs SET status = 'done', best_success = ?, best_objective = ?, best_params = ?, "
+                     "best_cmrt = ?, robust = ? WHERE id = ?",
+                     (int(success), objective, json.dumps([0.1] * 8), json.dumps(curve.to_dict()),
+                      json.dumps({"n": 4}) if robust else None, rid))
+    return rid
+
+
+def test_the_library_as_records_is_the_file():
+    entries, records = load_entries(), library_cmrts()
+    assert len(records) == len(entries) > 0
+    for e, k in zip(entries, records, strict=True):
+        assert (k.task, k.speed, k.robust, k.objective, k.source) == (
+            e["task"], e["speed"], e.get("robust", False), e["objective"], "library")
+        assert k.curve == Cmrt.from_dict(e["cmrt"]) and dict(k.params) == e["params"]
+
+
+def test_store_first_then_library_one_mode_successes_same_clip(tmp_path):
+    with open_store(tmp_path / "s.sqlite") as store:
+        plain = _done(store, BEND, 0.9)
+        robust = _done(store, BEND, 0.8, robust=True)
+        _done(store, BEND, 0.1, success=False)  # not a success: never known
+        _done(store, BEND.with_reference("yu"), 0.5)  # another reference mode
+        _done(store, BEND.with_params(clip_s=3.0), 0.5)  # another clip
+        known = known_cmrts(BEND, store)
+        sources = [k.source for k in known]
+        assert sources[:2] == [f"run {plain}", f"run {robust}"] and set(sources[2:]) == {"library"}
+        assert all(k.reference == "center" and k.success and k.task == "bend" for k in known)
+        assert known[0].cma_params == (0.1,) * 8 and not known[0].robust and known[1].robust
+        assert [k.source for k in known_cmrts(BEND, store, robust=True, sources=("store",))] == [f"run {robust}"]
+        assert len(known_cmrts(BEND.with_params(clip_s=3.0), store, sources=("store",))) == 1
+        assert len(known_cmrts(BEND.with_params(clip_s=3.0), store, sources=("store",), same_clip=False)) == 3
+        yu = known_cmrts(BEND.with_reference("yu"), store)
+        assert yu and all(k.reference == "yu" for k in yu)
+    assert all(k.source == "library" for k in known_cmrts(BEND))  # no store: the library alone
