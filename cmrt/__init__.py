@@ -34,19 +34,21 @@ if TYPE_CHECKING:
     from cmrt.errors import CmrtError
     from cmrt.motion.curve import Cmrt
     from cmrt.motion.ensemble import Perturbation, RobustSpec
-    from cmrt.motion.library import library_curve
+    from cmrt.motion.library import KnownCmrt, library_curve
     from cmrt.motion.sequence import load_sequence
     from cmrt.motion.task import Task
-    from cmrt.motion.taskfile import available_tasks, load_task
+    from cmrt.motion.taskfile import available_tasks, load_task, resolve_task
     from cmrt.optimize.driver import OptimizeSettings
     from cmrt.optimize.parallel import Evaluator
     from cmrt.service.interpolate import interpolate, superpose
     from cmrt.service.jobs import claim, optimize_family, optimize_now, submit, work
+    from cmrt.service.known import known_cmrts, resolve_curve
     from cmrt.service.query import best_run, export_run, run_curve, run_details, task_of
     from cmrt.service.store import Generation, Run, Store, StoredEvaluation, open_store
     from cmrt.service.warmstart import nearest_start
     from cmrt.sim.balance import BalanceLimits, FallReason
     from cmrt.sim.objective import Evaluation, evaluate
+    from cmrt.sim.report import evaluation_dict, save_trace, sequence_report, simulate_report
     from cmrt.sim.simulate import Trajectory, simulate
     from cmrt.sim.validate import robustness
 
@@ -59,6 +61,7 @@ _API = {
     "Evaluator": "cmrt.optimize.parallel",
     "FallReason": "cmrt.sim.balance",
     "Generation": "cmrt.service.store",
+    "KnownCmrt": "cmrt.motion.library",
     "MomentumBalanceController": "cmrt.control",
     "OptimizeSettings": "cmrt.optimize.driver",
     "Perturbation": "cmrt.motion.ensemble",
@@ -73,8 +76,10 @@ _API = {
     "character": "cmrt.body.character",
     "claim": "cmrt.service.jobs",
     "evaluate": "cmrt.sim.objective",
+    "evaluation_dict": "cmrt.sim.report",
     "export_run": "cmrt.service.query",
     "interpolate": "cmrt.service.interpolate",
+    "known_cmrts": "cmrt.service.known",
     "library_curve": "cmrt.motion.library",
     "load_model": "cmrt.body.character",
     "load_sequence": "cmrt.motion.sequence",
@@ -83,10 +88,15 @@ _API = {
     "open_store": "cmrt.service.store",
     "optimize_family": "cmrt.service.jobs",
     "optimize_now": "cmrt.service.jobs",
+    "resolve_curve": "cmrt.service.known",
+    "resolve_task": "cmrt.motion.taskfile",
     "robustness": "cmrt.sim.validate",
     "run_curve": "cmrt.service.query",
     "run_details": "cmrt.service.query",
+    "save_trace": "cmrt.sim.report",
+    "sequence_report": "cmrt.sim.report",
     "simulate": "cmrt.sim.simulate",
+    "simulate_report": "cmrt.sim.report",
     "submit": "cmrt.service.jobs",
     "superpose": "cmrt.service.interpolate",
     "task_of": "cmrt.service.query",
@@ -119,6 +129,7 @@ __all__ = [
     "Evaluator",
     "FallReason",
     "Generation",
+    "KnownCmrt",
     "MomentumBalanceController",
     "OptimizeSettings",
     "Perturbation",
@@ -133,8 +144,10 @@ __all__ = [
     "character",
     "claim",
     "evaluate",
+    "evaluation_dict",
     "export_run",
     "interpolate",
+    "known_cmrts",
     "library_curve",
     "load_model",
     "load_sequence",
@@ -143,10 +156,15 @@ __all__ = [
     "open_store",
     "optimize_family",
     "optimize_now",
+    "resolve_curve",
+    "resolve_task",
     "robustness",
     "run_curve",
     "run_details",
+    "save_trace",
+    "sequence_report",
     "simulate",
+    "simulate_report",
     "submit",
     "superpose",
     "task_of",

@@ -530,3 +530,19 @@ def write_text(path: str | os.PathLike, text: str, flag: str) -> Path:
     with atomic_output(path, flag) as tmp:
         tmp.write_bytes(text.encode("utf-8"))
     return Path(path)
+
+
+def parse_sets(items: list[str] | None) -> dict[str, str]:
+    """``--set KEY=VALUE`` options: KEY a parameter name, VALUE a finite number (``Task.with_params`` checks
+    its range and shows the text as given)."""
+    out = {}
+    if len(items or []) > MAX_SETS:
+        raise CmrtError(f"at most {MAX_SETS} --set options")
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise CmrtError(f"--set expects KEY=VALUE, got {shown(item)}")
+        key = param_name(key.strip(), "--set KEY")
+        number(value.strip(), f"--set {key}")
+        out[key] = value.strip()
+    return out

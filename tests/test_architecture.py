@@ -249,3 +249,18 @@ def test_the_table_of_functions_still_too_big_is_not_stale():
              if sizes.get(name) != allowed
              or (sizes[name][0] <= MAX_FUNCTION_LINES and sizes[name][1] <= MAX_FUNCTION_ARGS)}
     assert stale == {}, "lower or remove these entries (recorded, measured now)"
+
+
+def test_tools_use_the_api_not_the_cli_or_private_names():
+    """``tools/`` are scripts like a user's: they import public names (no underscore) and never the CLI's
+    module, whose helpers are parsing and printing (what a script wants is in the API)."""
+    tools = Path(__file__).resolve().parent.parent / "tools"
+    wrong = []
+    for path in sorted(tools.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "cmrt":
+                if node.module.split(".")[:2] == ["cmrt", "cli"] or any(a.name.startswith("_") for a in node.names):
+                    wrong.append(f"{path.name}: from {node.module} import {', '.join(a.name for a in node.names)}")
+            elif isinstance(node, ast.Import):
+                wrong += [f"{path.name}: import {a.name}" for a in node.names if a.name.startswith("cmrt.cli")]
+    assert wrong == []

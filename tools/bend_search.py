@@ -40,8 +40,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import analyze_reference  # noqa: E402  (a sibling tool)
 
-from cmrt import CmrtError, ControllerConfig, evaluate, simulate
-from cmrt.cli.commands import evaluation_dict  # noqa: E402
+from cmrt import (
+    CmrtError,
+    ControllerConfig,
+    evaluate,
+    evaluation_dict,  # noqa: E402
+    simulate,
+)
 from cmrt.motion.taskfile import TASKS_DIR, task_from_dict  # noqa: E402
 
 POSE_DEG = {"lumbar": (0, 45), "hip": (-110, -40), "knee": (0, 90), "neck": (-20, 10), "shoulder": (-150, 40)}

@@ -38,8 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cmrt import CmrtError, Evaluator, OptimizeSettings, Task, open_store, optimize_now
-from cmrt.cli.commands import resolve_task
+from cmrt import CmrtError, Evaluator, OptimizeSettings, Task, open_store, optimize_now, resolve_task
 from cmrt.optimize.driver import N_PARAMS
 
 OPTIMIZERS = ("cmrt", "optuna", "cmaes", "random")
@@ -208,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
         tasks = []
         for spec in args.tasks.split(","):
             name, _, speed = spec.partition(":")
-            tasks.append(resolve_task(name, float(speed) if speed else None, None))
+            tasks.append(resolve_task(name, float(speed) if speed else None))
         result = benchmark(tasks, optimizers, seeds, args.max_evals, progress=not args.quiet)
     except (CmrtError, ValueError) as exc:
         print(f"error: {' '.join(str(exc).split())}", file=sys.stderr)

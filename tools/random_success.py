@@ -27,9 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cmrt import Cmrt, CmrtError, OptimizeSettings, Task, evaluate
-from cmrt.cli.commands import resolve_task
-from cmrt.inputs import SEED, SPEED, Range
+from cmrt import Cmrt, CmrtError, OptimizeSettings, Task, evaluate, resolve_task
+from cmrt.inputs import SEED, SPEED, Range, parse_sets
 from cmrt.optimize.driver import new_state
 from cmrt.sim.simulate import simulate_batch
 
@@ -117,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
         samples = int(SAMPLES.check(args.samples, "--samples"))
         seed = int(SEED.check(args.seed, "--seed"))
         speed = None if args.speed is None else float(SPEED.check(args.speed, "--speed"))
-        task = resolve_task(args.task, speed, args.set)
+        task = resolve_task(args.task, speed, parse_sets(args.set))
         result = measure(task, samples, seed)
     except (CmrtError, ValueError) as exc:
         print(f"error: {' '.join(str(exc).split())}", file=sys.stderr)

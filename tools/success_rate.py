@@ -20,8 +20,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from cmrt import CmrtError, Evaluator, open_store, optimize_now
-from cmrt.cli.commands import resolve_task
+from cmrt import CmrtError, Evaluator, open_store, optimize_now, resolve_task
+from cmrt.inputs import parse_sets
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -92,7 +92,7 @@ def main() -> int:
     p.add_argument("--quiet", action="store_true", help="no per-seed lines on stderr")
     args = p.parse_args()
     try:
-        task = resolve_task(args.task, args.speed, args.set)
+        task = resolve_task(args.task, args.speed, parse_sets(args.set))
         result = measure(task, parse_seeds(args.seeds), args.init, args.max_evals, not args.quiet)
     except (CmrtError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)

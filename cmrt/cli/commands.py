@@ -20,12 +20,11 @@ import math
 import os
 import signal
 import sqlite3
-import stat
 import sys
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -39,11 +38,9 @@ from cmrt.service.store import DEFAULT_STORE, RUN_STATUSES, Run, Store, open_sto
 # that `cmrt --help`, `cmrt runs` or `cmrt show` answer at once. Building the parser imports none of them:
 # the optimizer's defaults are filled in after parsing (``_opt_defaults``).
 if TYPE_CHECKING:
-    import numpy as np
 
     from cmrt.motion.curve import Cmrt
     from cmrt.motion.task import Task
-    from cmrt.sim.objective import Evaluation
 
 EXIT_BAD_INPUT = 2
 EXIT_TEMPFAIL = 75  # sysexits EX_TEMPFAIL: a fault of the machine; the run is back in the queue
@@ -82,15 +79,6 @@ def _table(rows: list[dict], keys: tuple[str, ...]) -> str:
     cells = [list(keys)] + [[fmt(r.get(k)) for k in keys] for r in rows]
     widths = [max(len(row[i]) for row in cells) for i in range(len(keys))]
     return "\n".join("  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)) for row in cells)
-
-
-def _finite(x):
-    return None if x is None or (isinstance(x, float) and not math.isfinite(x)) else x
-
-
-def evaluation_dict(ev: Evaluation) -> dict:
-    """An Evaluation as JSON-safe values (non-finite floats become null)."""
-    return {f.name: _finite(getattr(ev, f.name)) for f in fields(ev)}
 
 
 def _outcome(r: dict) -> str:
@@ -216,88 +204,23 @@ class _Progress:
 
 
 # --- inputs ------------------------------------------------------------------------
-def _parse_sets(items: list[str] | None) -> dict[str, str]:
-    """``--set KEY=VALUE`` options: KEY a parameter name, VALUE a finite number (``Task.with_params`` checks
-    its range and shows the text as given)."""
-    out = {}
-    if len(items or []) > inputs.MAX_SETS:
-        raise CmrtError(f"at most {inputs.MAX_SETS} --set options")
-    for item in items or []:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise CmrtError(f"--set expects KEY=VALUE, got {shown(item)}")
-        key = inputs.param_name(key.strip(), "--set KEY")
-        inputs.number(value.strip(), f"--set {key}")
-        out[key] = value.strip()
-    return out
-
-
 def resolve_task(name: str, speed: float | None, sets: list[str] | None, reference: str | None = None) -> Task:
-    """A task by name or path, with ``--set`` overrides, ``--speed`` and ``--reference`` applied (validated)."""
-    from cmrt.motion.taskfile import load_task
+    """The task arguments (name or path, ``--speed``, ``--set``, ``--reference``) -> a validated Task."""
+    from cmrt.motion.taskfile import resolve_task as task_variant
 
-    task = load_task(name).with_reference(reference)
-    overrides = _parse_sets(sets)
-    if overrides:
-        try:
-            task = task.with_params(**overrides)
-        except CmrtError as exc:
-            raise CmrtError(f"--set: {exc}") from None
-    try:
-        return task.with_speed(speed)
-    except CmrtError as exc:
-        raise CmrtError(f"--speed: {exc}") from None
+    return task_variant(name, speed, inputs.parse_sets(sets), reference)
 
 
-def resolve_curve(spec: str, task: Task, store_path: str | None = None, flag: str = "--curve") -> tuple[Cmrt, str]:
-    """zero | library | library-robust | RUN (a stored run id) | FILE.json -> (curve, description)."""
-    from cmrt.motion.curve import Cmrt
-    from cmrt.motion.library import library_curve
-    from cmrt.service import query
+def _curve(spec: str, task: Task, store_path: str | None, flag: str = "--curve") -> tuple[Cmrt, str]:
+    from cmrt.service.known import resolve_curve
 
-    if spec == "zero":
-        return Cmrt.zero(task.clip_s), "zero"
-    if spec in ("library", "library-robust"):
-        curve = library_curve(task, robust=spec == "library-robust")
-        if abs(curve.clip_s - task.clip_s) > 1e-9:  # the library's entry for the task file's own clip
-            raise CmrtError(f"the {spec} CMRT of '{task.name}' is for a {curve.clip_s:g} s clip, task clip is "
-                            f"{task.clip_s:g} s")
-        return curve, spec
-    if inputs.is_run_id(spec):  # ASCII digits only: str.isdigit() takes '²' too
-        run_id = inputs.RUN_ID.check(spec, f"{flag} RUN")
-        with _store(store_path, readonly=True) as store:
-            curve = query.run_curve(store, run_id)
-        if abs(curve.clip_s - task.clip_s) > 1e-9:
-            raise CmrtError(f"run {spec} is for a {curve.clip_s:g} s clip, task clip is {task.clip_s:g} s")
-        return curve, f"run {spec}"
-    path = Path(spec)
-    if path.suffix.lower() == ".json" or os.path.lexists(spec):
-        curve = Cmrt.load(path)
-        if abs(curve.clip_s - task.clip_s) > 1e-9:
-            raise CmrtError(f"CMRT in {shown(spec)} is for a {curve.clip_s:g} s clip, task clip is "
-                            f"{task.clip_s:g} s")
-        return curve, str(path)
-    raise CmrtError(f"{flag} must be zero, library, library-robust, a run id or a CMRT .json file, got {shown(spec)}")
+    return resolve_curve(spec, task, store_path, flag)
 
 
 def _store(path: str | None, readonly: bool = False) -> Store:
-    """The store at ``path`` (``--store``). Before store.py opens it: a path that exists must be a regular file
-    (a FIFO or a device would block or be written), and a verb that only reads (``readonly``) opens it read-only:
-    it never creates, converts or writes a byte."""
-    p = resolve_path(path)
-    try:
-        st = os.stat(p)
-    except FileNotFoundError:
-        st = None
-    except (OSError, ValueError) as exc:
-        raise CmrtError(f"cannot open store {shown(str(p))}: {getattr(exc, 'strerror', None) or exc}") from None
-    if st is not None and not stat.S_ISDIR(st.st_mode) and not stat.S_ISREG(st.st_mode):
-        raise CmrtError(f"{shown(str(p))} is not a CMRT store (not a regular file)")
-    if st is not None and stat.S_ISREG(st.st_mode) and st.st_size == 0 and readonly:
-        raise CmrtError(f"{shown(str(p))} is not a CMRT store (an empty file)")
-    if not readonly and p == DEFAULT_STORE and not p.parent.exists():
-        p.parent.mkdir(parents=True)
-    return open_store(p, readonly=readonly)
+    """The store at ``path`` (``--store``); a verb that only reads opens it read-only (``open_store`` checks
+    the path is a regular file first)."""
+    return open_store(path, readonly=readonly)
 
 
 def _init_arg(value: str) -> str | int:
@@ -306,14 +229,6 @@ def _init_arg(value: str) -> str | int:
     if inputs.is_run_id(value):
         return inputs.run_id_arg(value)
     raise argparse.ArgumentTypeError(f"must be auto, none or a run id, got {shown(value)}")
-
-
-def _dof_names(task: Task) -> np.ndarray:
-    """Names of the trace's qvel columns: the humanoid's dofs, then the prop's."""
-    import numpy as np
-
-    m = task.model()
-    return np.array([m.joint(int(m.dof_jntid[i])).name for i in range(m.nv)])
 
 
 def _force_arg(p: argparse.ArgumentParser) -> None:
@@ -328,39 +243,6 @@ def _check_out(args, value: str, flag: str, suffixes: tuple[str, ...] = ()) -> N
     reading += [v for k in ("task", "curve", "compare", "sequence", "family", "file")
                 if isinstance(v := getattr(args, k, None), str) and os.path.isfile(v)]
     inputs.check_output(value, flag, suffixes, replace=args.force, reading=reading)
-
-
-def _save_npz(path: str, arrays: dict, flag: str = "--trace") -> None:
-    """Write atomically (``cmrt.inputs.atomic_output``): a failed write never leaves a half-written file."""
-    import numpy as np
-
-    with inputs.atomic_output(path, flag) as tmp, open(tmp, "wb") as fh:
-        np.savez_compressed(fh, **arrays)
-
-
-def simulate_report(task, curve, curve_name: str, trace: str | None = None) -> dict:
-    """Simulate one clip and score it: what ``cmrt simulate`` prints (optionally saving the trace)."""
-    from cmrt.sim.objective import evaluate
-    from cmrt.sim.simulate import simulate
-
-    if trace is not None:  # --trace '' is a bad path, not "no trace"
-        inputs.check_output(trace, "--trace")  # before the simulation, not after it
-    t0 = time.perf_counter()
-    traj = simulate(task, curve)
-    ev = evaluate(task, traj)
-    wall = time.perf_counter() - t0
-    if trace is not None:
-        _save_npz(trace, {**traj.as_npz_dict(), "dof_names": _dof_names(task)})
-    return {
-        "task": task.name,
-        "speed": task.speed,
-        "reference": task.reference_mode,
-        "params": task.params,
-        "curve": curve_name,
-        "cmrt": curve.to_dict(),
-        **evaluation_dict(ev),
-        "wall_s": round(wall, 4),
-    }
 
 
 # --- shared argument groups ------------------------------------------------------------
@@ -479,10 +361,12 @@ class Simulate(Command):
         _force_arg(p)
 
     def run(self, args):
+        from cmrt.sim.report import simulate_report
+
         if args.trace is not None:
             _check_out(args, args.trace, "--trace")
         task = resolve_task(args.task, args.speed, args.set, args.reference)
-        curve, name = resolve_curve(args.curve, task, args.store)
+        curve, name = _curve(args.curve, task, args.store)
         return Output(simulate_report(task, curve, name, args.trace), _report_text)
 
 
@@ -756,26 +640,13 @@ class Sequence(Command):
         from cmrt.motion.curve import Cmrt
         from cmrt.motion.sequence import load_sequence
         from cmrt.service.interpolate import superpose
-        from cmrt.sim.objective import evaluate
-        from cmrt.sim.simulate import simulate
+        from cmrt.sim.report import sequence_report
 
         if args.trace is not None:
             _check_out(args, args.trace, "--trace")
         seq = load_sequence(args.file)
         curve = superpose(seq) if args.curve == "superposed" else Cmrt.zero(seq.clip_s)
-        t0 = time.perf_counter()
-        traj = simulate(seq, curve, record=args.trace is not None)
-        ev = evaluate(seq, traj)
-        if args.trace is not None:
-            _save_npz(args.trace, {**traj.as_npz_dict(), "dof_names": _dof_names(seq)})
-        r = {
-            "sequence": seq.name,
-            "curve": args.curve,
-            "clip_s": seq.clip_s,
-            "motions": [{"task": m.task.name, "speed": m.task.speed, "start_s": m.start_s} for m in seq.motions],
-            **evaluation_dict(ev),
-            "wall_s": round(time.perf_counter() - t0, 3),
-        }
+        r = sequence_report(seq, curve, args.curve, args.trace)
         return Output(r, lambda r: f"{escape(seq.name)} ({len(seq.motions)} motions, {seq.clip_s:.2f} s) "
                       f"curve={args.curve}: {_outcome(r)}\n  objective {_n(r['objective'], '.4f')}  max |CoP error| "
                       f"{_n(r['max_cop_error_m'], '.4f')} m  final pose error {_n(r['final_pose_error_rad'], '.4f')} "
@@ -833,8 +704,8 @@ class Render(Command):
 
         _check_out(args, args.out, "--out", OUT_SUFFIXES)  # before anything is simulated
         task = resolve_task(args.task, args.speed, args.set, args.reference)
-        curve, name = resolve_curve(args.curve, task, args.store)
-        compare, cname = resolve_curve(args.compare, task, args.store, "--compare") if args.compare else (None, "")
+        curve, name = _curve(args.curve, task, args.store)
+        compare, cname = _curve(args.compare, task, args.store, "--compare") if args.compare else (None, "")
         r = render(task, curve, args.out, compare, (f"{name} CMRT", f"{cname} CMRT"), n_frames=args.frames,
                    fps=args.fps)
         lines = [f"wrote {escape(r['out'])} ({r['frames']} frames)"] + [
@@ -926,6 +797,7 @@ class Demo(Command):
         from cmrt.optimize.driver import OptimizeSettings
         from cmrt.optimize.parallel import Evaluator
         from cmrt.service import jobs, query
+        from cmrt.sim.report import simulate_report
 
         task = load_task("bend").with_speed(0.4)
         print("Fast bend (T = 0.4 s, trunk first, both feet planted). The reactive controller alone:")

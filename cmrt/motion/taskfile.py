@@ -51,6 +51,23 @@ TASK_KEYS = frozenset({"name", "summary", "speed_param", "balance_joint", "param
 MAX_TEXT = 1000  # characters of a task's name or summary
 
 
+def resolve_task(name_or_path: str, speed: float | None = None, params: dict[str, object] | None = None,
+                 reference: str | None = None) -> Task:
+    """A task by name or path with its reference mode, parameter overrides (``Task.with_params``: values as
+    numbers or their text) and speed applied in that order, each validated: what the CLI's task arguments
+    and the tools build."""
+    task = load_task(name_or_path).with_reference(reference)
+    if params:
+        try:
+            task = task.with_params(**params)
+        except CmrtError as exc:
+            raise CmrtError(f"--set: {exc}") from None
+    try:
+        return task.with_speed(speed)
+    except CmrtError as exc:
+        raise CmrtError(f"--speed: {exc}") from None
+
+
 def _table(raw: dict, key: str, where: str) -> dict | None:
     """``raw[key]`` if it is a table (None if absent); CmrtError naming the file and the key otherwise."""
     if key not in raw:

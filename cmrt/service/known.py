@@ -8,12 +8,19 @@ robust), only successes, only for the same clip length (a CMRT's knots are place
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import numpy as np
 
+from cmrt import inputs
+from cmrt.errors import CmrtError
+from cmrt.inputs import shown
 from cmrt.motion.curve import Cmrt
-from cmrt.motion.library import KnownCmrt, library_cmrts
+from cmrt.motion.library import KnownCmrt, library_cmrts, library_curve
 from cmrt.motion.task import Task
-from cmrt.service.store import Run, Store
+from cmrt.service.query import run_curve
+from cmrt.service.store import Run, Store, open_store
 
 CLIP_TOLERANCE_S = 1e-9
 SOURCES = ("store", "library")
@@ -43,3 +50,30 @@ def known_cmrts(task: Task, store: Store | None = None, sources: tuple[str, ...]
                   and e.success]
     return [k for k in found if (robust is None or k.robust == robust)
             and (not same_clip or abs(k.clip_s - task.clip_s) <= CLIP_TOLERANCE_S)]
+
+
+CURVE_SPECS = "zero, library, library-robust, a run id or a CMRT .json file"
+
+
+def resolve_curve(spec: str, task: Task, store_path: str | os.PathLike | None = None,
+                  flag: str = "--curve") -> tuple[Cmrt, str]:
+    """The CMRT a user names for ``task`` -> (curve, description): ``zero``, ``library``, ``library-robust``,
+    a stored run's id (its best; the store at ``store_path`` is opened read-only) or a CMRT ``.json`` file.
+    It must be for the task's clip length. ``flag`` names the argument in error messages."""
+    if spec == "zero":
+        return Cmrt.zero(task.clip_s), "zero"
+    if spec in ("library", "library-robust"):
+        curve, what = library_curve(task, robust=spec == "library-robust"), f"the {spec} CMRT of '{task.name}'"
+        name = spec
+    elif inputs.is_run_id(spec):  # ASCII digits only: str.isdigit() takes '²' too
+        run_id = inputs.RUN_ID.check(spec, f"{flag} RUN")
+        with open_store(store_path, readonly=True) as store:
+            curve = run_curve(store, run_id)
+        what = name = f"run {spec}"
+    elif Path(spec).suffix.lower() == ".json" or os.path.lexists(spec):
+        curve, what, name = Cmrt.load(Path(spec)), f"CMRT in {shown(spec)}", str(Path(spec))
+    else:
+        raise CmrtError(f"{flag} must be {CURVE_SPECS}, got {shown(spec)}")
+    if abs(curve.clip_s - task.clip_s) > CLIP_TOLERANCE_S:  # e.g. the library's entry for the file's own clip
+        raise CmrtError(f"{what} is for a {curve.clip_s:g} s clip, task clip is {task.clip_s:g} s")
+    return curve, name

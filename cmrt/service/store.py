@@ -948,6 +948,23 @@ def _open_readonly(p: Path) -> Store:
     return store
 
 
+def _check_openable(p: Path, readonly: bool) -> None:
+    """Before a byte is read: a path that exists must be a regular file (a FIFO or a device would block or be
+    written), and a read finds a store, not an empty file. Writing the default store creates its directory."""
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        st = None
+    except (OSError, ValueError) as exc:
+        raise CmrtError(f"cannot open store '{p}': {getattr(exc, 'strerror', None) or exc}") from None
+    if st is not None and not stat.S_ISDIR(st.st_mode) and not stat.S_ISREG(st.st_mode):
+        raise CmrtError(f"'{p}' is not a CMRT store (not a regular file)")
+    if st is not None and stat.S_ISREG(st.st_mode) and st.st_size == 0 and readonly:
+        raise CmrtError(f"'{p}' is not a CMRT store (an empty file)")
+    if not readonly and p == DEFAULT_STORE and not p.parent.exists():
+        p.parent.mkdir(parents=True)
+
+
 def open_store(path: str | os.PathLike | None = None, *, create: bool = True, readonly: bool = False) -> Store:
     """Open a store.
 
@@ -955,6 +972,7 @@ def open_store(path: str | os.PathLike | None = None, *, create: bool = True, re
     store is opened for writing: created atomically if missing (``create``), integrity-checked, migrated.
     A foreign, corrupted or newer file is refused untouched, with a one-line CmrtError."""
     p = resolve_path(path)
+    _check_openable(p, readonly)
     if readonly:
         return _open_readonly(p)
     kind = _inspect(p)

@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.library import library_cmrts, load_entries
@@ -52,3 +53,22 @@ def test_store_first_then_library_one_mode_successes_same_clip(tmp_path):
         yu = known_cmrts(BEND.with_reference("yu"), store)
         assert yu and all(k.reference == "yu" for k in yu)
     assert all(k.source == "library" for k in known_cmrts(BEND))  # no store: the library alone
+
+
+def test_resolve_curve_names_every_kind_of_known_cmrt(tmp_path):
+    from cmrt.errors import CmrtError
+    from cmrt.service.known import resolve_curve
+
+    assert resolve_curve("zero", BEND) == (Cmrt.zero(BEND.clip_s), "zero")
+    curve, name = resolve_curve("library", BEND)
+    assert name == "library" and curve == library_cmrts()[0].curve  # the first entry: bend 0.4, plain
+    store_path = tmp_path / "s.sqlite"
+    with open_store(store_path) as store:
+        rid = _done(store, BEND, 0.9)
+    assert resolve_curve(str(rid), BEND, store_path) == (Cmrt.from_params(np.full(8, 0.1), BEND.clip_s), f"run {rid}")
+    path = tmp_path / "c.json"
+    path.write_text(curve.to_json())
+    assert resolve_curve(str(path), BEND)[0] == curve
+    for spec, words in [("nonsense", "--curve must be zero"), (str(rid), "clip"), (str(path), "clip")]:
+        with pytest.raises(CmrtError, match=words):
+            resolve_curve(spec, BEND.with_params(clip_s=3.0) if words == "clip" else BEND, store_path)
