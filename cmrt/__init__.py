@@ -38,8 +38,8 @@ if TYPE_CHECKING:
     from cmrt.motion.sequence import load_sequence
     from cmrt.motion.task import Task
     from cmrt.motion.taskfile import available_tasks, load_task, resolve_task
-    from cmrt.optimize.driver import OptimizeSettings
     from cmrt.optimize.parallel import Evaluator
+    from cmrt.optimize.settings import OptimizeSettings
     from cmrt.service.interpolate import interpolate, superpose
     from cmrt.service.jobs import claim, optimize_family, optimize_now, submit, work
     from cmrt.service.known import known_cmrts, resolve_curve
@@ -63,7 +63,7 @@ _API = {
     "Generation": "cmrt.service.store",
     "KnownCmrt": "cmrt.motion.library",
     "MomentumBalanceController": "cmrt.control",
-    "OptimizeSettings": "cmrt.optimize.driver",
+    "OptimizeSettings": "cmrt.optimize.settings",
     "Perturbation": "cmrt.motion.ensemble",
     "RobustSpec": "cmrt.motion.ensemble",
     "Run": "cmrt.service.store",

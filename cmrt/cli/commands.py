@@ -32,11 +32,12 @@ from cmrt import inputs
 from cmrt.errors import CmrtError, Terminated, TransientFault, clear_signals, note_signal, pending_termination
 from cmrt.inputs import escape, shown
 from cmrt.modes import BACKENDS, REFERENCE_MODES
+from cmrt.optimize.settings import FAMILY_SIGMA0, STALE_AFTER_S, OptimizeSettings
 from cmrt.service.store import DEFAULT_STORE, RUN_STATUSES, Run, Store, open_store, resolve_path
 
 # Start-up: a verb imports what it uses (MuJoCo, numba, scipy, pycma, dask: ~4 s in all) when it runs, so
 # that `cmrt --help`, `cmrt runs` or `cmrt show` answer at once. Building the parser imports none of them:
-# the optimizer's defaults are filled in after parsing (``_opt_defaults``).
+# the defaults it shows come from ``cmrt.optimize.settings`` (constants only).
 if TYPE_CHECKING:
 
     from cmrt.motion.curve import Cmrt
@@ -46,8 +47,26 @@ EXIT_BAD_INPUT = 2
 EXIT_TEMPFAIL = 75  # sysexits EX_TEMPFAIL: a fault of the machine; the run is back in the queue
 
 
+class _Help(argparse.HelpFormatter):
+    """Every option's help ends with its default, read from the parser (so the defaults are written once, where
+    the option is declared or in ``OptimizeSettings``)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if (default is None or default is False or default is argparse.SUPPRESS or "%(default)" in text
+                or not action.option_strings and action.nargs is None):
+            return text
+        return f"{text} (default: %(default)s)" if text else "default: %(default)s"
+
+
 class _Parser(argparse.ArgumentParser):
-    """argparse, but usage errors are one line and exit 2 like every other bad input."""
+    """argparse, but usage errors are one line and exit 2 like every other bad input, and ``--help`` shows
+    every default."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("formatter_class", _Help)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> None:  # type: ignore[override]
         raise CmrtError(message)
@@ -259,47 +278,42 @@ def _reference_arg(p: argparse.ArgumentParser) -> None:
                    "yu (GRF-weighted feet and Winter's CoP, reactive); default: the task file's, else center")
 
 
-_OPT_ARGS = ("seed", "max_evals", "min_evals", "popsize", "stall_generations", "sigma0")
+_SETTINGS = OptimizeSettings()  # the optimizer's defaults (written once, there), shown by --help
 
 
 def _opt_args(p: argparse.ArgumentParser) -> None:
-    """The optimizer's options; their defaults are OptimizeSettings' (the only place they are written), filled
-    in by ``_opt_defaults`` after parsing."""
-    p.add_argument("--seed", type=inputs.arg(inputs.SEED))
-    p.add_argument("--max-evals", type=inputs.arg(inputs.MAX_EVALS))
-    p.add_argument("--min-evals", type=inputs.arg(inputs.MIN_EVALS), help="no slow-convergence stop before this")
-    p.add_argument("--popsize", type=inputs.arg(inputs.POPSIZE))
+    """The optimizer's options, with OptimizeSettings' defaults."""
+    p.add_argument("--seed", type=inputs.arg(inputs.SEED), default=_SETTINGS.seed, help="CMA-ES's seed")
+    p.add_argument("--max-evals", type=inputs.arg(inputs.MAX_EVALS), default=_SETTINGS.max_evals,
+                   help="evaluation budget (restarts included)")
+    p.add_argument("--min-evals", type=inputs.arg(inputs.MIN_EVALS), default=_SETTINGS.min_evals,
+                   help="no slow-convergence stop before this")
+    p.add_argument("--popsize", type=inputs.arg(inputs.POPSIZE), default=_SETTINGS.popsize,
+                   help="CMA-ES population of the first search")
     p.add_argument("--stall-generations", type=inputs.arg(inputs.STALL_GENERATIONS),
+                   default=_SETTINGS.stall_generations,
                    help="a search whose best and best generation median improved < 0.1%% over this many "
                    "generations has stalled: it restarts (BIPOP: a doubled population, or a small one around "
                    "the best success) while budget remains")
-    p.add_argument("--sigma0", type=inputs.arg(inputs.SIGMA0))
+    p.add_argument("--sigma0", type=inputs.arg(inputs.SIGMA0), default=_SETTINGS.sigma0,
+                   help="CMA-ES's initial step size (parameter units: 0.5 is 2.5 cm of CoM shift)")
     p.add_argument("--robust", action="store_true",
                    help="score every candidate on the task's ensemble of perturbed clips ([robust] table)")
     p.add_argument("--init", type=_init_arg, default="auto", metavar="auto|none|RUN",
-                   help="start point: the nearest stored/library CMRT of the task (auto, default), "
+                   help="start point: the nearest stored/library CMRT of the task (auto), "
                    "the zero CMRT (none), or a stored run's best")
 
 
 def _backend_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--backend", choices=BACKENDS, default="batch")
+    p.add_argument("--backend", choices=BACKENDS, default="batch",
+                   help="where candidates are simulated: batch (one process, many clips at once on mujoco.batch), "
+                   "serial, loky or dask processes (+batch: each scoring a chunk as a batch)")
     p.add_argument("--workers", type=inputs.arg(inputs.WORKERS), default=os.cpu_count() or 1,
                    help="processes (loky, LocalCluster)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="dask scheduler (default: a LocalCluster)")
 
 
-def _opt_defaults(args) -> None:
-    """The optimizer options not given on the command line: OptimizeSettings' defaults."""
-    from cmrt.optimize.driver import OptimizeSettings
-
-    defaults = OptimizeSettings()
-    for name in _OPT_ARGS:
-        if getattr(args, name) is None:
-            setattr(args, name, getattr(defaults, name))
-
-
 def _submit_kwargs(args) -> dict:
-    _opt_defaults(args)
     return dict(seed=args.seed, max_evals=args.max_evals, popsize=args.popsize, sigma0=args.sigma0,
                 min_evals=args.min_evals, init=args.init, stall_generations=args.stall_generations)
 
@@ -307,7 +321,6 @@ def _submit_kwargs(args) -> dict:
 def _opt_task(args, speed: float | None) -> Task:
     """The task an optimization runs: with ``--robust``, scored on its ensemble. A run id as ``--init`` must
     exist before a store is created or written."""
-    _opt_defaults(args)
     task = resolve_task(args.task, speed, args.set, args.reference)
     if isinstance(args.init, int):
         with _store(args.store, readonly=True) as store:
@@ -356,7 +369,7 @@ class Simulate(Command):
     def add_arguments(self, p):
         _task_args(p)
         p.add_argument("--curve", default="zero", help="zero | library (the paper's plain CMRT) | library-robust "
-                       "| RUN | FILE.json (default zero)")
+                       "| RUN | FILE.json")
         p.add_argument("--trace", metavar="FILE.npz", help="save the trajectories")
         _force_arg(p)
 
@@ -395,7 +408,7 @@ class Optimize(Command):
         _task_args(p)
         _opt_args(p)
         p.add_argument("--speeds", metavar="S1,S2,...", help="a speed family, each warm-started from the previous")
-        p.add_argument("--family-sigma0", type=inputs.arg(inputs.SIGMA0), default=0.15,
+        p.add_argument("--family-sigma0", type=inputs.arg(inputs.SIGMA0), default=FAMILY_SIGMA0,
                        help="step size of the warm-started members")
         _backend_args(p)
         p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -460,15 +473,13 @@ class Worker(Command):
         p.add_argument("--until-idle", action="store_true", help="exit when the queue is empty")
         p.add_argument("--once", action="store_true", help="run at most one job")
         p.add_argument("--stale-after", type=inputs.arg(inputs.STALE_AFTER_S), metavar="SECONDS",
-                       help="resume a running job whose heartbeat is older than this (default 120)")
+                       default=STALE_AFTER_S,
+                       help="resume a running job whose heartbeat is older than this")
         _backend_args(p)
 
     def run(self, args):
         from cmrt.optimize.parallel import Evaluator
         from cmrt.service import jobs
-
-        if args.stale_after is None:
-            args.stale_after = jobs.DEFAULT_STALE_AFTER_S
 
         def on_claim(c):
             if not args.json:
@@ -569,7 +580,8 @@ class Export(Command):
 
     def add_arguments(self, p):
         p.add_argument("run", type=inputs.run_id_arg)
-        p.add_argument("--format", choices=("json", "csv"), default="json")
+        p.add_argument("--format", choices=("json", "csv"), default="json",
+                       help="json: the run, its generations and evaluations; csv: one row per evaluation")
         p.add_argument("--out", metavar="FILE")
         _force_arg(p)
 
@@ -592,7 +604,8 @@ class Interpolate(Command):
     def add_arguments(self, p):
         _task_args(p)
         p.add_argument("--param", help="the parameter to interpolate over (default: the task's speed)")
-        p.add_argument("--from", dest="source", choices=("library", "store"), default="library")
+        p.add_argument("--from", dest="source", choices=("library", "store"), default="library",
+                       help="where the CMRTs at neighbouring values come from")
         p.add_argument("--out", metavar="FILE.json", help="write the CMRT (usable as --curve FILE.json)")
         _force_arg(p)
 
@@ -632,7 +645,8 @@ class Sequence(Command):
 
     def add_arguments(self, p):
         p.add_argument("file", help="a shipped sequence's name (four-poses) or the path of a .toml sequence file")
-        p.add_argument("--curve", choices=("superposed", "zero"), default="superposed")
+        p.add_argument("--curve", choices=("superposed", "zero"), default="superposed",
+                       help="superposed: each motion's CMRT shifted to its start and summed (ABC 4.2)")
         p.add_argument("--trace", metavar="FILE.npz")
         _force_arg(p)
 
@@ -661,7 +675,7 @@ class Plot(Command):
         p.add_argument("run", type=inputs.run_id_arg, nargs="?")
         p.add_argument("--family", metavar="TASK", help="the task's speed family from the library (ABC Fig. 5)")
         p.add_argument("--sequence", metavar="FILE", help="a sequence's superposed CMRTs (ABC Fig. 6)")
-        p.add_argument("--out", default="plots", metavar="DIR")
+        p.add_argument("--out", default="plots", metavar="DIR", help="the directory the figures are written to")
         _force_arg(p)
 
     def run(self, args):
@@ -692,7 +706,7 @@ class Render(Command):
 
     def add_arguments(self, p):
         _task_args(p)
-        p.add_argument("--curve", default="library", help="zero | library | RUN | FILE.json (default library)")
+        p.add_argument("--curve", default="library", help="zero | library | RUN | FILE.json")
         p.add_argument("--compare", help="a second CMRT to show beside it (e.g. zero)")
         p.add_argument("--out", required=True, metavar="FILE.png|FILE.mp4")
         p.add_argument("--frames", type=inputs.arg(inputs.FRAMES), default=8, help="filmstrip frames (PNG)")
@@ -719,14 +733,16 @@ class Bench(Command):
     name, help = "bench", "time the physics floor, batched, serial and every backend"
 
     def add_arguments(self, p):
-        p.add_argument("--task", default="bend")
-        p.add_argument("--speed", type=inputs.arg(inputs.SPEED), default=0.4)
-        p.add_argument("--set", action="append", metavar="KEY=VALUE")
+        p.add_argument("--task", default="bend", help="the task whose clips are timed")
+        p.add_argument("--speed", type=inputs.arg(inputs.SPEED), default=0.4, help="the task's speed parameter")
+        p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a task parameter")
         _reference_arg(p)
-        p.add_argument("--population", type=inputs.arg(inputs.POPULATION), default=16)
-        p.add_argument("--repeat", type=inputs.arg(inputs.REPEAT), default=5)
+        p.add_argument("--population", type=inputs.arg(inputs.POPULATION), default=16,
+                       help="clips per timed generation (CMA-ES candidates)")
+        p.add_argument("--repeat", type=inputs.arg(inputs.REPEAT), default=5, help="timings per measurement")
         p.add_argument("--backends", help=f"comma-separated subset of {','.join(BACKENDS)}")
-        p.add_argument("--workers", type=inputs.arg(inputs.WORKERS), default=os.cpu_count() or 1)
+        p.add_argument("--workers", type=inputs.arg(inputs.WORKERS), default=os.cpu_count() or 1,
+                       help="processes of the parallel backends")
         p.add_argument("--no-optimize", action="store_true",
                        help="skip timing a full 'cmrt optimize TASK --seed 1 --init none' (throwaway store)")
 
@@ -794,7 +810,6 @@ class Demo(Command):
         from cmrt.motion.curve import Cmrt
         from cmrt.motion.library import library_curve
         from cmrt.motion.taskfile import load_task
-        from cmrt.optimize.driver import OptimizeSettings
         from cmrt.optimize.parallel import Evaluator
         from cmrt.service import jobs, query
         from cmrt.sim.report import simulate_report
@@ -807,7 +822,7 @@ class Demo(Command):
         evaluator = Evaluator(args.backend, args.workers, args.scheduler)
         try:
             with _store(args.store) as store:
-                progress = _Progress(OptimizeSettings().max_evals, enabled=sys.stderr.isatty())
+                progress = _Progress(_SETTINGS.max_evals, enabled=sys.stderr.isatty())
                 try:
                     run = jobs.optimize_now(store, task, evaluator, progress, seed=1, init="none")
                 finally:

@@ -59,42 +59,14 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from cmrt.errors import CmrtError
 from cmrt.motion.curve import N_KNOTS, Cmrt
 from cmrt.optimize import checkpoint
 from cmrt.optimize.checkpoint import InvalidCheckpoint, cma  # pycma, imported without matplotlib (import_cma)
+from cmrt.optimize.settings import STALL_RULES, OptimizeSettings  # noqa: F401 (re-exported: the driver's settings)
 from cmrt.sim.objective import EvalRecord
 
 N_PARAMS = 2 * N_KNOTS
 _log = logging.getLogger(__name__)
-
-
-STALL_RULES = ("hybrid", "median", "best")
-
-
-@dataclass(frozen=True)
-class OptimizeSettings:
-    """The optimizer's settings; the defaults here are the only place they are written (CLI, jobs read them)."""
-
-    seed: int = 1
-    max_evals: int = 3000
-    min_evals: int = 700  # slow-convergence tests only after this many evaluations (ABC 4.1)
-    popsize: int = 10
-    sigma0: float = 0.5  # in parameter units: 2.5 cm of CoM shift, knot-gap log-ratio 0.5
-    stop_threshold: float = 0.0
-    stall_generations: int = 20
-    stall_tol: float = 1e-3
-    x0: tuple[float, ...] | None = None  # warm start (parameters of a stored result)
-    max_restarts: int = 30  # restarts of a stalled search (large and small regimes together)
-    popsize_factor: float = 2.0  # each large restart multiplies the population by this
-    bipop: bool = True  # alternate large and small restarts (BIPOP); False: large only (IPOP)
-    # "hybrid": the median test (below) only until the run's first success, the best alone after it;
-    # "median": the median test throughout (v0.4); "best": the best alone throughout (v0.3)
-    stall_rule: str = "hybrid"
-
-    def __post_init__(self) -> None:
-        if self.stall_rule not in STALL_RULES:
-            raise CmrtError(f"stall_rule must be one of {', '.join(STALL_RULES)}, got {self.stall_rule!r}"[:200])
 
 
 class _Randn:

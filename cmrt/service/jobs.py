@@ -25,15 +25,15 @@ from cmrt.errors import CmrtError, TransientFault, pending_termination
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.task import Task
 from cmrt.motion.taskfile import task_from_dict
-from cmrt.optimize.driver import CmaState, OptimizeSettings, best_cmrt, new_state, restart_if_stalled, step, stop_reason
+from cmrt.optimize.driver import CmaState, best_cmrt, new_state, restart_if_stalled, step, stop_reason
 from cmrt.optimize.parallel import Evaluator
+from cmrt.optimize.settings import FAMILY_SIGMA0, STALE_AFTER_S, OptimizeSettings
 from cmrt.service.store import Claim, Generation, LostClaim, Run, RunProgress, RunSpec, Store, StoredEvaluation
 from cmrt.service.warmstart import resolve_init
 from cmrt.sim.objective import evaluate
 from cmrt.sim.simulate import simulate
 from cmrt.sim.validate import robustness
 
-DEFAULT_STALE_AFTER_S = 120.0
 _DEFAULTS = OptimizeSettings()
 
 __all__ = ["Claim", "LostClaim", "claim", "optimize_family", "optimize_now", "run_claimed", "submit", "work"]
@@ -79,7 +79,7 @@ def submit(
     ))
 
 
-def claim(store: Store, worker: str, stale_after_s: float = DEFAULT_STALE_AFTER_S,
+def claim(store: Store, worker: str, stale_after_s: float = STALE_AFTER_S,
           run_id: int | None = None) -> Claim | None:
     """Take the oldest queued run, else an orphaned running one; None if there is none."""
     return store.claim(worker, stale_after_s, run_id)
@@ -113,7 +113,7 @@ def run_claimed(
     claim: Claim,
     evaluator: Evaluator,
     on_generation: ProgressFn | None = None,
-    heartbeat_s: float = DEFAULT_STALE_AFTER_S / 4,
+    heartbeat_s: float = STALE_AFTER_S / 4,
 ) -> Run:
     """Optimize a claimed run to its end (or until the claim is lost: LostClaim). Returns the finished run.
     ``heartbeat_s``: how often the run's heartbeat is refreshed while a generation runs (a quarter of the
@@ -203,7 +203,7 @@ def optimize_family(
     tasks: Sequence[Task],
     evaluator: Evaluator | None = None,
     *,
-    family_sigma0: float = 0.15,
+    family_sigma0: float = FAMILY_SIGMA0,
     on_generation: ProgressFn | None = None,
     on_run: Callable[[Run], None] | None = None,
     **submit_kwargs,
@@ -247,7 +247,7 @@ def work(
     *,
     until_idle: bool = False,
     once: bool = False,
-    stale_after_s: float = DEFAULT_STALE_AFTER_S,
+    stale_after_s: float = STALE_AFTER_S,
     poll_s: float = 2.0,
     on_claim: Callable[[Claim], None] | None = None,
     on_generation: ProgressFn | None = None,

@@ -1,0 +1,36 @@
+"""``--help`` shows every default, read from where it is written once (the parser or OptimizeSettings)."""
+
+import argparse
+import dataclasses
+
+import pytest
+
+from cmrt.cli.commands import build_parser
+from cmrt.optimize.settings import FAMILY_SIGMA0, STALE_AFTER_S, OptimizeSettings
+
+
+def _verbs() -> dict[str, argparse.ArgumentParser]:
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return dict(sub.choices)
+
+
+@pytest.mark.parametrize("verb", sorted(_verbs()))
+def test_every_option_with_a_default_shows_it(verb):
+    sub = _verbs()[verb]
+    text = " ".join(sub.format_help().split())
+    missing = [a.option_strings[0] for a in sub._actions
+               if a.option_strings and a.default not in (None, False, argparse.SUPPRESS)
+               and f"default: {a.default}" not in text]
+    assert missing == []
+
+
+def test_the_optimizer_options_default_to_its_settings():
+    settings = OptimizeSettings()
+    args = build_parser().parse_args(["optimize", "bend"])
+    for name in ("seed", "max_evals", "min_evals", "popsize", "stall_generations", "sigma0"):
+        assert getattr(args, name) == getattr(settings, name), name
+    assert args.family_sigma0 == FAMILY_SIGMA0
+    assert build_parser().parse_args(["worker"]).stale_after == STALE_AFTER_S
+    submitted = build_parser().parse_args(["submit", "bend"])
+    assert {f.name for f in dataclasses.fields(settings)} >= {"seed", "max_evals"} and submitted.seed == settings.seed
