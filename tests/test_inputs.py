@@ -8,7 +8,6 @@ import json
 import math
 import os
 import sqlite3
-import sys
 
 import numpy as np
 import pytest
@@ -22,7 +21,7 @@ from cmrt.motion.curve import Cmrt
 from cmrt.motion.sequence import load_sequence
 from cmrt.motion.task import DEFAULT_PARAMS
 from cmrt.motion.taskfile import available_tasks, load_task, task_from_dict
-from cmrt.sim import objective
+from cmrt.sim import report
 from tests.input_helpers import assert_refused, assert_valid_json, call, fake_evaluation, make_store, snapshot
 
 
@@ -214,9 +213,9 @@ def test_show_and_export_json_never_print_nan(tmp_path, capsys):
 
 
 def test_simulate_json_turns_nan_into_null(tmp_path, capsys, monkeypatch):
-    # the CLI imports them when a verb runs: patched where they live (``cmrt.simulate`` names the function)
-    monkeypatch.setattr(sys.modules["cmrt.sim.simulate"], "simulate", lambda task, curve, record=True: None)
-    monkeypatch.setattr(objective, "evaluate", lambda task, traj: fake_evaluation())
+    # the reports (cmrt.sim.report) simulate and score: patched where the reports look them up
+    monkeypatch.setattr(report, "simulate", lambda task, curve, record=True: None)
+    monkeypatch.setattr(report, "evaluate", lambda task, traj: fake_evaluation())
     store = tmp_path / "s.sqlite"
     r = call(capsys, ["simulate", "bend", "--json", "--store", store])
     assert r.rc == 0 and assert_valid_json(r.out)["objective"] is None

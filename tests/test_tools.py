@@ -114,6 +114,7 @@ def test_success_rate_summary_of_dict_rows():
     assert out["wall_s"] == 10.0 and out["stop_threshold"] == 0.7
 
 
+@pytest.mark.slow  # a whole tool run (seconds): `make test` runs it, the edit loop does not
 def test_success_rate_tool_runs_to_its_summary():
     """A real run of the script on a tiny budget, through the summary after the last seed."""
     r = run_tool("success_rate.py", "bend", "--speed", "0.4", "--seeds", "1-2", "--max-evals", "10", "--json",
@@ -148,6 +149,7 @@ def test_peer_benchmark_counts_the_first_success_and_the_first_under_the_thresho
     assert budget.best_objective == 0.1 and budget.best_success
 
 
+@pytest.mark.slow  # a whole tool run (seconds): `make test` runs it, the edit loop does not
 def test_peer_benchmark_tool_runs_every_optimizer_on_the_same_budget():
     """A real run of every optimizer (optuna and cmaes are test extras) on a tiny budget."""
     r = _ok(run_tool("peer_benchmark.py", "--tasks", "bend:1.2", "--seeds", "1-2", "--max-evals", "12",
@@ -233,6 +235,7 @@ def test_bench_checkpoint_tool():
         assert all(r[f"{fmt}_{op}_ms"] >= 0 for fmt in ("cmrt", "pickle") for op in ("dumps", "loads"))
 
 
+@pytest.mark.slow  # a whole tool run (seconds): `make test` runs it, the edit loop does not
 def test_bit_identity_tool(tmp_path):
     """Two runs of the same code are identical; a changed array is named."""
     a, b = tmp_path / "a.json", tmp_path / "b.json"
@@ -248,6 +251,7 @@ def test_bit_identity_tool(tmp_path):
     assert r.returncode == 1 and json.loads(r.stdout)["differences"] == ["catch/scored[0].cop_x_m"]
 
 
+@pytest.mark.slow  # a whole tool run (seconds): `make test` runs it, the edit loop does not
 def test_bench_memory_tool():
     """The memory model the batch size is chosen by must not undercount a clip: measured on this machine,
     at the task's own clip and a 20 s one (per-step records dominate there)."""
@@ -297,6 +301,7 @@ def test_diagnostics_table_tool():
     assert all(set(tool.KEYS) | {"case", "curve", "wall_s"} == set(r) for r in rows)
 
 
+@pytest.mark.slow  # a whole tool run (seconds): `make test` runs it, the edit loop does not
 def test_find_library_curve_tool_no_save_leaves_the_library_alone():
     """A two-speed family on a tiny budget (the first run and a warm-started one); --no-save must not
     touch the shipped library."""
@@ -446,6 +451,7 @@ def test_bend_search_draws_within_its_ranges():
             assert 0.0 <= a <= 0.3 and 0.7 <= b <= 1.0 and all(w == [a, b] for w in rest)
 
 
+@pytest.mark.slow  # a whole tool run (seconds): `make test` runs it, the edit loop does not
 def test_bend_search_tool_json():
     r = run_tool("bend_search.py", "--samples", "3", "--seed", "1", "--json")
     assert r.returncode == 0, r.stderr
