@@ -1,8 +1,11 @@
 """The measurement tools in tools/: run as scripts, the way their docstrings say."""
 
+import contextlib
 import importlib.util
+import io
 import json
 import os
+import runpy
 import subprocess
 import sys
 from pathlib import Path
@@ -20,9 +23,28 @@ TOOLS = ROOT / "tools"
 
 
 def run_tool(name: str, *args: str, timeout: float = 600) -> subprocess.CompletedProcess:
+    """The tool as a script in a fresh process, the way its docstring says."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.run([sys.executable, str(TOOLS / name), *args], capture_output=True, text=True,
                           timeout=timeout, env=env)
+
+
+def run_tool_here(name: str, *args: str) -> subprocess.CompletedProcess:
+    """The tool as ``__main__`` in this process (its exit status and output as a subprocess would give them):
+    a second call of a tool that one test already runs as a script, without a second second of start-up."""
+    out, err, code = io.StringIO(), io.StringIO(), 0
+    argv = sys.argv
+    sys.argv = [str(TOOLS / name), *args]
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            runpy.run_path(str(TOOLS / name), run_name="__main__")
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+        if isinstance(exc.code, str):
+            err.write(exc.code + "\n")
+    finally:
+        sys.argv = argv
+    return subprocess.CompletedProcess(sys.argv, code, out.getvalue(), err.getvalue())
 
 
 def load_tool(name: str):
@@ -63,7 +85,7 @@ def test_wilson_interval():
 
 def test_random_success_tool_json_is_reproducible():
     args = ("bend", "--speed", "0.4", "--samples", "4", "--seed", "3", "--json")
-    first, again = run_tool("random_success.py", *args), run_tool("random_success.py", *args)
+    first, again = run_tool("random_success.py", *args), run_tool_here("random_success.py", *args)
     assert first.returncode == 0, first.stderr
     out = json.loads(first.stdout)
     for key in ("success_fraction", "under_threshold_fraction", "samples", "fell_fraction", "not_performed_fraction",
@@ -114,7 +136,6 @@ def test_success_rate_summary_of_dict_rows():
     assert out["wall_s"] == 10.0 and out["stop_threshold"] == 0.7
 
 
-@pytest.mark.slow  # a whole tool run (seconds): `make test` runs it, the edit loop does not
 def test_success_rate_tool_runs_to_its_summary():
     """A real run of the script on a tiny budget, through the summary after the last seed."""
     r = run_tool("success_rate.py", "bend", "--speed", "0.4", "--seeds", "1-2", "--max-evals", "10", "--json",
@@ -126,13 +147,13 @@ def test_success_rate_tool_runs_to_its_summary():
     under = sum(row["success"] and row["best_objective"] < out["stop_threshold"] for row in out["runs"]) / 2
     assert out["under_threshold_rate"] == under <= out["success_rate"]
     assert all(row["evaluations"] <= 10 for row in out["runs"])
-    text = run_tool("success_rate.py", "rise", "--seeds", "1", "--max-evals", "10", "--quiet")
+    text = run_tool_here("success_rate.py", "rise", "--seeds", "1", "--max-evals", "10", "--quiet")
     assert text.returncode == 0, text.stderr
     assert "below the threshold" in text.stdout and "seed 1:" in text.stdout
 
 
 def test_success_rate_bad_seeds_exit_2():
-    r = run_tool("success_rate.py", "bend", "--seeds", "x-y", "--quiet")
+    r = run_tool_here("success_rate.py", "bend", "--seeds", "x-y", "--quiet")
     assert r.returncode == 2 and r.stderr.startswith("error: ")
 
 
@@ -149,7 +170,6 @@ def test_peer_benchmark_counts_the_first_success_and_the_first_under_the_thresho
     assert budget.best_objective == 0.1 and budget.best_success
 
 
-@pytest.mark.slow  # a whole tool run (seconds): `make test` runs it, the edit loop does not
 def test_peer_benchmark_tool_runs_every_optimizer_on_the_same_budget():
     """A real run of every optimizer (optuna and cmaes are test extras) on a tiny budget."""
     r = _ok(run_tool("peer_benchmark.py", "--tasks", "bend:1.2", "--seeds", "1-2", "--max-evals", "12",
@@ -164,13 +184,13 @@ def test_peer_benchmark_tool_runs_every_optimizer_on_the_same_budget():
     # the slow bend's flat start is a success below its threshold: every optimizer that samples the flat
     # CMRT first stops there; the project's driver always evaluates its mean's neighbourhood
     assert out["rows"][0]["success_rate"] == 1.0
-    text = _ok(run_tool("peer_benchmark.py", "--tasks", "bend:1.2", "--optimizers", "random", "--seeds", "1",
+    text = _ok(run_tool_here("peer_benchmark.py", "--tasks", "bend:1.2", "--optimizers", "random", "--seeds", "1",
                         "--max-evals", "10", "--quiet"))
     assert "random" in text.stdout and "1/1" in text.stdout
 
 
 def test_peer_benchmark_bad_input_exit_2():
-    r = run_tool("peer_benchmark.py", "--optimizers", "nelder-mead", "--quiet")
+    r = run_tool_here("peer_benchmark.py", "--optimizers", "nelder-mead", "--quiet")
     assert r.returncode == 2 and r.stderr.startswith("error: ") and len(r.stderr.splitlines()) == 1
 
 
@@ -235,7 +255,6 @@ def test_bench_checkpoint_tool():
         assert all(r[f"{fmt}_{op}_ms"] >= 0 for fmt in ("cmrt", "pickle") for op in ("dumps", "loads"))
 
 
-@pytest.mark.slow  # a whole tool run (seconds): `make test` runs it, the edit loop does not
 def test_bit_identity_tool(tmp_path):
     """Two runs of the same code are identical; a changed array is named."""
     a, b = tmp_path / "a.json", tmp_path / "b.json"
@@ -243,15 +262,14 @@ def test_bit_identity_tool(tmp_path):
     doc = json.loads(a.read_text())
     assert {"bend-0.4/recorded", "catch/scored", "catch/robust-ensemble", "bend-0.4/yu"} <= set(doc)
     assert doc["bend-0.4/recorded"][1]["fell"] is False  # the library CMRT keeps its balance
-    same = json.loads(_ok(run_tool("bit_identity.py", "--compare", str(a), str(a))).stdout)
+    same = json.loads(_ok(run_tool_here("bit_identity.py", "--compare", str(a), str(a))).stdout)
     assert same["identical"] and same["values"] > 500
     doc["catch/scored"][0]["cop_x_m"] = "changed"
     b.write_text(json.dumps(doc))
-    r = run_tool("bit_identity.py", "--compare", str(a), str(b))
+    r = run_tool_here("bit_identity.py", "--compare", str(a), str(b))
     assert r.returncode == 1 and json.loads(r.stdout)["differences"] == ["catch/scored[0].cop_x_m"]
 
 
-@pytest.mark.slow  # a whole tool run (seconds): `make test` runs it, the edit loop does not
 def test_bench_memory_tool():
     """The memory model the batch size is chosen by must not undercount a clip: measured on this machine,
     at the task's own clip and a 20 s one (per-step records dominate there)."""
@@ -301,7 +319,6 @@ def test_diagnostics_table_tool():
     assert all(set(tool.KEYS) | {"case", "curve", "wall_s"} == set(r) for r in rows)
 
 
-@pytest.mark.slow  # a whole tool run (seconds): `make test` runs it, the edit loop does not
 def test_find_library_curve_tool_no_save_leaves_the_library_alone():
     """A two-speed family on a tiny budget (the first run and a warm-started one); --no-save must not
     touch the shipped library."""
@@ -451,7 +468,6 @@ def test_bend_search_draws_within_its_ranges():
             assert 0.0 <= a <= 0.3 and 0.7 <= b <= 1.0 and all(w == [a, b] for w in rest)
 
 
-@pytest.mark.slow  # a whole tool run (seconds): `make test` runs it, the edit loop does not
 def test_bend_search_tool_json():
     r = run_tool("bend_search.py", "--samples", "3", "--seed", "1", "--json")
     assert r.returncode == 0, r.stderr
@@ -461,9 +477,10 @@ def test_bend_search_tool_json():
     for row in out["rows"]:
         if "success" in row:
             assert row["ref_max_joint_speed_rad_s"] <= 25 and isinstance(row["success"], bool)
-    assert run_tool("bend_search.py", "--samples", "0").returncode == 2
-    assert run_tool("bend_search.py", "--commit", "0").returncode == 2
-    r = run_tool("bend_search.py", "--samples", "4", "--seed", "1", "--min-force-bw", "5", "--commit", "10", "--json")
+    assert run_tool_here("bend_search.py", "--samples", "0").returncode == 2
+    assert run_tool_here("bend_search.py", "--commit", "0").returncode == 2
+    r = run_tool_here("bend_search.py", "--samples", "4", "--seed", "1", "--min-force-bw", "5", "--commit", "10",
+                      "--json")
     out = json.loads(r.stdout)  # nothing needs 5 body weights at its least: nothing is simulated
     assert out["commit"] == 10 and out["min_force_bw"] == 5 and out["simulated"] == 0 and out["possible"] > 0
 
