@@ -12,6 +12,7 @@ The public API for scripts; the CLI (``cmrt``) is a thin layer over it::
 
 import importlib
 import os as _os
+import sys as _sys
 from typing import TYPE_CHECKING
 
 # The controller's matrices are tiny: BLAS thread pools only add overhead and, with
@@ -19,11 +20,13 @@ from typing import TYPE_CHECKING
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     _os.environ.setdefault(_var, "1")
 
-# Offscreen rendering backend, read by mujoco at import: EGL where a GPU device exists,
-# else OSMesa (software). A user's MUJOCO_GL wins. Failures surface only when rendering.
-if "MUJOCO_GL" not in _os.environ:
-    _gpu = _os.path.exists("/dev/nvidia0") or any(_os.path.exists(f"/dev/dri/renderD{i}") for i in range(128, 136))
-    _os.environ["MUJOCO_GL"] = "egl" if _gpu else "osmesa"
+# OpenGL only when rendering. MuJoCo loads the backend MUJOCO_GL names when it is imported, and a backend that
+# cannot load (no libOSMesa, no EGL driver) breaks that import - every command, not only rendering. So cmrt has
+# MuJoCo imported with GL disabled and loads the backend itself when it renders (cmrt.viz.render), keeping the
+# user's MUJOCO_GL in CMRT_MUJOCO_GL. A script that imported mujoco before cmrt keeps mujoco's own choice.
+if "mujoco" not in _sys.modules:
+    _os.environ.setdefault("CMRT_MUJOCO_GL", _os.environ.get("MUJOCO_GL", ""))
+    _os.environ["MUJOCO_GL"] = "disable"
 
 # The API is imported on first use (PEP 562), so that ``import cmrt`` - and the ``cmrt`` command's start,
 # which a Ctrl-C may interrupt - does not load MuJoCo, numba and dask up front. Type checkers and IDEs see

@@ -6,12 +6,15 @@ filmstrip of evenly spaced frames (with ``compare``: the comparison clip on the 
 as in the paper's "top: without anticipation, bottom: with"); an MP4 is a video
 (imageio's ffmpeg plugin) with the two clips side by side.
 
-The OpenGL backend is chosen in ``cmrt/__init__``: EGL with a GPU, else OSMesa
-(``apt-get install libosmesa6``; PyOpenGL from pip).
+OpenGL is loaded here, when the first frame is rendered, and nowhere else (``cmrt/__init__`` has MuJoCo
+imported with GL disabled, so that simulating never needs it): the user's ``MUJOCO_GL`` if set (kept in
+``CMRT_MUJOCO_GL``), else EGL where a GPU device exists, else OSMesa (``apt-get install libosmesa6``;
+PyOpenGL from pip). A backend that cannot load is one line, exit 2.
 """
 
 from __future__ import annotations
 
+import importlib
 import os
 import sys
 from pathlib import Path
@@ -36,14 +39,53 @@ OUT_SUFFIXES = (".png", ".mp4")
 VIDEO_CHUNK = 64  # video frames rendered at a time per clip: memory stays ~15 MB per clip however long the clip
 
 
+GL_BACKENDS = ("egl", "osmesa", "glfw", "glx")  # what MuJoCo's Python bindings can use offscreen on Linux
+
+
+def gl_backend() -> str:
+    """The OpenGL backend rendering uses: the user's ``MUJOCO_GL``, else EGL with a GPU device, else OSMesa."""
+    requested = (os.environ.get("CMRT_MUJOCO_GL") or "").lower().strip()
+    if requested:
+        return requested
+    gpu = os.path.exists("/dev/nvidia0") or any(os.path.exists(f"/dev/dri/renderD{i}") for i in range(128, 136))
+    return "egl" if gpu else "osmesa"
+
+
+def _gl_hint(backend: str) -> str:
+    return ("install OSMesa (apt-get install libosmesa6) and PyOpenGL" if backend == "osmesa"
+            else "check the GPU's EGL driver, or set MUJOCO_GL=osmesa with libosmesa6 installed")
+
+
+def _load_gl() -> None:
+    """Give MuJoCo's renderer an OpenGL context class, loaded now (see the module docstring). MuJoCo's
+    ``Renderer`` looks the class up in its ``gl_context`` module when it is built."""
+    gl_context = importlib.import_module(mujoco.Renderer.__module__).gl_context
+    if getattr(gl_context, "GLContext", None) is not None:
+        return  # loaded already, or chosen by mujoco itself (imported before cmrt)
+    backend = gl_backend()
+    if backend not in GL_BACKENDS:
+        raise CmrtError(f"cannot render: MUJOCO_GL={backend} is not one of {', '.join(GL_BACKENDS)}")
+    try:
+        if backend == "egl":
+            from mujoco.egl import GLContext
+        elif backend == "osmesa":
+            from mujoco.osmesa import GLContext
+        else:
+            from mujoco.glfw import GLContext
+    except Exception as exc:  # ImportError, OSError, or PyOpenGL's AttributeError on a library it could not load
+        raise CmrtError(f"cannot render: OpenGL backend {backend} does not load ({type(exc).__name__}: "
+                        f"{exc}); {_gl_hint(backend)}") from None
+    gl_context.GLContext = GLContext
+
+
 def _renderer(model: mujoco.MjModel, height: int, width: int) -> mujoco.Renderer:
+    _load_gl()
     try:
         return mujoco.Renderer(model, height, width)
-    except Exception as exc:  # ImportError, FatalError, ctypes errors: all mean "no OpenGL here"
-        backend = os.environ.get("MUJOCO_GL", "?")
-        hint = ("install OSMesa (apt-get install libosmesa6) and PyOpenGL" if backend == "osmesa"
-                else "check the GPU's EGL driver, or set MUJOCO_GL=osmesa with libosmesa6 installed")
-        raise CmrtError(f"cannot render with MUJOCO_GL={backend}: {type(exc).__name__}: {exc}; {hint}") from None
+    except Exception as exc:  # FatalError, ctypes errors: all mean "no OpenGL context here"
+        backend = gl_backend()
+        raise CmrtError(f"cannot render with MUJOCO_GL={backend}: {type(exc).__name__}: {exc}; "
+                        f"{_gl_hint(backend)}") from None
 
 
 def _add_geom(scene: mujoco.MjvScene, gtype, size, pos, rgba, mat=None) -> None:
