@@ -1,10 +1,12 @@
 """The measurement tools in tools/: run as scripts, the way their docstrings say."""
 
+import ast
 import contextlib
 import importlib.util
 import io
 import json
 import os
+import re
 import runpy
 import subprocess
 import sys
@@ -286,6 +288,14 @@ def test_bench_clip_tool():
     assert out["ratio"] == pytest.approx(out["eval_s_per_clip"] / out["physics_only_s_per_clip"])
 
 
+def test_compare_references_tool_smoke():
+    """The fast subset runs every tool: one task, both modes, the library's CMRTs, no pushes."""
+    out = json.loads(_ok(run_tool("compare_references.py", "--json", "--tasks", "fast-bend", "--pushes", "")).stdout)
+    assert [(row["reference"], row["curve"]) for row in out["rows"]] == \
+        [("center", "zero"), ("center", "optimized"), ("yu", "zero"), ("yu", "optimized")]
+    assert out["rows"][1]["success"] and out["rows"][1]["objective"] < out["rows"][0]["objective"]
+
+
 @pytest.mark.slow
 def test_compare_references_tool():
     """One task (the library's CMRTs) and one push grid point (the zero CMRT falls: a short optimization
@@ -506,3 +516,14 @@ def test_a_committed_controller_does_a_possible_fast_bend_on_time_without_a_cmrt
     base = ControllerConfig().tracking_weights(character())
     names = character().dof_names
     assert all(w[i] == (10.0 if n.split("_")[0] in tool.DRIVING else 1.0) * base[i] for i, n in enumerate(names))
+
+
+def test_every_tool_has_a_fast_test_that_runs_it():
+    """``pytest -m "not slow" -k tools`` runs every script in tools/: a refactor cannot break one unseen."""
+    tree = ast.parse(Path(__file__).read_text())
+    ran = set()
+    for f in tree.body:
+        if isinstance(f, ast.FunctionDef) and f.name.startswith("test_") and not any(
+                "slow" in ast.unparse(d) for d in f.decorator_list):
+            ran |= set(re.findall(r"run_tool(?:_here)?\(\s*'([\w.]+)'", ast.unparse(f)))
+    assert sorted(p.name for p in TOOLS.glob("*.py")) == sorted(ran)
