@@ -518,6 +518,15 @@ def test_a_committed_controller_does_a_possible_fast_bend_on_time_without_a_cmrt
     assert all(w[i] == (10.0 if n.split("_")[0] in tool.DRIVING else 1.0) * base[i] for i, n in enumerate(names))
 
 
+def test_cli_reference_tool(tmp_path):
+    """--check says whether docs/reference/cli.md is current; without it the file is (re)written."""
+    out = tmp_path / "cli.md"
+    assert run_tool("cli_reference.py", "--check", "--out", str(out)).returncode == 1  # missing: out of date
+    _ok(run_tool_here("cli_reference.py", "--out", str(out)))
+    assert "## cmrt simulate" in out.read_text()
+    assert run_tool_here("cli_reference.py", "--check", "--out", str(out)).returncode == 0
+
+
 def test_every_tool_has_a_fast_test_that_runs_it():
     """``pytest -m "not slow" -k tools`` runs every script in tools/: a refactor cannot break one unseen."""
     tree = ast.parse(Path(__file__).read_text())

@@ -308,8 +308,8 @@ def _backend_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", choices=BACKENDS, default="batch",
                    help="where candidates are simulated: batch (one process, many clips at once on mujoco.batch), "
                    "serial, loky or dask processes (+batch: each scoring a chunk as a batch)")
-    p.add_argument("--workers", type=inputs.arg(inputs.WORKERS), default=os.cpu_count() or 1,
-                   help="processes (loky, LocalCluster)")
+    p.add_argument("--workers", type=inputs.arg(inputs.WORKERS),
+                   help="processes (loky, LocalCluster; default: one per CPU)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="dask scheduler (default: a LocalCluster)")
 
 
@@ -741,8 +741,8 @@ class Bench(Command):
                        help="clips per timed generation (CMA-ES candidates)")
         p.add_argument("--repeat", type=inputs.arg(inputs.REPEAT), default=5, help="timings per measurement")
         p.add_argument("--backends", help=f"comma-separated subset of {','.join(BACKENDS)}")
-        p.add_argument("--workers", type=inputs.arg(inputs.WORKERS), default=os.cpu_count() or 1,
-                       help="processes of the parallel backends")
+        p.add_argument("--workers", type=inputs.arg(inputs.WORKERS),
+                       help="processes of the parallel backends (default: one per CPU)")
         p.add_argument("--no-optimize", action="store_true",
                        help="skip timing a full 'cmrt optimize TASK --seed 1 --init none' (throwaway store)")
 
@@ -862,6 +862,32 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+HELP_WIDTH = 100  # columns of the help text in docs/reference/cli.md
+
+
+def help_reference() -> str:
+    """``docs/reference/cli.md``: ``cmrt --help`` and every verb's, as argparse prints them (``tools/cli_reference.py``
+    writes it; a test keeps it in sync)."""
+    previous = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = str(HELP_WIDTH)  # argparse wraps at the terminal's width
+    try:
+        parser = build_parser()
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        parts = ["# The `cmrt` command\n",
+                 "Generated from the argument parser by `python tools/cli_reference.py` (a test checks it is current). "
+                 "Every verb takes `--store PATH`; a verb with `--json` prints machine-readable output. Bad input "
+                 "prints one line, `cmrt: error: ...`, and exits with status 2.\n",
+                 "```text\n" + parser.format_help().rstrip() + "\n```\n"]
+        for name, verb in sub.choices.items():
+            parts.append(f"## cmrt {name}\n\n```text\n{verb.format_help().rstrip()}\n```\n")
+        return "\n".join(parts)
+    finally:
+        if previous is None:
+            os.environ.pop("COLUMNS", None)
+        else:
+            os.environ["COLUMNS"] = previous
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one verb; exit status 0, 2 for bad input (one line on stderr), 130 on Ctrl-C."""
     args = None
@@ -871,6 +897,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         try:
             args = build_parser().parse_args(argv)
+            if getattr(args, "workers", 0) is None:  # one per CPU: not a default --help (or the docs) could print
+                args.workers = os.cpu_count() or 1
             _check_environment()
             out = args.command.run(args)
         except (CmrtError, sqlite3.DatabaseError) as exc:  # a signal inside an SQLite step ends as "interrupted"

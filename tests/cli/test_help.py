@@ -2,10 +2,12 @@
 
 import argparse
 import dataclasses
+import sys
+from pathlib import Path
 
 import pytest
 
-from cmrt.cli.commands import build_parser
+from cmrt.cli.commands import build_parser, help_reference
 from cmrt.optimize.settings import FAMILY_SIGMA0, STALE_AFTER_S, OptimizeSettings
 
 
@@ -34,3 +36,12 @@ def test_the_optimizer_options_default_to_its_settings():
     assert build_parser().parse_args(["worker"]).stale_after == STALE_AFTER_S
     submitted = build_parser().parse_args(["submit", "bend"])
     assert {f.name for f in dataclasses.fields(settings)} >= {"seed", "max_evals"} and submitted.seed == settings.seed
+
+
+@pytest.mark.skipif(sys.version_info[:2] != (3, 11), reason="argparse lays help out differently in other Pythons")
+def test_the_cli_reference_in_docs_is_every_verbs_help():
+    """docs/reference/cli.md is what ``cmrt VERB --help`` prints, verb for verb (tools/cli_reference.py)."""
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "reference" / "cli.md").read_text()
+    assert doc == help_reference(), "docs/reference/cli.md is out of date: python tools/cli_reference.py"
+    for verb in _verbs():
+        assert f"## cmrt {verb}\n" in doc

@@ -178,9 +178,11 @@ def test_warm_starts_come_from_the_tasks_own_mode():
     assert center is not None and center.params not in mine
 
 
-def test_yu_library_entries_reproduce_and_interpolate_within_their_mode():
+@pytest.mark.parametrize("another_machine", [0.0, 1e-13])
+def test_yu_library_entries_reproduce_and_interpolate_within_their_mode(another_machine):
     """The yu CMRTs (tools/find_library_curve.py --reference yu) score what they were shipped with, and
-    interpolation across speeds blends yu CMRTs only."""
+    interpolation across speeds blends yu CMRTs only. ``another_machine``: the shipped figures as another
+    CPU would have written them (perturbed by that relative amount); the test must pass on any machine."""
     entries = [e for e in load_entries() if e.get("reference") == "yu"]
     assert {e["task"] for e in entries} >= {"bend", "punch", "catch", "push"}
     for e in entries:
@@ -188,7 +190,8 @@ def test_yu_library_entries_reproduce_and_interpolate_within_their_mode():
         ev = evaluate(task, simulate(task, library_curve(task), record=False))
         # computed on another machine (library.json): another CPU's SIMD paths round differently (measured on
         # this VM: 1e-14 relative), so a stated relative tolerance, not bit-identity
-        assert ev.objective == pytest.approx(e["objective"], rel=LIBRARY_RTOL) and ev.success == e["success"]
+        shipped = e["objective"] * (1.0 + another_machine)
+        assert ev.objective == pytest.approx(shipped, rel=LIBRARY_RTOL) and ev.success == e["success"]
     yu = interpolate(load_task("bend").with_speed(0.8).with_reference("yu"))
     center = interpolate(load_task("bend").with_speed(0.8))
     assert [v for v, _ in yu.sources] == [0.4, 1.2]  # the yu family: 0.4 and 1.2 s
