@@ -13,7 +13,7 @@ be checked is mostly *ranges* (finite, inside physical bounds) and *resources* (
 size, nesting depth, clip length), not the shape of deep documents, so plain functions over
 :class:`Range` are shorter and say exactly what a user sees.
 
-Rules (the ranges, the README's "bad input" paragraph quotes them):
+Rules (the ranges, docs/reference/commands.md quotes them):
 
 * Every number that reaches MuJoCo or the store is finite and inside a documented
   :class:`Range`: text is parsed strictly (ASCII digits, optional sign, point and exponent;

@@ -1,6 +1,6 @@
 """Helpers for the bad-input tests: a pre-made store, in-process ``cmrt`` calls and the exit-2 contract.
 
-The contract every refused input must keep (README, CLI): exit status 2, exactly one line on stderr that
+The contract every refused input must keep (docs/reference/commands.md): exit status 2, exactly one line on stderr that
 starts with ``cmrt: error:`` and has no control characters, no traceback, within seconds, and the store
 byte-identical (or still absent).
 """

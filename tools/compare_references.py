@@ -1,4 +1,4 @@
-"""Reactive reference (Yu) vs anticipation (CMRT), side by side: the README's comparison table.
+"""Reactive reference (Yu) vs anticipation (CMRT), side by side: the comparison table of docs/results/references.md.
 
     python tools/compare_references.py [--json] [--tasks fast-bend,punch] [--pushes 100,150,200,250,300,400]
                                        [--optimize] [--max-evals 1500] [--push-max-evals 600] [--seed 1]

@@ -19,7 +19,7 @@ each run goes on until a success below the task's ``stop_threshold`` (the projec
 the budget. Per (task, optimizer): ``success_rate`` (a success found), ``under_threshold_rate`` (a
 success below the threshold found), median and worst evaluations to the first success and to the first
 success below the threshold (over the seeds that found one), and wall time. Optuna and cmaes are test
-extras (``pip install -e .[test]``), not runtime dependencies. The seeds the README's tables use are 1-10;
+extras (``pip install -e .[test]``), not runtime dependencies. The seeds the results pages' tables use are 1-10;
 hold the optimizer's own tuning out of the seeds you report.
 """
 

@@ -1,7 +1,7 @@
 """The largest 0.1 s thorax push (forward and backward) the character survives, per supervisor: standing
-balance alone (stepping=0), the momentum supervisor (1) and its capture-point variant (2) - the README's
-push-recovery table (issue 16; Wu and Zordan 2010 report 170 N routinely and 250 N for the momentum
-supervisor where the inverted-pendulum variant fails).
+balance alone (stepping=0), the momentum supervisor (1) and its capture-point variant (2) - the
+push-recovery table of docs/results/stepping.md (Wu and Zordan 2010 report 170 N routinely and 250 N for
+the momentum supervisor where the inverted-pendulum variant fails).
 
 A push survives if the clip is a success (balance kept and standing still at the end of the tail). The
 largest surviving force is found by bisection on [0, --max-force] to --resolution newtons; survival is

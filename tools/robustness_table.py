@@ -1,4 +1,4 @@
-"""Zero vs plain vs robust CMRT on the validation ensemble, for every library entry (README table).
+"""Zero vs plain vs robust CMRT on the validation ensemble, for every library entry (docs/results/reliability.md).
 
     python tools/robustness_table.py [--json] [--task TASK]
 

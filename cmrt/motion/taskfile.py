@@ -1,7 +1,7 @@
 """Task files (TOML) -> a validated :class:`~cmrt.motion.task.Task`.
 
 The shipped tasks are package data (``cmrt/motion/tasks/*.toml``, read through ``importlib.resources`` so an
-installed cmrt has them too); a user's own task is a TOML file given by path (format in the README). Every
+installed cmrt has them too); a user's own task is a TOML file given by path (format: docs/reference/task-files.md). Every
 value is checked (type, finiteness, documented range: ``cmrt.inputs``) and an error is one line naming the
 file; a stored run's definition (``Task.to_dict``) goes through the same ``task_from_dict``.
 """
@@ -45,7 +45,7 @@ def load_task(name_or_path: str) -> Task:
     return task_from_dict(raw, source=str(path), default_name=path.stem)
 
 
-#: The keys of a task file (README, *Task files*).
+#: The keys of a task file (docs/reference/task-files.md).
 TASK_KEYS = frozenset({"name", "summary", "speed_param", "balance_joint", "params", "param_ranges", "start_pose_deg",
                        "end_pose_deg", "via_pose_deg", "timing", "prop", "robust", "reference"})
 MAX_TEXT = 1000  # characters of a task's name or summary

@@ -11,7 +11,7 @@ from cmrt.body.character import character
 
 TASKS = available_tasks()
 
-#: What each shipped task shows (measured; README). A task file not listed here gets the generic checks:
+#: What each shipped task shows (measured; docs/results/table1.md). A task file not listed here gets the generic checks:
 #: its zero-CMRT clip evaluates, and where the library has a CMRT for it, that one succeeds and scores
 #: no worse than the zero CMRT.
 #: - "anticipation": the reactive controller alone (zero CMRT) fails, the library CMRT succeeds at half
