@@ -176,6 +176,9 @@ def _result(run: Run) -> dict:
         "robustness": run.robustness,
         "wall_s": run.wall_s,
         "best_cmrt": run.best_cmrt,
+        # how much lower the best objective is than with no CMRT (0: the zero CMRT itself is the best known)
+        "improvement_over_zero": (None if run.baseline_objective is None or run.best_objective is None
+                                  else run.baseline_objective - run.best_objective),
     }
 
 
@@ -190,7 +193,10 @@ def _result_text(r: dict) -> str:
         f"{r['evaluations']} evaluations, {r['restarts']} restarts, {r['wall_s']:.1f} s; start: {escape(r['init'])}",
         f"  zero CMRT:      objective {r['baseline_objective']:.4f}  "
         f"{outcome(r['baseline_success'], r['baseline_fell'])}",
-        f"  {kind} objective {r['best_objective']:.4f}  {outcome(r['success'], r['fell'])}",
+        f"  {kind} objective {r['best_objective']:.4f}  {outcome(r['success'], r['fell'])}"
+        + ("" if r.get("improvement_over_zero") is None else
+           f"  ({r['improvement_over_zero']:.4f} better than no CMRT)" if r["improvement_over_zero"] > 0 else
+           "  (no better than no CMRT: the zero CMRT is the best known)"),
     ]
     rb = r.get("robustness")
     if rb:

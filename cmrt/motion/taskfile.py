@@ -1,9 +1,10 @@
 """Task files (TOML) -> a validated :class:`~cmrt.motion.task.Task`.
 
 The shipped tasks are package data (``cmrt/motion/tasks/*.toml``, read through ``importlib.resources`` so an
-installed cmrt has them too); a user's own task is a TOML file given by path (format: docs/reference/task-files.md). Every
-value is checked (type, finiteness, documented range: ``cmrt.inputs``) and an error is one line naming the
-file; a stored run's definition (``Task.to_dict``) goes through the same ``task_from_dict``.
+installed cmrt has them too); a user's own task is a TOML file given by path (format:
+docs/reference/task-files.md). Every value is checked (type, finiteness, documented range: ``cmrt.inputs``)
+and an error is one line naming the file; a stored run's definition (``Task.to_dict``) goes through the
+same ``task_from_dict``.
 """
 
 from __future__ import annotations

@@ -100,6 +100,10 @@ class CmaState:
     large_restarts: int = 0  # restarts in the large-population regime (IPOP's doubling)
     regime: str = "large"  # of the current (re)start: "large" (the first run too) or "small" (BIPOP)
     regime_evals: list[int] = field(default_factory=lambda: [0, 0])  # evaluations spent: large, small
+    # the zero CMRT's objective when it is a success (``know_zero``): a threshold stop needs a better success, so
+    # a run never stops on, or reports, something worse than no CMRT at all (inf: the zero CMRT fails, or a
+    # run from before the zero CMRT was a known candidate)
+    zero_success_objective: float = float("inf")
 
     def dumps(self) -> bytes:
         """The checkpoint blob stored after every generation (a data-only document, no pickle). It carries
@@ -153,7 +157,7 @@ def _machine_fields(es) -> list[tuple[object, str, object]]:
 
 _CHECKPOINT_CLASSES = (CmaState, _Randn)
 _ADDED_FIELDS = {"median_history": list, "large_restarts": lambda: 0, "regime": lambda: "large",
-                 "regime_evals": lambda: [0, 0]}
+                 "regime_evals": lambda: [0, 0], "zero_success_objective": lambda: float("inf")}
 MAX_POPSIZE = 100_000
 
 
@@ -357,6 +361,26 @@ def step(state: CmaState, evaluate: Callable[[Sequence[np.ndarray]], list[EvalRe
     return xs, records
 
 
+ZERO_X = np.zeros(N_PARAMS)  # the zero CMRT in the optimizer's parameters: no displacement at any time
+
+
+def know_zero(state: CmaState, record: EvalRecord) -> None:
+    """The zero CMRT (``ZERO_X``), scored by the run's own evaluator before the first generation, as a candidate
+    the search knows: the run's best is never worse than no CMRT, and a threshold stop needs a success better
+    than it. Not counted as an evaluation (the budget and every generation are as without it)."""
+    if record.objective < state.best_objective:
+        state.best_x, state.best_objective = ZERO_X.copy(), record.objective
+        state.best_fell, state.best_success = record.fell, record.success
+    if record.success:
+        state.best_success_objective = min(state.best_success_objective, record.objective)
+        state.zero_success_objective = record.objective
+
+
+def _threshold_met(state: CmaState, settings: OptimizeSettings) -> bool:
+    """A success below the threshold that beats the zero CMRT (when the zero CMRT is a success itself)."""
+    return state.best_success_objective < min(settings.stop_threshold, state.zero_success_objective)
+
+
 def _flat(old: float, new: float, tol: float) -> bool:
     return old - new <= tol * max(abs(old), 1e-12)
 
@@ -422,7 +446,7 @@ def _next_regime(state: CmaState, settings: OptimizeSettings) -> str | None:
 
 def stop_reason(state: CmaState, settings: OptimizeSettings) -> str | None:
     """Why the run should stop now (threshold, budget, converged...), or None to go on."""
-    if state.best_success_objective < settings.stop_threshold:
+    if _threshold_met(state, settings):
         return "threshold"
     if state.evaluations >= settings.max_evals or (
             state.evaluations and state.evaluations + popsize_of(state) > settings.max_evals):
@@ -436,7 +460,7 @@ def stop_reason(state: CmaState, settings: OptimizeSettings) -> str | None:
 def restart_if_stalled(state: CmaState, settings: OptimizeSettings) -> bool:
     """After a generation: restart a stalled search (BIPOP regimes, :func:`_next_regime`) unless it should
     stop. Called before the checkpoint is written, so a resumed run sees the restart as it happened."""
-    if state.best_success_objective < settings.stop_threshold or not _stalled(state, settings):
+    if _threshold_met(state, settings) or not _stalled(state, settings):
         return False
     regime = _next_regime(state, settings)
     if regime is None:

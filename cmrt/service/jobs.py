@@ -25,7 +25,16 @@ from cmrt.errors import CmrtError, TransientFault, pending_termination
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.task import Task
 from cmrt.motion.taskfile import task_from_dict
-from cmrt.optimize.driver import CmaState, best_cmrt, new_state, restart_if_stalled, step, stop_reason
+from cmrt.optimize.driver import (
+    ZERO_X,
+    CmaState,
+    best_cmrt,
+    know_zero,
+    new_state,
+    restart_if_stalled,
+    step,
+    stop_reason,
+)
 from cmrt.optimize.parallel import Evaluator
 from cmrt.optimize.settings import FAMILY_SIGMA0, STALE_AFTER_S, OptimizeSettings
 from cmrt.service.store import Claim, Generation, LostClaim, Run, RunProgress, RunSpec, Store, StoredEvaluation
@@ -131,6 +140,8 @@ def _run_claimed(store: Store, claim: Claim, evaluator: Evaluator, on_generation
     settings = settings_for(run, x0)
     checkpoint = store.last_checkpoint(claim.run_id)
     state = CmaState.loads(checkpoint[1], settings, run_id=run.id) if checkpoint else new_state(settings)
+    if not checkpoint:  # the zero CMRT is a candidate the search knows (a resumed run knows it already)
+        know_zero(state, evaluator(task, [ZERO_X])[0])
 
     if run.baseline_objective is None:
         base = evaluate(task, simulate(task, Cmrt.zero(task.clip_s), record=False))  # the score only

@@ -52,7 +52,8 @@ def test_yu_references_follow_the_motion_and_the_feet():
     times = yu.time_s
     q, qd, _ = task.reference(times)
     mc = motion_com(ch, q[:, : ch.nv], qd[:, : ch.nv])
-    end_s = min(task.clip_s, yu.fall_time_s or np.inf)  # (in yu mode this slow bend tips over: docs/results/references.md)
+    # (in yu mode this slow bend tips over: docs/results/references.md)
+    end_s = min(task.clip_s, yu.fall_time_s or np.inf)
     control = np.flatnonzero(np.isfinite(yu.com_ref_x_m) & (times < end_s))[::4]
     # the right heel point sits 6 cm behind its ankle (the MJCF): ankle x = support_lo + 0.06 with flat feet
     ankle_x = yu.support_lo_x_m[control] + 0.06

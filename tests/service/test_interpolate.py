@@ -51,9 +51,10 @@ def test_interpolating_over_ball_mass_and_mismatch_lookup():
     from cmrt import library_curve
 
     """Across ball mass the blend is made as across speeds (knots and values between the neighbours'). It is
-    not a success on the catch as shipped (docs/howto/families-and-sequences.md): with the held ball in the plan the 7 and 8 kg
-    CMRTs lean the CoM back 6.8 and 7.6 cm just before the ball arrives, and every blend between them tried
-    (7.25, 7.5, 7.75 kg) falls backward - the lean's timing is a knife edge (14/20 validation clips for 7 kg)."""
+    not a success on the catch as shipped (docs/howto/families-and-sequences.md): with the held ball in the
+    plan the 7 and 8 kg CMRTs lean the CoM back 6.8 and 7.6 cm just before the ball arrives, and every blend
+    between them tried (7.25, 7.5, 7.75 kg) falls backward - the lean's timing is a knife edge (14/20
+    validation clips for 7 kg)."""
     task = load_task("catch").with_params(ball_mass_kg=7.5)
     r = interpolate(task, param="ball_mass_kg")
     assert [v for v, _ in r.sources] == [7.0, 8.0] and r.weight == pytest.approx(0.5)

@@ -163,3 +163,27 @@ def test_work_needs_no_evaluator(tmp_path):
         rid = submit(store, TASK, init="none", max_evals=5, popsize=5)
         assert work(store, until_idle=True) == [rid]
         assert store.run(rid).status == "done" and store.run(rid).evaluations == 5
+
+
+def test_a_run_is_never_worse_than_no_cmrt(tmp_path):
+    """The slow bend succeeds with no CMRT (0.58, under the task's 0.7 threshold): the zero CMRT is a candidate
+    the search knows, so the run's best is at most the baseline, and a threshold stop needs a better success."""
+    from cmrt.optimize.driver import ZERO_X, CmaState, know_zero, new_state
+    from cmrt.optimize.settings import OptimizeSettings
+    from cmrt.service.jobs import optimize_now
+    from cmrt.sim.objective import EvalRecord
+
+    slow = load_task("bend").with_speed(1.2)
+    with open_store(tmp_path / "s.sqlite") as store:
+        run = optimize_now(store, slow, seed=1, max_evals=20, init="none")
+    assert run.baseline_success and run.best_objective <= run.baseline_objective
+    assert run.stop_reason != "threshold" or run.best_objective < run.baseline_objective
+    state = new_state(OptimizeSettings(stop_threshold=0.7))
+    know_zero(state, EvalRecord(objective=0.58, fell=False, seconds=0.0, success=True))
+    assert (state.best_objective, state.best_success, tuple(state.best_x)) == (0.58, True, tuple(ZERO_X))
+    from cmrt.optimize.driver import stop_reason
+    assert stop_reason(state, OptimizeSettings(stop_threshold=0.7)) is None  # the zero CMRT alone never stops it
+    state.best_success_objective = 0.5  # a search candidate that beats it
+    assert stop_reason(state, OptimizeSettings(stop_threshold=0.7)) == "threshold"
+    again = CmaState.loads(state.dumps(), OptimizeSettings(stop_threshold=0.7))
+    assert again.zero_success_objective == 0.58  # checkpointed

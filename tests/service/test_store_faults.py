@@ -339,11 +339,12 @@ def test_a_worker_signalled_inside_a_long_sqlite_step_gives_its_run_back(tmp_pat
     calls = []
 
     class StuckInSqlite(Evaluator):
-        """The second generation's evaluation waits on one long SQLite step of the worker's store."""
+        """The second generation's evaluation waits on one long SQLite step of the worker's store (the first
+        call scores the zero CMRT, the search's known candidate)."""
 
         def __call__(self, task, xs):
             calls.append(len(xs))
-            if len(calls) == 2:
+            if len(calls) == 3:
                 worker_store.conn.execute(LONG_STEP).fetchall()
             return super().__call__(task, xs)
 
