@@ -25,7 +25,7 @@ test: $(BIN)/cmrt
 	$(BIN)/ruff check cmrt tests tools
 	$(BIN)/python -m pytest -q
 
-# The quick loop while editing: everything but the tests marked slow (pyproject.toml), under a minute.
+# The quick loop while editing: everything but the tests marked slow (pyproject.toml), about 1.5 minutes.
 test-fast: $(BIN)/cmrt
 	$(BIN)/python -m pytest -q -m "not slow"
 
