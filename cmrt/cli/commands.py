@@ -729,7 +729,9 @@ class Render(Command):
         r = render(task, curve, args.out, compare, (f"{name} CMRT", f"{cname} CMRT"), n_frames=args.frames,
                    fps=args.fps)
         lines = [f"wrote {escape(r['out'])} ({r['frames']} frames)"] + [
-            f"  {escape(c['label'])}: {'lost balance' if c['fell'] else 'balanced'}, objective {c['objective']:.4f}"
+            f"  {escape(c['label'])}: "
+            f"{'SUCCESS' if c['success'] else 'lost balance' if c['fell'] else 'balance kept, not a success'}, "
+            f"objective {c['objective']:.4f}"
             for c in r["clips"]
         ]
         return Output(r, "\n".join(lines))

@@ -37,6 +37,9 @@ def test_compare_stacks_two_rows(tmp_path):
     single, _ = render(tmp_path, "one.png", "--curve", "library")
     assert [c["success"] for c in info["clips"]] == [False, True]  # top: zero, bottom: library
     assert both.shape[0] > 1.6 * single.shape[0]
+    text = cmrt("render", *FAST_BEND, "--frames", "2", "--curve", "library", "--compare", "zero", "--out",
+                str(tmp_path / "t.png"), check=True).stdout
+    assert "zero CMRT: balance kept, not a success" in text and "library CMRT: SUCCESS" in text  # by verdict
 
 
 @pytest.mark.slow  # encodes a video
