@@ -204,9 +204,7 @@ MAX_FUNCTION_ARGS = 15
 #: The functions still over a limit, with their sizes when last measured: a ratchet. A function not here must
 #: keep within the limits; one here must not grow, and when it shrinks or is split its entry is lowered or
 #: removed (the test fails on a stale entry), so the table only shrinks.
-STILL_TOO_BIG: dict[str, tuple[int, int]] = {
-    "control.kernel:control_step": (220, 8),
-}
+STILL_TOO_BIG: dict[str, tuple[int, int]] = {}  # none left: an entry may only be lowered or removed
 
 
 def _function_sizes() -> dict[str, tuple[int, int]]:
@@ -253,10 +251,13 @@ def test_the_table_of_functions_still_too_big_is_not_stale():
 
 def test_tools_use_the_api_not_the_cli_or_private_names():
     """``tools/`` are scripts like a user's: they import public names (no underscore) and never the CLI's
-    module, whose helpers are parsing and printing (what a script wants is in the API)."""
+    module, whose helpers are parsing and printing (what a script wants is in the API). The one exception
+    documents the CLI itself: ``cli_reference.py`` writes docs/reference/cli.md from the parser."""
     tools = Path(__file__).resolve().parent.parent / "tools"
     wrong = []
     for path in sorted(tools.glob("*.py")):
+        if path.name == "cli_reference.py":
+            continue
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "cmrt":
                 if node.module.split(".")[:2] == ["cmrt", "cli"] or any(a.name.startswith("_") for a in node.names):

@@ -289,6 +289,232 @@ def _dense_dynamics(row, M_sparse, m_rows, m_cols, qfrc_bias, qfrc_passive, nv):
     return M, h
 
 
+@njit(cache=True, nogil=True)
+def _contact_points(frame, qd, chain, points, point_bodies, geom_xpos_row, radius, com):
+    """The four contact points (the spheres' bottoms: heel_r, toe_r, heel_l, toe_l) and their frames
+    (Jacobian and bias, :func:`point_frame`). ``frame``: the row's (cdof, cdof_dot, cvel)."""
+    cdof_r, cdof_dot_r, cvel_r = frame
+    nv = qd.size
+    pts = np.empty((4, 3))
+    Jp = np.empty((4, 3, nv))
+    bp = np.empty((4, 3))
+    for p in range(4):
+        pts[p] = geom_xpos_row[points[p]]
+        pts[p, 2] -= radius
+        Jp[p], bp[p] = point_frame(cdof_r, cdof_dot_r, cvel_r, qd, chain[point_bodies[p]], point_bodies[p],
+                                   pts[p], com)
+    return pts, Jp, bp
+
+
+@njit(cache=True, nogil=True)
+def _foot_states(contact_row, swing):
+    """FLAT, HEEL, TOE or AIR per foot from its points' contacts; the swinging foot is AIR (lifted by the plan,
+    whatever it touches now: no support, no load)."""
+    state = np.empty(2, np.int64)
+    for foot in range(2):
+        heel, toe = contact_row[2 * foot], contact_row[2 * foot + 1]
+        state[foot] = FLAT if heel and toe else (HEEL if heel else (TOE if toe else AIR))
+        if foot == swing:
+            state[foot] = AIR
+    return state
+
+
+@njit(cache=True, nogil=True)
+def _support_rows(state, frames, qd, q, params, leg_dofs, swing, swing_target_row, Q, g):
+    """The supporting feet's contact-anchor equality rows (E, e; a flat foot 3, a rolling one 2), the support
+    interval (lo, hi) and how many feet are flat and points load. Into the objective (Q, g, in place): the
+    swing foot's task-space terms (heel point x, z and pitch toward the swing plan) and, for a foot that is
+    neither flat nor swinging, a soft return-to-flat pitch target. ``frames``: (pts, Jp, bp)."""
+    pts, Jp, bp = frames
+    nv = qd.size
+    E = np.empty((9, nv))
+    e = np.empty(9)
+    ne = 0
+    lo, hi = np.inf, -np.inf
+    n_flat, n_points = 0, 0
+    for foot in range(2):
+        s = state[foot]
+        heel, toe = 2 * foot, 2 * foot + 1
+        if s == FLAT or s == HEEL:
+            lo, hi = min(lo, pts[heel, 0]), max(hi, pts[heel, 0])
+        if s == FLAT or s == TOE:
+            lo, hi = min(lo, pts[toe, 0]), max(hi, pts[toe, 0])
+        if s == FLAT:
+            n_flat += 1
+            n_points += 2
+        elif s != AIR:
+            n_points += 1
+        anchor = toe if s == TOE else heel
+        if s != AIR:
+            for r in range(3 if s == FLAT else 2):
+                E[ne] = Jp[anchor, r]
+                e[ne] = -bp[anchor, r] - params[P_DAMP] * (Jp[anchor, r] @ qd)
+                ne += 1
+        if foot == swing:  # task-space objective: heel point (x, z) and foot pitch toward the swing plan
+            pitch = q[2] + q[leg_dofs[foot, 0]] + q[leg_dofs[foot, 1]] + q[leg_dofs[foot, 2]]
+            for r in range(3):
+                jr = Jp[heel, r]
+                pos = pts[heel, 0] if r == 0 else (pts[heel, 2] if r == 1 else pitch)
+                target = (swing_target_row[6 + r] + params[P_SK] * (swing_target_row[r] - pos)
+                          + params[P_SD] * (swing_target_row[3 + r] - jr @ qd) - bp[heel, r])
+                Q += params[P_SW] * np.outer(jr, jr)
+                g += params[P_SW] * target * jr
+        elif s != FLAT:
+            jp = Jp[heel, 2]
+            pitch = q[2] + q[leg_dofs[foot, 0]] + q[leg_dofs[foot, 1]] + q[leg_dofs[foot, 2]]
+            target = -params[P_RK] * pitch - params[P_RD] * (jp @ qd) - bp[heel, 2]
+            Q += params[P_RW] * np.outer(jp, jp)
+            g += params[P_RW] * target * jp
+    return E, e, ne, lo, hi, n_flat, n_points
+
+
+@njit(cache=True, nogil=True)
+def _ground_rows(A, a_g, pts, com, mg, params, support, nrow, E, e, ne):
+    """The ground's rows on the wrench w = A qdd + a (F_x = w0, F_z = w1 + m g, Hdot = w2): unilateral F_z,
+    two friction rows and two CoP rows (C, c, the first N_INEQ of ``nrow`` rows; the rest are filled by
+    :func:`_limit_rows`) with which are on; a rolling foot's CoP equality and an airborne body's zero wrench
+    go into (E, e). ``support``: (lo, hi, n_flat, n_points). Returns (C, c, c_on, ne, arm)."""
+    lo, hi, n_flat, n_points = support
+    nv = A.shape[1]
+    grounded = n_points > 0
+    rolling = grounded and n_flat == 0
+    zc = (pts[0, 2] + pts[1, 2] + pts[2, 2] + pts[3, 2]) / 4.0
+    arm = zc - com[2]
+    mu, fmin = params[P_MU], params[P_FMIN]
+    edge = fmin * n_flat * (hi - lo)
+    R = np.zeros((N_INEQ, 3))
+    r0 = np.zeros(N_INEQ)
+    R[0, 1] = 1.0
+    r0[0] = mg - fmin * n_points
+    R[1, 0], R[1, 1], r0[1] = -1.0, mu, mu * mg
+    R[2, 0], R[2, 1], r0[2] = 1.0, mu, mu * mg
+    R[3, 0], R[3, 1], R[3, 2], r0[3] = arm, com[0] - lo, -1.0, (com[0] - lo) * mg - edge
+    R[4, 0], R[4, 1], R[4, 2], r0[4] = -arm, hi - com[0], 1.0, (hi - com[0]) * mg - edge
+    C = np.zeros((nrow, nv))
+    c = np.empty(nrow)
+    C[:N_INEQ] = R @ A
+    c[:N_INEQ] = R @ a_g + r0
+    c_on = np.zeros(nrow, np.bool_)
+    if grounded:
+        c_on[:3] = True
+        if rolling:  # the CoP is exactly at the rolling edge
+            E[ne] = C[3]
+            e[ne] = -c[3]
+            ne += 1
+        else:
+            c_on[3:N_INEQ] = True
+    else:  # airborne: no ground force at all
+        for r in range(3):
+            E[ne] = A[r]
+            e[ne] = -a_g[r] - (mg if r == 1 else 0.0)
+            ne += 1
+    return C, c, c_on, ne, arm
+
+
+@njit(cache=True, nogil=True)
+def _torque_map(dyn, actuated, nu_rows, grounded, A, a_g, mg, com, arm, pts, Jp, loaded):
+    """The torques are affine in the plan, tau = T qdd + t0 (inverse dynamics with the plan's ground forces
+    split over the loaded points): T's rows for the actuated dofs (``nu_rows``: 0 without the limits in the
+    plan) and t0 (every dof) at qdd = 0. ``dyn``: (M, h); ``loaded``: :func:`_loaded_points`."""
+    M, h = dyn
+    carries, count, mean, spread = loaded
+    nv = h.size
+    Tm = np.empty((nu_rows, nv))
+    for u in range(nu_rows):
+        Tm[u] = M[actuated[u]]
+    t0 = h.copy()
+    if grounded and nu_rows > 0:
+        # F_z share of point p: fz / count + (x_p - mean) (cop fz - mean fz) / spread, and cop fz =
+        # com_x fz + arm F_x - Hdot is linear in w; F_x is split equally (exact for feet side by side)
+        fx_share = A[0] / count
+        for p in range(4):
+            if carries[p]:
+                lever = (pts[p, 0] - mean) / spread if spread > 1e-12 else 0.0
+                dz = A[1] / count + lever * ((com[0] - mean) * A[1] + arm * A[0] - A[2])
+                z0 = (a_g[1] + mg) / count + lever * ((com[0] - mean) * (a_g[1] + mg) + arm * a_g[0] - a_g[2])
+                for u in range(nu_rows):  # the same operations as Tm -= outer(Jx, fx_share) + outer(Jz, dz)
+                    jx, jz = Jp[p, 0, actuated[u]], Jp[p, 1, actuated[u]]
+                    for j in range(nv):
+                        Tm[u, j] -= jx * fx_share[j] + jz * dz[j]
+                t0 -= Jp[p, 0] * (a_g[0] / count) + Jp[p, 1] * z0
+    return Tm, t0
+
+
+@njit(cache=True, nogil=True)
+def _load_forces(frame, qd, chain, ext_bodies, ext_p_row, com, fex, fez):
+    """A held load's generalized force, per body of ``ext_bodies`` (the load shared equally); no rows when
+    there is no load. ``frame``: the row's (cdof, cdof_dot, cvel)."""
+    cdof_r, cdof_dot_r, cvel_r = frame
+    loaded = fex != 0.0 or fez != 0.0
+    load_gen = np.zeros((ext_bodies.size if loaded else 0, qd.size))
+    for eb in range(load_gen.shape[0]):
+        Je, _ = point_frame(cdof_r, cdof_dot_r, cvel_r, qd, chain[ext_bodies[eb]], ext_bodies[eb], ext_p_row, com)
+        load_gen[eb] = Je[0] * (fex / ext_bodies.size) + Je[1] * (fez / ext_bodies.size)
+    return load_gen
+
+
+@njit(cache=True, nogil=True)
+def _limit_rows(C, c, c_on, torque, q, qd, actuated, limits, params):
+    """The motors' limits and the joint stops as rows of the QP (in place, after the ground's N_INEQ rows):
+    |T qdd + t0| <= the torque limit, and a joint may approach its stop (less a margin) no faster than a
+    critically damped spring would, qdd >= -k (q - lo) - d qd: the plan never leans on a stop, whose force it
+    does not model (a standing knee on its 0 rad stop carried up to 47 N m that way). ``torque``: (Tm, t0)."""
+    Tm, t0 = torque
+    nu = actuated.size
+    kj, dj = params[P_JK], params[P_JD]
+    for u in range(nu):
+        ju = actuated[u]
+        lim = limits[u, 0]
+        C[N_INEQ + 2 * u] = -Tm[u]
+        c[N_INEQ + 2 * u] = lim - t0[ju]
+        C[N_INEQ + 2 * u + 1] = Tm[u]
+        c[N_INEQ + 2 * u + 1] = lim + t0[ju]
+        r = N_INEQ + 2 * nu + 2 * u
+        C[r, ju] = 1.0
+        c[r] = kj * (q[ju] - limits[u, 1]) + dj * qd[ju]
+        C[r + 1, ju] = -1.0
+        c[r + 1] = -kj * (q[ju] - limits[u, 2]) - dj * qd[ju]
+        c_on[N_INEQ + 2 * u] = c_on[N_INEQ + 2 * u + 1] = c_on[r] = c_on[r + 1] = True
+
+
+@njit(cache=True, nogil=True)
+def _inverse_dynamics(A, qdd, a_g, mg, com, arm, dyn, load_gen, pts, Jp, loaded, fmin, motors, in_plan, tau_row):
+    """The torques of the solved plan (into ``tau_row``): inverse dynamics with the plan's ground forces split
+    over the loaded points (bounded shares in a split stance) and the held load taken out, each clipped at its
+    limit (within LIMIT_SLACK with the limits in the plan: rounding only). Returns (F_x, F_z, CoP x, saturated).
+    ``dyn``: (M, h); ``loaded``: :func:`_loaded_points`; ``motors``: (actuated, limits)."""
+    M, h = dyn
+    carries, count, mean, spread = loaded
+    actuated, limits = motors
+    w = A @ qdd + a_g
+    fx, fz = w[0], w[1] + mg
+    cop = com[0] + (arm * fx - w[2]) / fz if fz > 1e-9 else com[0]
+    gen = M @ qdd + h
+    for eb in range(load_gen.shape[0]):
+        gen -= load_gen[eb]
+    split = ((carries[0] or carries[1]) and (carries[2] or carries[3])
+             and abs(pts[0, 0] - pts[2, 0]) > SPLIT_STANCE_M and fz > 1e-9)
+    if split:
+        shares = bounded_shares(pts[:, 0], carries, cop, min(fmin / fz, 1.0 / count))
+    for p in range(4):
+        if carries[p]:
+            if split:
+                share = shares[p]
+            else:
+                share = 1.0 / count
+                if spread > 1e-12:
+                    share += (pts[p, 0] - mean) * (cop - mean) / spread
+            gen -= Jp[p, 0] * (share * fx) + Jp[p, 1] * (share * fz)
+    saturated = 0.0  # clipped at a motor limit (with the limits in the plan: the QP found no plan within them)
+    for u in range(actuated.size):
+        t = gen[actuated[u]]
+        lim = limits[u, 0]
+        if abs(t) > (lim * (1.0 + LIMIT_SLACK) if in_plan else lim):
+            saturated = 1.0
+        tau_row[u] = min(max(t, -lim), lim)
+    return fx, fz, cop, saturated
+
+
 # control_step's arguments, grouped: ``fields`` (cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias,
 # qfrc_passive, com_all, geom_xpos) are the batch's bound MuJoCo fields, of which simulation ``i`` reads row
 # ``rows[i]`` (the compiled scoring loop passes the whole batch and its active rows: no copies when rows drop out)
@@ -321,6 +547,9 @@ def control_step(rows, fields, model, refs, support, warm, load, out):
     nb, nv = chain.shape
     grav = params[P_G]
     radius = params[P_RADIUS]
+    nu = actuated.size
+    in_plan = params[P_LIMITS] > 0.0  # off: motor limits clipped after the solve (the v0.2 controller, bit for bit)
+    nrow = N_INEQ + 4 * nu if in_plan else N_INEQ  # the QP's inequality rows; the warm arrays are n_rows(nu) wide
     for i in range(n):
         row = rows[i]
         mass = mass_all[i]
@@ -328,6 +557,7 @@ def control_step(rows, fields, model, refs, support, warm, load, out):
         qd = qvel[row, :nv].copy()
         q = qpos[row, :nv]
         com = com_all[row, 1]
+        frame = (cdof[row], cdof_dot[row], cvel[row])
         A, a = centroidal(cdof[row], cdof_dot[row], cvel[row], cinert[row], qd, chain)
         # a known external force on the hands (a held load, ext_f[i] (x, z) N at ext_p[i], shared by the bodies
         # ext_bodies): the ground gives the momentum rate less it, a_g = a - (f_x, f_z, r x f)
@@ -337,186 +567,34 @@ def control_step(rows, fields, model, refs, support, warm, load, out):
         a_g[1] -= fez
         a_g[2] -= (ext_p[i, 2] - com[2]) * fex - (ext_p[i, 0] - com[0]) * fez
 
-        # contact points (sphere bottoms) and their foot frames
-        pts = np.empty((4, 3))
-        Jp = np.empty((4, 3, nv))
-        bp = np.empty((4, 3))
-        for p in range(4):
-            pts[p] = geom_xpos[row, points[p]]
-            pts[p, 2] -= radius
-            Jp[p], bp[p] = point_frame(cdof[row], cdof_dot[row], cvel[row], qd, chain[point_bodies[p]], point_bodies[p],
-                                       pts[p], com)
-        state = np.empty(2, np.int64)
+        pts, Jp, bp = _contact_points(frame, qd, chain, points, point_bodies, geom_xpos[row], radius, com)
         swing = int(swing_foot[i])
-        for foot in range(2):
-            heel, toe = contact[i, 2 * foot], contact[i, 2 * foot + 1]
-            state[foot] = FLAT if heel and toe else (HEEL if heel else (TOE if toe else AIR))
-            if foot == swing:  # lifted by the plan, whatever it touches now: no support, no load
-                state[foot] = AIR
-
-        # objective
+        state = _foot_states(contact[i], swing)
+        # the objective, then the support rows (a foot that is not flat gets a soft return-to-flat pitch target)
         Q, g = _objective(A, a, qd, q, com, mass, mg, params, w2, leg_dofs, pts, swing, i,
                           (q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, swing_target))
+        E, e, ne, lo, hi, n_flat, n_points = _support_rows(state, (pts, Jp, bp), qd, q, params, leg_dofs, swing,
+                                                          swing_target[i], Q, g)
+        C, c, c_on, ne, arm = _ground_rows(A, a_g, pts, com, mg, params, (lo, hi, n_flat, n_points), nrow, E, e, ne)
 
-        # support rows; a foot that is not flat gets a soft return-to-flat pitch target
-        E = np.empty((9, nv))
-        e = np.empty(9)
-        ne = 0
-        lo, hi = np.inf, -np.inf
-        n_flat, n_points = 0, 0
-        for foot in range(2):
-            s = state[foot]
-            heel, toe = 2 * foot, 2 * foot + 1
-            if s == FLAT or s == HEEL:
-                lo, hi = min(lo, pts[heel, 0]), max(hi, pts[heel, 0])
-            if s == FLAT or s == TOE:
-                lo, hi = min(lo, pts[toe, 0]), max(hi, pts[toe, 0])
-            if s == FLAT:
-                n_flat += 1
-                n_points += 2
-            elif s != AIR:
-                n_points += 1
-            anchor = toe if s == TOE else heel
-            if s != AIR:
-                for r in range(3 if s == FLAT else 2):
-                    E[ne] = Jp[anchor, r]
-                    e[ne] = -bp[anchor, r] - params[P_DAMP] * (Jp[anchor, r] @ qd)
-                    ne += 1
-            if foot == swing:  # task-space objective: heel point (x, z) and foot pitch toward the swing plan
-                pitch = q[2] + q[leg_dofs[foot, 0]] + q[leg_dofs[foot, 1]] + q[leg_dofs[foot, 2]]
-                for r in range(3):
-                    jr = Jp[heel, r]
-                    pos = pts[heel, 0] if r == 0 else (pts[heel, 2] if r == 1 else pitch)
-                    target = (swing_target[i, 6 + r] + params[P_SK] * (swing_target[i, r] - pos)
-                              + params[P_SD] * (swing_target[i, 3 + r] - jr @ qd) - bp[heel, r])
-                    Q += params[P_SW] * np.outer(jr, jr)
-                    g += params[P_SW] * target * jr
-            elif s != FLAT:
-                jp = Jp[heel, 2]
-                pitch = q[2] + q[leg_dofs[foot, 0]] + q[leg_dofs[foot, 1]] + q[leg_dofs[foot, 2]]
-                target = -params[P_RK] * pitch - params[P_RD] * (jp @ qd) - bp[heel, 2]
-                Q += params[P_RW] * np.outer(jp, jp)
-                g += params[P_RW] * target * jp
-        grounded = n_points > 0
-        rolling = grounded and n_flat == 0
-
-        # wrench rows on w = A qdd + a: F_x = w0, F_z = w1 + m g, Hdot = w2
-        zc = (pts[0, 2] + pts[1, 2] + pts[2, 2] + pts[3, 2]) / 4.0
-        arm = zc - com[2]
-        mu, fmin = params[P_MU], params[P_FMIN]
-        edge = fmin * n_flat * (hi - lo)
-        R = np.zeros((N_INEQ, 3))
-        r0 = np.zeros(N_INEQ)
-        R[0, 1] = 1.0
-        r0[0] = mg - fmin * n_points
-        R[1, 0], R[1, 1], r0[1] = -1.0, mu, mu * mg
-        R[2, 0], R[2, 1], r0[2] = 1.0, mu, mu * mg
-        R[3, 0], R[3, 1], R[3, 2], r0[3] = arm, com[0] - lo, -1.0, (com[0] - lo) * mg - edge
-        R[4, 0], R[4, 1], R[4, 2], r0[4] = -arm, hi - com[0], 1.0, (hi - com[0]) * mg - edge
-        nu = actuated.size
-        in_plan = params[P_LIMITS] > 0.0  # off: motor limits clipped after the solve (the v0.2 controller, bit for bit)
-        nrow = N_INEQ + 4 * nu if in_plan else N_INEQ
-        C = np.zeros((nrow, nv))
-        c = np.empty(nrow)
-        C[:N_INEQ] = R @ A
-        c[:N_INEQ] = R @ a_g + r0
-        c_on = np.zeros(nrow, np.bool_)
-        if grounded:
-            c_on[:3] = True
-            if rolling:  # the CoP is exactly at the rolling edge
-                E[ne] = C[3]
-                e[ne] = -c[3]
-                ne += 1
-            else:
-                c_on[3:N_INEQ] = True
-        else:  # airborne: no ground force at all
-            for r in range(3):
-                E[ne] = A[r]
-                e[ne] = -a_g[r] - (mg if r == 1 else 0.0)
-                ne += 1
-
-        # the torques are affine in the plan, tau = T qdd + t0 (inverse dynamics with the plan's ground
-        # forces split over the loaded points, below): the motors' limits are rows of the QP, so the plan
-        # is one the motors can carry out - nothing is clipped after the solve
-        carries, count, mean, spread = _loaded_points(state, pts)
-        M, h = _dense_dynamics(row, M_sparse, m_rows, m_cols, qfrc_bias, qfrc_passive, nv)
-        # d tau / d qdd (rows: the actuated dofs only, the rows the QP needs) and tau at qdd = 0
-        nu_rows = nu if in_plan else 0
-        Tm = np.empty((nu_rows, nv))
-        for u in range(nu_rows):
-            Tm[u] = M[actuated[u]]
-        t0 = h.copy()
-        if grounded and in_plan:
-            # F_z share of point p: fz / count + (x_p - mean) (cop fz - mean fz) / spread, and cop fz =
-            # com_x fz + arm F_x - Hdot is linear in w; F_x is split equally (exact for feet side by side)
-            fx_share = A[0] / count
-            for p in range(4):
-                if carries[p]:
-                    lever = (pts[p, 0] - mean) / spread if spread > 1e-12 else 0.0
-                    dz = A[1] / count + lever * ((com[0] - mean) * A[1] + arm * A[0] - A[2])
-                    z0 = (a_g[1] + mg) / count + lever * ((com[0] - mean) * (a_g[1] + mg) + arm * a_g[0] - a_g[2])
-                    for u in range(nu_rows):  # the same operations as Tm -= outer(Jx, fx_share) + outer(Jz, dz)
-                        jx, jz = Jp[p, 0, actuated[u]], Jp[p, 1, actuated[u]]
-                        for j in range(nv):
-                            Tm[u, j] -= jx * fx_share[j] + jz * dz[j]
-                    t0 -= Jp[p, 0] * (a_g[0] / count) + Jp[p, 1] * z0
-        loaded = fex != 0.0 or fez != 0.0
-        load_gen = np.zeros((ext_bodies.size if loaded else 0, nv))  # the load's generalized force, per body
-        for eb in range(load_gen.shape[0]):
-            Je, _ = point_frame(cdof[row], cdof_dot[row], cvel[row], qd, chain[ext_bodies[eb]], ext_bodies[eb],
-                                ext_p[i], com)
-            load_gen[eb] = Je[0] * (fex / ext_bodies.size) + Je[1] * (fez / ext_bodies.size)
+        # the torques are affine in the plan, tau = T qdd + t0: the motors' limits are rows of the QP, so the
+        # plan is one the motors can carry out - nothing is clipped after the solve
+        loaded = _loaded_points(state, pts)
+        dyn = _dense_dynamics(row, M_sparse, m_rows, m_cols, qfrc_bias, qfrc_passive, nv)
+        Tm, t0 = _torque_map(dyn, actuated, nu if in_plan else 0, n_points > 0, A, a_g, mg, com, arm, pts, Jp,
+                             loaded)
+        load_gen = _load_forces(frame, qd, chain, ext_bodies, ext_p[i], com, fex, fez)
         for eb in range(load_gen.shape[0]):
             t0 -= load_gen[eb]
-        kj, dj = params[P_JK], params[P_JD]
-        for u in range(nu if in_plan else 0):
-            ju = actuated[u]
-            lim = limits[u, 0]
-            C[N_INEQ + 2 * u] = -Tm[u]
-            c[N_INEQ + 2 * u] = lim - t0[ju]
-            C[N_INEQ + 2 * u + 1] = Tm[u]
-            c[N_INEQ + 2 * u + 1] = lim + t0[ju]
-            # joint stops: the joint may approach its stop (less a margin) no faster than a critically damped
-            # spring would, qdd >= -k (q - lo) - d qd: the plan never leans on a stop, whose force it does not
-            # model (a standing knee on its 0 rad stop carried up to 47 N m that way)
-            r = N_INEQ + 2 * nu + 2 * u
-            C[r, ju] = 1.0
-            c[r] = kj * (q[ju] - limits[u, 1]) + dj * qd[ju]
-            C[r + 1, ju] = -1.0
-            c[r + 1] = -kj * (q[ju] - limits[u, 2]) - dj * qd[ju]
-            c_on[N_INEQ + 2 * u] = c_on[N_INEQ + 2 * u + 1] = c_on[r] = c_on[r + 1] = True
+        if in_plan:
+            _limit_rows(C, c, c_on, (Tm, t0), q, qd, actuated, limits, params)
         active = warm_in[row, :nrow].copy() if params[P_WARM] > 0.0 else np.zeros(nrow, np.bool_)
         qdd = solve_qp(Q, g, E[:ne], e[:ne], C, c, c_on, params[P_DUALREG],
                        MAX_PASSES_LIMITS if in_plan else MAX_PASSES, active)
         warm_out[row, :nrow] = active
         warm_out[row, nrow:] = False
 
-        # inverse dynamics with the plan's ground forces, split over the loaded points
-        w = A @ qdd + a_g
-        fx, fz = w[0], w[1] + mg
-        cop = com[0] + (arm * fx - w[2]) / fz if fz > 1e-9 else com[0]
-        gen = M @ qdd + h
-        for eb in range(load_gen.shape[0]):
-            gen -= load_gen[eb]
-        split = ((carries[0] or carries[1]) and (carries[2] or carries[3])
-                 and abs(pts[0, 0] - pts[2, 0]) > SPLIT_STANCE_M and fz > 1e-9)
-        if split:
-            shares = bounded_shares(pts[:, 0], carries, cop, min(fmin / fz, 1.0 / count))
-        for p in range(4):
-            if carries[p]:
-                if split:
-                    share = shares[p]
-                else:
-                    share = 1.0 / count
-                    if spread > 1e-12:
-                        share += (pts[p, 0] - mean) * (cop - mean) / spread
-                gen -= Jp[p, 0] * (share * fx) + Jp[p, 1] * (share * fz)
-        saturated = 0.0  # clipped at a motor limit (with the limits in the plan: the QP found no plan within them)
-        for u in range(actuated.size):
-            t = gen[actuated[u]]
-            lim = limits[u, 0]
-            if abs(t) > (lim * (1.0 + LIMIT_SLACK) if in_plan else lim):
-                saturated = 1.0
-            tau_out[i, u] = min(max(t, -lim), lim)  # within LIMIT_SLACK: rounding only
+        fx, fz, cop, saturated = _inverse_dynamics(A, qdd, a_g, mg, com, arm, dyn, load_gen, pts, Jp, loaded,
+                                                   params[P_FMIN], (actuated, limits), in_plan, tau_out[i])
         info_out[i, 0], info_out[i, 1], info_out[i, 2] = fx, fz, cop
         info_out[i, 3], info_out[i, 4], info_out[i, 5] = state[0], state[1], saturated
