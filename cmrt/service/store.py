@@ -44,6 +44,12 @@ from cmrt.errors import CmrtError, TransientFault
 
 DEFAULT_STORE = Path("store") / "cmrt.sqlite"
 BUSY_TIMEOUT_MS = 30_000
+# SQLite checkpoints the WAL into the store once it holds this many pages (its default, 1000, is 4 MB). Every
+# heartbeat is a commit of one page: with a short --stale-after the WAL grew by 4 MB in 3 s, which filled a
+# small disk although the store itself is ~100 kB (the CI failure of the full-disk test on a slower machine).
+WAL_AUTOCHECKPOINT_PAGES = 100
+# A heartbeat is written at most this often, however short --stale-after is (a quarter of it otherwise).
+MIN_HEARTBEAT_S = 0.05
 BEGIN_RETRIES = 20
 SQLITE_MAGIC = b"SQLite format 3\x00"
 APP_ID = "cmrt"
@@ -524,6 +530,7 @@ class Store:
             if conn.execute("PRAGMA journal_mode").fetchone()[0] != "wal":
                 conn.execute("PRAGMA journal_mode = WAL")
             conn.execute("PRAGMA synchronous = NORMAL")  # WAL + NORMAL: safe against process crashes
+            conn.execute(f"PRAGMA wal_autocheckpoint = {WAL_AUTOCHECKPOINT_PAGES}")
             conn.execute("PRAGMA foreign_keys = ON")
         conn.row_factory = sqlite3.Row
         self.conn = conn
@@ -847,7 +854,8 @@ class Heartbeat:
             return
         try:
             conn.execute("PRAGMA trusted_schema = OFF")
-            while not self._stop.wait(self.every_s):
+            conn.execute(f"PRAGMA wal_autocheckpoint = {WAL_AUTOCHECKPOINT_PAGES}")
+            while not self._stop.wait(max(self.every_s, MIN_HEARTBEAT_S)):
                 with contextlib.suppress(sqlite3.Error):
                     conn.execute("UPDATE runs SET heartbeat_at = ? WHERE id = ? AND worker = ? AND attempt = ? "
                                  "AND status = 'running'",

@@ -185,6 +185,36 @@ def test_a_full_disk_mid_run_puts_the_run_back_and_it_resumes_bit_identical(tmp_
     assert [(e.params, e.objective) for e in evals] == [(e.params, e.objective) for e in ref_evals]
 
 
+def test_the_wal_stays_small_under_a_fast_heartbeat(tmp_path):
+    """A heartbeat is a one-page commit; with a short --stale-after it beats every few ms. SQLite's default
+    checkpoint (1000 pages) let the WAL grow to 4 MB in 3 s, which filled a small disk (the full-disk test
+    failed that way on a slower machine). The store checkpoints at WAL_AUTOCHECKPOINT_PAGES."""
+    import threading
+
+    WAL_AUTOCHECKPOINT_PAGES = 100
+
+    path = tmp_path / "s.sqlite"
+    wal = Path(f"{path}-wal")
+    largest = [0]
+    stop = threading.Event()
+
+    def watch():
+        while not stop.wait(0.005):
+            with contextlib.suppress(OSError):
+                largest[0] = max(largest[0], wal.stat().st_size)
+
+    with open_store(path) as store:
+        rid = submit(store, TASK, seed=5, max_evals=40, popsize=5, init="none")
+        watcher = threading.Thread(target=watch)
+        watcher.start()
+        try:
+            assert work(store, until_idle=True, stale_after_s=0.01) == [rid]
+        finally:
+            stop.set()
+            watcher.join()
+    assert 0 < largest[0] <= 1.5 * WAL_AUTOCHECKPOINT_PAGES * 4096, largest[0]
+
+
 def _wait_for_a_generation(path, rid, timeout_s=300.0):
     """Until run ``rid`` has committed its first generation (a worker process is working on it)."""
     deadline = time.time() + timeout_s
