@@ -438,8 +438,6 @@ def check_output(path: str | os.PathLike, flag: str, suffixes: tuple[str, ...] =
     where = f"{flag} {shown(raw)}"
     if not raw or "\0" in raw or len(raw) > 4096:
         raise CmrtError(f"cannot write {where}: not a valid path")
-    if suffixes and Path(raw).suffix.lower() not in suffixes:
-        raise CmrtError(f"{flag} must end in {' or '.join(suffixes)}, got {shown(raw)}")
     target = Path(os.path.realpath(raw))
     try:
         st = os.stat(target)
@@ -451,12 +449,12 @@ def check_output(path: str | os.PathLike, flag: str, suffixes: tuple[str, ...] =
         raise CmrtError(f"cannot write {where}: it is a directory")
     if st is not None and not stat.S_ISREG(st.st_mode):
         raise CmrtError(f"cannot write {where}: not a regular file")
-    if st is not None:
-        why = _never_replaced(target, reading)
-        if why:
-            raise CmrtError(f"will not write {where}: {why}")
-        if not replace:
-            raise CmrtError(f"will not write {where}: it exists (add --force to replace it)")
+    if st is not None and (why := _never_replaced(target, reading)):
+        raise CmrtError(f"will not write {where}: {why}")
+    if suffixes and Path(raw).suffix.lower() not in suffixes:
+        raise CmrtError(f"{flag} must end in {' or '.join(suffixes)}, got {shown(raw)}")
+    if st is not None and not replace:
+        raise CmrtError(f"will not write {where}: it exists (add --force to replace it)")
     parent = target.parent
     if not parent.is_dir():
         raise CmrtError(f"cannot write {where}: directory {shown(str(parent))} does not exist")

@@ -15,6 +15,7 @@ with their control characters escaped; JSON output never contains NaN or Infinit
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
 import math
 import os
@@ -113,6 +114,26 @@ def _outcome(r: dict) -> str:
     return "balance kept, but " + " and ".join(why)
 
 
+def _readable(key: str, value: object) -> str:
+    """A stored value as a person reads it (``--json`` keeps full precision): times (``*_at``, unix seconds)
+    as local ISO 8601, numbers to 6 significant digits, inside lists and tables too."""
+    if key.endswith("_at") and isinstance(value, int | float) and not isinstance(value, bool):
+        return datetime.datetime.fromtimestamp(value).astimezone().isoformat(timespec="seconds")
+
+    def rounded(v):
+        if isinstance(v, float):
+            return float(f"{v:.6g}") if math.isfinite(v) else v
+        if isinstance(v, list | tuple):
+            return [rounded(x) for x in v]
+        if isinstance(v, dict):
+            return {k: rounded(x) for k, x in v.items()}
+        return v
+
+    if isinstance(value, dict | list):
+        return inputs.dumps(rounded(value))
+    return str(rounded(value))
+
+
 def _n(x, spec: str, scale: float = 1.0) -> str:
     """A number for the text form; ``-`` for one that is not there (a NaN, null in JSON)."""
     return "-" if x is None else format(scale * x, spec)
@@ -182,6 +203,15 @@ def _result(run: Run) -> dict:
     }
 
 
+def _run_line(run: Run) -> str:
+    """One line for a finished run (what a worker prints as each run ends)."""
+    speed = f" --speed {run.speed:g}" if run.speed is not None else ""
+    verdict = "SUCCESS" if run.best_success else ("balance LOST" if run.best_fell else "not a success")
+    best = "-" if run.best_objective is None else f"{run.best_objective:.4f}"
+    return (f"run {run.id} {escape(run.task)}{speed}: {run.status} ({run.stop_reason}), best objective {best} "
+            f"{verdict}, {run.evaluations} evaluations")
+
+
 def _result_text(r: dict) -> str:
     def outcome(success, fell):
         return "SUCCESS" if success else ("balance LOST" if fell else "not a success (balance kept)")
@@ -236,16 +266,27 @@ def resolve_task(name: str, speed: float | None, sets: list[str] | None, referen
     return task_variant(name, speed, inputs.parse_sets(sets), reference)
 
 
-def _curve(spec: str, task: Task, store_path: str | None, flag: str = "--curve") -> tuple[Cmrt, str]:
+def _curve(args, spec: str, task: Task, flag: str = "--curve") -> tuple[Cmrt, str]:
+    """A ``--curve``/``--compare`` value -> (curve, name); ``--force`` lets a CMRT made for another task in."""
     from cmrt.service.known import resolve_curve
 
-    return resolve_curve(spec, task, store_path, flag)
+    return resolve_curve(spec, task, args.store, flag, other_task=args.force)
 
 
-def _store(path: str | None, readonly: bool = False) -> Store:
+def _store(path: str | None, readonly: bool = False, create: bool = True) -> Store:
     """The store at ``path`` (``--store``); a verb that only reads opens it read-only (``open_store`` checks
-    the path is a regular file first)."""
-    return open_store(path, readonly=readonly)
+    the path is a regular file first). A verb that writes says when it creates a new store (a mistyped
+    ``--store`` is then seen at once); one that needs runs in it (``create=False``: worker, requeue) refuses a
+    missing store."""
+    p = resolve_path(path)
+    new = not readonly and not os.path.lexists(p)
+    if new and not create:
+        raise CmrtError(f"no CMRT store at {shown(str(p))} (queue jobs into it first: cmrt submit TASK --store "
+                        f"{shown(str(p))})")
+    store = open_store(path, readonly=readonly, create=create)
+    if new:
+        print(f"cmrt: created a new store at {shown(str(p))}", file=sys.stderr, flush=True)
+    return store
 
 
 def _init_arg(value: str) -> str | int:
@@ -256,9 +297,10 @@ def _init_arg(value: str) -> str | int:
     raise argparse.ArgumentTypeError(f"must be auto, none or a run id, got {shown(value)}")
 
 
-def _force_arg(p: argparse.ArgumentParser) -> None:
+def _force_arg(p: argparse.ArgumentParser, curves: bool = False) -> None:
     p.add_argument("--force", action="store_true",
-                   help="replace an existing output file (never a store, a TOML file or a file this command reads)")
+                   help="replace an existing output file (never a store, a TOML file or a file this command reads)"
+                   + ("; use a CMRT made for another task" if curves else ""))
 
 
 def _check_out(args, value: str, flag: str, suffixes: tuple[str, ...] = ()) -> None:
@@ -320,8 +362,13 @@ def _backend_args(p: argparse.ArgumentParser) -> None:
 
 
 def _submit_kwargs(args) -> dict:
-    return dict(seed=args.seed, max_evals=args.max_evals, popsize=args.popsize, sigma0=args.sigma0,
-                min_evals=args.min_evals, init=args.init, stall_generations=args.stall_generations)
+    """The optimizer's options as ``jobs.submit`` takes them, checked (before any store is opened)."""
+    from cmrt.service.jobs import check_settings
+
+    settings = dict(seed=args.seed, max_evals=args.max_evals, popsize=args.popsize, sigma0=args.sigma0,
+                    min_evals=args.min_evals, stall_generations=args.stall_generations)
+    check_settings(**settings)
+    return dict(settings, init=args.init)
 
 
 def _opt_task(args, speed: float | None) -> Task:
@@ -377,15 +424,15 @@ class Simulate(Command):
         p.add_argument("--curve", default="zero", help="zero | library (the paper's plain CMRT) | library-robust "
                        "| RUN | FILE.json")
         p.add_argument("--trace", metavar="FILE.npz", help="save the trajectories")
-        _force_arg(p)
+        _force_arg(p, curves=True)
 
     def run(self, args):
         from cmrt.sim.report import simulate_report
 
         if args.trace is not None:
-            _check_out(args, args.trace, "--trace")
+            _check_out(args, args.trace, "--trace", (".npz",))
         task = resolve_task(args.task, args.speed, args.set, args.reference)
-        curve, name = _curve(args.curve, task, args.store)
+        curve, name = _curve(args, args.curve, task)
         return Output(simulate_report(task, curve, name, args.trace), _report_text)
 
 
@@ -398,10 +445,11 @@ class Submit(Command):
 
     def run(self, args):
         task = _opt_task(args, args.speed)
+        kwargs = _submit_kwargs(args)
         from cmrt.service import jobs
 
         with _store(args.store) as store:
-            run_id = jobs.submit(store, task, **_submit_kwargs(args))
+            run_id = jobs.submit(store, task, **kwargs)
         speed = f" --speed {task.speed:g}" if task.speed is not None else ""
         return Output({"run_id": run_id, "task": task.name, "speed": task.speed, "status": "queued"},
                       f"queued run {run_id}: {escape(task.name)}{speed}")
@@ -426,12 +474,13 @@ class Optimize(Command):
         from cmrt.service import jobs
 
         task = _opt_task(args, args.speed)
+        kwargs = _submit_kwargs(args)
         evaluator = Evaluator(args.backend, args.workers, args.scheduler)  # fails before the store is touched
         try:
             with _store(args.store) as store:
                 progress = _Progress(args.max_evals, enabled=not args.no_progress)
                 try:
-                    run = jobs.optimize_now(store, task, evaluator, progress, **_submit_kwargs(args))
+                    run = jobs.optimize_now(store, task, evaluator, progress, **kwargs)
                 finally:
                     progress.close()
         finally:
@@ -453,6 +502,7 @@ class Optimize(Command):
         if args.family_sigma0 <= 0:
             raise CmrtError("--family-sigma0 must be > 0")
         tasks = [_opt_task(args, v) for v in speeds]  # validate every speed first
+        kwargs = _submit_kwargs(args)
 
         def on_run(run: Run) -> None:
             if not args.json:
@@ -464,7 +514,7 @@ class Optimize(Command):
                 progress = _Progress(args.max_evals, enabled=not args.no_progress)
                 try:
                     runs = jobs.optimize_family(store, tasks, evaluator, family_sigma0=args.family_sigma0,
-                                                on_generation=progress, on_run=on_run, **_submit_kwargs(args))
+                                                on_generation=progress, on_run=on_run, **kwargs)
                 finally:
                     progress.close()
         finally:
@@ -494,13 +544,23 @@ class Worker(Command):
         def on_failure(run_id: int, message: str) -> None:
             print(f"cmrt: worker: run {run_id}: {message}", file=sys.stderr, flush=True)
 
+        def on_done(run: Run) -> None:
+            if not args.json:
+                print(f"  {_run_line(run)}", flush=True)
+
+        def on_idle() -> None:
+            if not args.json:
+                print(f"worker {jobs.worker_id()}: no queued job in {shown(str(resolve_path(args.store)))}; "
+                      "waiting for one (cmrt submit ...; Ctrl-C stops)", flush=True)
+
         if not (math.isfinite(args.stale_after) and args.stale_after > 0):
             raise CmrtError(f"--stale-after must be a finite number of seconds > 0, got '{args.stale_after}'")
         evaluator = Evaluator(args.backend, args.workers, args.scheduler)
         try:
-            with _store(args.store) as store:
+            with _store(args.store, create=False) as store:
                 done = jobs.work(store, evaluator, until_idle=args.until_idle, once=args.once,
-                                 stale_after_s=args.stale_after, on_claim=on_claim, on_failure=on_failure)
+                                 stale_after_s=args.stale_after, on_claim=on_claim, on_failure=on_failure,
+                                 on_done=on_done, on_idle=on_idle)
         finally:
             evaluator.close()
         return Output({"finished": done}, f"worker finished runs: {', '.join(map(str, done)) or 'none'}")
@@ -513,7 +573,7 @@ class Requeue(Command):
         p.add_argument("run", type=int)
 
     def run(self, args):
-        with _store(args.store) as store:
+        with _store(args.store, create=False) as store:
             run = store.requeue(args.run)
         return Output({"run_id": run.id, "status": run.status}, f"run {run.id} is queued again")
 
@@ -528,7 +588,9 @@ class Jobs(Command):
     def run(self, args):
         with _store(args.store, readonly=True) as store:
             rows = [{k: getattr(r, k) for k in self.KEYS} for r in store.runs(status=args.status)]
-        return Output(rows, _table(rows, self.KEYS[:-2]))
+        shown_rows = [{**r, "heartbeat_at": None if r["heartbeat_at"] is None else
+                       _readable("heartbeat_at", r["heartbeat_at"])} for r in rows]
+        return Output(rows, lambda _: _table(shown_rows, self.KEYS[:-1]))
 
 
 class Runs(Command):
@@ -561,8 +623,7 @@ class Show(Command):
             d = query.run_details(store, args.run)
 
         def text(d):
-            return "\n".join(f"{k:20s} {escape(inputs.dumps(v) if isinstance(v, (dict, list)) else str(v))}"
-                             for k, v in d.items() if k != "task_definition")
+            return "\n".join(f"{k:20s} {escape(_readable(k, v))}" for k, v in d.items() if k != "task_definition")
 
         return Output(d, text)
 
@@ -588,14 +649,14 @@ class Export(Command):
         p.add_argument("run", type=inputs.run_id_arg)
         p.add_argument("--format", choices=("json", "csv"), default="json",
                        help="json: the run, its generations and evaluations; csv: one row per evaluation")
-        p.add_argument("--out", metavar="FILE")
+        p.add_argument("--out", metavar="FILE.json|FILE.csv", help="write to this file (its suffix the format's)")
         _force_arg(p)
 
     def run(self, args):
         from cmrt.service import query
 
         if args.out is not None:
-            _check_out(args, args.out, "--out")
+            _check_out(args, args.out, "--out", (f".{args.format}",))
         with _store(args.store, readonly=True) as store:
             text = query.export_run(store, args.run, args.format)
         if args.out is not None:
@@ -621,7 +682,7 @@ class Interpolate(Command):
         if args.param is not None:
             inputs.param_name(args.param, "--param")
         if args.out is not None:
-            _check_out(args, args.out, "--out")
+            _check_out(args, args.out, "--out", (".json",))
         task = resolve_task(args.task, args.speed, args.set, args.reference)
         store = _store(args.store, readonly=True) if args.source == "store" else None
         try:
@@ -663,7 +724,7 @@ class Sequence(Command):
         from cmrt.sim.report import sequence_report
 
         if args.trace is not None:
-            _check_out(args, args.trace, "--trace")
+            _check_out(args, args.trace, "--trace", (".npz",))
         seq = load_sequence(args.file)
         curve = superpose(seq) if args.curve == "superposed" else Cmrt.zero(seq.clip_s)
         r = sequence_report(seq, curve, args.curve, args.trace)
@@ -672,6 +733,9 @@ class Sequence(Command):
                       f"{_n(r['max_cop_error_m'], '.4f')} m  final pose error {_n(r['final_pose_error_rad'], '.4f')} "
                       f"rad  timing lag {_n(r['timing_lag_s'], '.3f')} s"
                       + ("" if r["fall_direction"] is None else "\n" + _after_fall_text(r)))
+
+
+FILE_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg", ".mp4", ".json", ".csv", ".npz", ".sqlite", ".toml")
 
 
 class Plot(Command):
@@ -689,6 +753,9 @@ class Plot(Command):
 
         if args.run is None and not args.family and not args.sequence:
             raise CmrtError("plot what? give a RUN, --family TASK or --sequence FILE")
+        if Path(args.out).suffix.lower() in FILE_SUFFIXES:  # plot x.png made a directory named x.png
+            raise CmrtError(f"--out is the directory the figures go into, not a file: {shown(args.out)} "
+                            "(give a directory, e.g. --out plots)")
         out = inputs.output_dir(args.out, "--out")  # created and checked before anything is simulated
         family = out / f"{Path(args.family).stem}_family.png" if args.family else None
         sequence = out / f"{Path(args.sequence).stem}_sequence.png" if args.sequence else None
@@ -717,15 +784,15 @@ class Render(Command):
         p.add_argument("--out", required=True, metavar="FILE.png|FILE.mp4")
         p.add_argument("--frames", type=inputs.arg(inputs.FRAMES), default=8, help="filmstrip frames (PNG)")
         p.add_argument("--fps", type=inputs.arg(inputs.FPS), default=30, help="video frame rate (MP4)")
-        _force_arg(p)
+        _force_arg(p, curves=True)
 
     def run(self, args):
         from cmrt.viz.render import OUT_SUFFIXES, render  # OpenGL: only this verb pays for it
 
         _check_out(args, args.out, "--out", OUT_SUFFIXES)  # before anything is simulated
         task = resolve_task(args.task, args.speed, args.set, args.reference)
-        curve, name = _curve(args.curve, task, args.store)
-        compare, cname = _curve(args.compare, task, args.store, "--compare") if args.compare else (None, "")
+        curve, name = _curve(args, args.curve, task)
+        compare, cname = _curve(args, args.compare, task, "--compare") if args.compare else (None, "")
         r = render(task, curve, args.out, compare, (f"{name} CMRT", f"{cname} CMRT"), n_frames=args.frames,
                    fps=args.fps)
         lines = [f"wrote {escape(r['out'])} ({r['frames']} frames)"] + [
@@ -928,10 +995,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cmrt: error: {exc}", file=sys.stderr)
         return EXIT_TEMPFAIL
     except Terminated as exc:
-        print(f"cmrt: terminated ({signal.Signals(exc.signum).name})", file=sys.stderr)
+        print(f"cmrt: terminated ({signal.Signals(exc.signum).name}){_resume_hint(exc, args)}", file=sys.stderr)
         return 128 + exc.signum
-    except KeyboardInterrupt:
-        print("cmrt: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        print(f"cmrt: interrupted{_resume_hint(exc, args)}", file=sys.stderr)
         return 130
     except BrokenPipeError:  # output piped into `head` and the like
         sys.stderr.close()
@@ -939,6 +1006,16 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def _resume_hint(exc: KeyboardInterrupt, args: argparse.Namespace | None) -> str:
+    """What an interruption left: the run given back to the queue, and the command that resumes it."""
+    run_id = getattr(exc, "released_run", None)
+    if run_id is None:
+        return ""
+    store = shown(str(resolve_path(getattr(args, "store", None))))
+    return (f": run {run_id} is back in the queue, its checkpoint kept; resume it with: "
+            f"cmrt worker --once --store {store}")
 
 
 TERMINATING_SIGNALS = (signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)

@@ -58,6 +58,8 @@ def resolve_task(name_or_path: str, speed: float | None = None, params: dict[str
     numbers or their text) and speed applied in that order, each validated: what the CLI's task arguments
     and the tools build."""
     task = load_task(name_or_path).with_reference(reference)
+    if speed is not None and params and task.speed_param in params:  # one would silently override the other
+        raise CmrtError(f"--speed sets {task.speed_param}: give --speed or --set {task.speed_param}=..., not both")
     if params:
         try:
             task = task.with_params(**params)

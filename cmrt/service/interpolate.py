@@ -37,6 +37,7 @@ class Interpolated:
     sources: tuple[tuple[float, str], ...]  # (parameter value, where the CMRT came from)
     weight: float  # 0 at the first source, 1 at the second
     extrapolated: bool
+    task: str = ""  # the task's name: written into the JSON, so --curve FILE refuses it for another task
 
 
 def blend(a: Cmrt, b: Cmrt, w: float) -> Cmrt:
@@ -107,13 +108,14 @@ def interpolate(
     (va, ca, la), (vb, cb, lb) = pts[i], pts[i + 1]
     w = (value - va) / (vb - va)
     extrapolated = bool(value < values[0] or value > values[-1])
-    return Interpolated(blend(ca, cb, w), param, value, ((va, la), (vb, lb)), float(w), extrapolated)
+    return Interpolated(blend(ca, cb, w), param, value, ((va, la), (vb, lb)), float(w), extrapolated, task.name)
 
 
 def to_json(r: Interpolated) -> str:
     """The result as JSON; its ``cmrt`` is a CMRT file usable as ``--curve FILE.json``."""
     return json.dumps(
         {
+            "task": r.task,
             "param": r.param,
             "value": r.value,
             "weight": r.weight,

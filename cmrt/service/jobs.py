@@ -53,6 +53,27 @@ def worker_id() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"
 
 
+def released(exc: KeyboardInterrupt, run_id: int) -> KeyboardInterrupt:
+    """``exc`` (Ctrl-C or a terminating signal) marked with the run it gave back to the queue, so that the
+    CLI can say which run is queued and how to resume it."""
+    exc.released_run = run_id  # type: ignore[attr-defined]
+    return exc
+
+
+def check_settings(*, seed: int, max_evals: int, popsize: int, sigma0: float, min_evals: int,
+                   stall_generations: int) -> None:
+    """The optimizer settings a run may be queued with (the CLI checks them before it opens the store)."""
+    # the same ranges as the CLI's (cmrt.inputs): nothing non-finite or out of range reaches the store
+    for value, where, allowed in ((seed, "seed", inputs.SEED), (max_evals, "max_evals", inputs.MAX_EVALS),
+                                  (popsize, "popsize", inputs.POPSIZE), (sigma0, "sigma0", inputs.SIGMA0),
+                                  (min_evals, "min_evals", inputs.MIN_EVALS),
+                                  (stall_generations, "stall_generations", inputs.STALL_GENERATIONS)):
+        allowed.check(value, where, text=False)
+    if max_evals < popsize:  # a generation is popsize evaluations: the budget would be overrun, not kept
+        raise CmrtError(f"a budget of {max_evals} evaluations (max-evals) is less than one generation of "
+                        f"{popsize} (popsize): give at least {popsize}, or a smaller popsize")
+
+
 def submit(
     store: Store,
     task: Task,
@@ -71,12 +92,8 @@ def submit(
 
     ``init``: "auto" starts from the nearest known successful CMRT of the task (store, then
     library; cold if none), "none" from the zero CMRT, a run id from that run's best."""
-    # the same ranges as the CLI's (cmrt.inputs): nothing non-finite or out of range reaches the store
-    for value, where, allowed in ((seed, "seed", inputs.SEED), (max_evals, "max_evals", inputs.MAX_EVALS),
-                                  (popsize, "popsize", inputs.POPSIZE), (sigma0, "sigma0", inputs.SIGMA0),
-                                  (min_evals, "min_evals", inputs.MIN_EVALS),
-                                  (stall_generations, "stall_generations", inputs.STALL_GENERATIONS)):
-        allowed.check(value, where, text=False)
+    check_settings(seed=seed, max_evals=max_evals, popsize=popsize, sigma0=sigma0, min_evals=min_evals,
+                   stall_generations=stall_generations)
     start = resolve_init(store, task, init)
     return store.add_run(RunSpec(
         task=task.name, speed=task.speed, params=task.params, task_hash=task.content_hash(),
@@ -195,16 +212,16 @@ def optimize_now(
         c = claim(store, worker_id(), run_id=run_id)
         try:
             return run_claimed(store, c, ev, on_generation)
-        except KeyboardInterrupt:  # Ctrl-C, SIGTERM: back in the queue, a worker resumes it
+        except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM: back in the queue, a worker resumes it
             store.release(c)
-            raise
+            raise released(exc, run_id) from None
         except TransientFault as exc:
             store.retry_later(c, str(exc))
             raise TransientFault(f"run {run_id} is back in the queue ('cmrt worker' resumes it): {exc}") from exc
         except Exception as exc:  # never leave the run 'running' until its heartbeat goes stale
             if (terminated := pending_termination()) is not None:  # a signal inside an SQLite step
                 store.release(c)
-                raise terminated from exc
+                raise released(terminated, run_id) from exc
             store.mark_failed(c, str(exc) if isinstance(exc, CmrtError) else f"{type(exc).__name__}: {exc}")
             raise
 
@@ -263,8 +280,13 @@ def work(
     on_claim: Callable[[Claim], None] | None = None,
     on_generation: ProgressFn | None = None,
     on_failure: Callable[[int, str], None] | None = None,
+    on_done: Callable[[Run], None] | None = None,
+    on_idle: Callable[[], None] | None = None,
 ) -> list[int]:
     """The worker loop: claim, optimize, repeat. Returns the ids of the runs it finished.
+
+    ``on_done(run)`` is called for each finished run; ``on_idle()`` once each time the queue is found empty
+    and the worker starts waiting (not with ``until_idle`` or ``once``, which return then).
 
     A transient fault (full disk, lost worker process: :class:`TransientFault`) gives the run back to the
     queue - it resumes from its last checkpoint - a bounded number of times (``store.MAX_RETRIES``); any
@@ -275,24 +297,31 @@ def work(
     inputs.STALE_AFTER_S.check(stale_after_s, "stale_after_s", text=False)
     me = worker_id()
     finished = []
+    waiting = False
     with _evaluator(evaluator) as ev:
         while True:
             c = claim(store, me, stale_after_s)
             if c is None:
                 if until_idle or once:
                     return finished
+                if on_idle and not waiting:
+                    on_idle()
+                waiting = True
                 time.sleep(poll_s)
                 continue
+            waiting = False
             if on_claim:
                 on_claim(c)
             try:
-                run_claimed(store, c, ev, on_generation, heartbeat_s=stale_after_s / 4)
+                run = run_claimed(store, c, ev, on_generation, heartbeat_s=stale_after_s / 4)
                 finished.append(c.run_id)
+                if on_done:
+                    on_done(run)
             except LostClaim:
                 pass
-            except KeyboardInterrupt:  # Ctrl-C, SIGTERM (cmrt.errors.Terminated)
+            except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM (cmrt.errors.Terminated)
                 store.release(c)
-                raise
+                raise released(exc, c.run_id) from None
             except TransientFault as exc:
                 store.retry_later(c, str(exc))
                 if on_failure:
@@ -300,7 +329,7 @@ def work(
             except Exception as exc:  # a bug or a bad stored run must not take the worker (and the queue) down
                 if (terminated := pending_termination()) is not None:  # a signal inside an SQLite step
                     store.release(c)
-                    raise terminated from exc
+                    raise released(terminated, c.run_id) from exc
                 message = str(exc) if isinstance(exc, CmrtError) else f"{type(exc).__name__}: {exc}"
                 store.mark_failed(c, message)
                 if on_failure:

@@ -56,10 +56,13 @@ CURVE_SPECS = "zero, library, library-robust, a run id or a CMRT .json file"
 
 
 def resolve_curve(spec: str, task: Task, store_path: str | os.PathLike | None = None,
-                  flag: str = "--curve") -> tuple[Cmrt, str]:
+                  flag: str = "--curve", other_task: bool = False) -> tuple[Cmrt, str]:
     """The CMRT a user names for ``task`` -> (curve, description): ``zero``, ``library``, ``library-robust``,
     a stored run's id (its best; the store at ``store_path`` is opened read-only) or a CMRT ``.json`` file.
-    It must be for the task's clip length. ``flag`` names the argument in error messages."""
+    It must be for the task's clip length, and - a stored run's, or a file that names its task (``cmrt
+    interpolate`` writes the name) - for the same task unless ``other_task`` (the CLI's ``--force``): a
+    bend's CMRT has the punch's clip length but means nothing for it. ``flag`` names the argument in errors."""
+    made_for = None  # the task the CMRT was made for, where that is known
     if spec == "zero":
         return Cmrt.zero(task.clip_s), "zero"
     if spec in ("library", "library-robust"):
@@ -69,11 +72,23 @@ def resolve_curve(spec: str, task: Task, store_path: str | os.PathLike | None = 
         run_id = inputs.RUN_ID.check(spec, f"{flag} RUN")
         with open_store(store_path, readonly=True) as store:
             curve = run_curve(store, run_id)
+            made_for = store.run(run_id).task
         what = name = f"run {spec}"
     elif Path(spec).suffix.lower() == ".json" or os.path.lexists(spec):
         curve, what, name = Cmrt.load(Path(spec)), f"CMRT in {shown(spec)}", str(Path(spec))
+        made_for = _file_task(spec)
     else:
         raise CmrtError(f"{flag} must be {CURVE_SPECS}, got {shown(spec)}")
+    if made_for is not None and made_for != task.name and not other_task:
+        raise CmrtError(f"{what} was made for task {shown(made_for)}, not {shown(task.name)} "
+                        "(add --force to use it anyway)")
     if abs(curve.clip_s - task.clip_s) > CLIP_TOLERANCE_S:  # e.g. the library's entry for the file's own clip
         raise CmrtError(f"{what} is for a {curve.clip_s:g} s clip, task clip is {task.clip_s:g} s")
     return curve, name
+
+
+def _file_task(path: str) -> str | None:
+    """The task a CMRT file names (``cmrt interpolate`` writes ``"task"``); None for a bare CMRT."""
+    obj = inputs.parse_json(inputs.read_text(path, "CMRT file"), f"CMRT file {shown(path)}")
+    task = obj.get("task") if isinstance(obj, dict) else None
+    return task if isinstance(task, str) else None

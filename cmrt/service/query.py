@@ -64,7 +64,7 @@ def run_curve(store: Store, run_id: int) -> Cmrt:
 
 def export_run(store: Store, run_id: int, fmt: str) -> str:
     """json: run, generations and evaluations (non-finite numbers as null: valid JSON); csv: one row per
-    evaluation."""
+    evaluation, its CMRT as knots (times in s, CoM displacements in m) and then CMA-ES's raw 8-vector."""
     if fmt not in ("json", "csv"):
         raise CmrtError(f"--format must be json or csv, got '{fmt}'")
     with store.snapshot():  # one consistent state even while a worker commits generations
@@ -76,11 +76,19 @@ def export_run(store: Store, run_id: int, fmt: str) -> str:
              "evaluations": [asdict(e) for e in evaluations]},
             indent=2,
         )
+    from cmrt.motion.curve import N_KNOTS, Cmrt  # scipy: only the CSV export loads it
+
+    clip_s = float(details["params"]["clip_s"])
     buf = io.StringIO()
     w = csv.writer(buf)
-    w.writerow(["run_id", "gen", "idx", "objective", "fell", "success", "seconds"] + [f"p{i}" for i in range(8)])
+    knots = range(1, N_KNOTS + 1)
+    w.writerow(["run_id", "gen", "idx", "objective", "fell", "success", "seconds"]
+               + [f"knot{i}_time_s" for i in knots] + [f"knot{i}_displacement_m" for i in knots]
+               + [f"p{i}" for i in range(2 * N_KNOTS)])
     for e in evaluations:
         success = "" if e.success is None else int(e.success)
+        curve = Cmrt.from_params(e.params, clip_s)  # the knots a person plots; the raw CMA-ES vector after them
         row = [run_id, e.gen, e.idx, repr(e.objective), int(e.fell), success, e.seconds]
-        w.writerow(row + [repr(p) for p in e.params])
+        w.writerow(row + [repr(t) for t in curve.knot_times_s] + [repr(v) for v in curve.values_m]
+                   + [repr(p) for p in e.params])
     return buf.getvalue()

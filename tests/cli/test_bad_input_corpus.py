@@ -234,7 +234,7 @@ def _cases() -> list[Case]:
     task_verbs = [
         lambda f: ("simulate", f),
         lambda f: ("submit", f),
-        lambda f: ("optimize", f, "--max-evals", "1", "--no-progress"),
+        lambda f: ("optimize", f, "--max-evals", "10", "--no-progress"),
         lambda f: ("best", f),
         lambda f: ("render", f, "--out", "{d}/o.png"),
         lambda f: ("interpolate", f, "--speed", "0.5"),
@@ -324,8 +324,7 @@ def _cases() -> list[Case]:
                         ("{d}/full{ext}", "not a regular file"), ("{d}/nodir/x{ext}", "does not exist"),
                         ("", "not a valid path")]:
         add(Case(("simulate", "bend", "--trace", path.format(d="{d}", ext=".npz")), words=words))
-        add(Case(("render", "bend", "--out", path.format(d="{d}", ext=".png")),
-                 words=words if path != "{d}/outdir" else ".png or .mp4"))
+        add(Case(("render", "bend", "--out", path.format(d="{d}", ext=".png")), words=words))
         add(Case(("export", "1", "--out", path.format(d="{d}", ext=".json")), words=words))
         add(Case(("interpolate", "bend", "--speed", "0.5", "--out", path.format(d="{d}", ext=".json")), words=words))
         add(Case(("sequence", "four-poses", "--trace", path.format(d="{d}", ext=".npz")), words=words))
@@ -334,7 +333,7 @@ def _cases() -> list[Case]:
     add(Case(("render", "bend", "--frames", "0", "--out", "{d}/o.png"), words="--frames"))
     add(Case(("render", "bend", "--fps", "1e9", "--out", "{d}/o.mp4"), words="--fps"))
     add(Case(("plot", "1", "--out", "/proc/x"), words="--out"))
-    add(Case(("plot", "1", "--out", "{d}/c_list.json"), words="not a directory"))
+    add(Case(("plot", "1", "--out", "{d}/c_list.json"), words="directory the figures go into"))
     add(Case(("plot", "--family", "bend", "--out", "/dev/full"), words="not a directory"))
     add(Case(("plot",), words="plot what"))
     add(Case(("plot", "--family", "stand", "--out", "{d}/outdir"), words="no speed parameter"))
@@ -365,7 +364,8 @@ def _cases() -> list[Case]:
                         ("flipped-page", "damaged"), ("fifo", "regular file")]:
         for argv in reads:
             add(Case(argv, store=kind, words=words))
-    writes = [("submit", "bend"), ("worker", "--until-idle"), ("optimize", "bend", "--max-evals", "1", "--no-progress")]
+    writes = [("submit", "bend"), ("worker", "--until-idle"),
+              ("optimize", "bend", "--max-evals", "10", "--no-progress")]
     for kind, words in [("directory", "directory"), ("text", "not a CMRT store"), ("foreign", "not a CMRT store"),
                         ("truncated", "corrupted"), ("fifo", "regular file")]:
         for argv in writes:

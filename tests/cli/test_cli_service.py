@@ -54,6 +54,11 @@ def test_export(store_with_run, tmp_path):
     text = cmrt("export", str(out["run_id"]), "--format", "csv", store=path, check=True).stdout
     rows = list(csv.DictReader(io.StringIO(text)))
     assert len(rows) == 20 and min(float(r["objective"]) for r in rows) == out["best_objective"]
+    best = min(rows, key=lambda r: float(r["objective"]))  # its knots in s and m are the stored best CMRT's
+    assert [float(best[f"knot{i}_time_s"]) for i in range(1, 5)] == out["best_cmrt"]["knot_times_s"]
+    assert [float(best[f"knot{i}_displacement_m"]) for i in range(1, 5)] == out["best_cmrt"]["values_m"]
+    show = json.loads(cmrt("show", str(out["run_id"]), "--json", store=path, check=True).stdout)
+    assert [float(best[f"p{i}"]) for i in range(8)] == show["best_params"]  # the raw CMA-ES vector after them
     dest = tmp_path / "run.json"
     cmrt("export", str(out["run_id"]), "--format", "json", "--out", str(dest), store=path, check=True)
     data = json.loads(dest.read_text())

@@ -154,8 +154,8 @@ def test_simulate_reports_its_reference_mode(capsys):
 @pytest.mark.slow  # optimizes two pushes and sweeps four push batches
 def test_compare_references_tool_prints_a_row_per_task_mode_and_curve():
     tool = Path(__file__).resolve().parents[2] / "tools" / "compare_references.py"
-    r = subprocess.run([sys.executable, str(tool), "--tasks", "punch", "--pushes", "250", "--max-evals", "8",
-                        "--push-max-evals", "8", "--json"], capture_output=True, text=True, timeout=900)
+    r = subprocess.run([sys.executable, str(tool), "--tasks", "punch", "--pushes", "250", "--max-evals", "10",
+                        "--push-max-evals", "10", "--json"], capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     keys = {(row["task"], row["reference"], row["curve"]) for row in out["rows"]}

@@ -227,9 +227,10 @@ def _wait_for_a_generation(path, rid, timeout_s=300.0):
 
 
 @pytest.mark.slow  # a worker process
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT], ids=lambda s: s.name)
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT], ids=lambda s: s.name)
 def test_a_terminating_signal_gives_the_run_back_at_once(tmp_path, sig):
-    """SIGTERM, SIGHUP (a closed terminal) and SIGQUIT: the run is queued again, exit 128 + signal."""
+    """Ctrl-C, SIGTERM, SIGHUP (a closed terminal) and SIGQUIT: the run is queued again, exit 128 + signal,
+    and the one line says which run is queued and the command that resumes it."""
     path = tmp_path / "s.sqlite"
     with open_store(path) as store:
         rid = submit(store, TASK, seed=2, max_evals=60, popsize=6, init="none")
@@ -239,7 +240,9 @@ def test_a_terminating_signal_gives_the_run_back_at_once(tmp_path, sig):
     worker.send_signal(sig)
     _, err = worker.communicate(timeout=120)
     assert time.time() - sent < 10
-    assert worker.returncode == 128 + sig and f"terminated ({sig.name})" in err
+    said = "interrupted" if sig == signal.SIGINT else f"terminated ({sig.name})"
+    assert worker.returncode == 128 + sig and err.startswith(f"cmrt: {said}: run {rid} is back in the queue"), err
+    assert f"resume it with: cmrt worker --once --store '{path}'" in err, err
     with open_store(path, readonly=True) as store:
         run = store.run(rid)
     assert run.status == "queued" and run.worker is None  # no waiting for the heartbeat to go stale
