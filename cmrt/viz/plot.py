@@ -50,7 +50,7 @@ def _save(fig, out: Path) -> Path:
 def _phases(ax, task: Task) -> None:
     """The motion's window [P, P + T], shaded and edged in black."""
     P, T = task.preparation_s, task.duration_s
-    ax.axvspan(P, P + T, facecolor="0.9", edgecolor="k", lw=0.8, zorder=0, label=f"motion (P to P + T = {T:g} s)")
+    ax.axvspan(P, P + T, facecolor="0.9", edgecolor="k", lw=0.8, zorder=0, label=f"motion, P to P + T (T = {T:g} s)")
 
 
 def _legend(ax) -> None:
@@ -94,20 +94,19 @@ def plot_cop_error(task: Task, curves: list[tuple[str, Cmrt]], out: Path) -> Pat
 
 def cmrt_figure(task: Task, curve: Cmrt, label: str = "best CMRT"):
     """ABC Fig. 3: the CMRT with its knots and the task's phases."""
-    fig, ax = plt.subplots(figsize=(7, 2.8))
+    fig, ax = plt.subplots(figsize=(9.5, 2.8))
     t = np.linspace(0, task.clip_s, 400)
     ax.plot(t, 100 * curve.displacement_m(t), lw=1.5, label=label)
     ax.plot(curve.knot_times_s, 100 * np.asarray(curve.values_m), "o", ms=5, label="knots")
     _phases(ax, task)
-    top = ax.get_ylim()[1]
     P, T = task.preparation_s, task.duration_s
     for x, name in ((P / 2, "preparation"), (P + T / 2, "task"), ((P + T + task.clip_s) / 2, "decay")):
-        ax.text(x, top, name, ha="center", va="top", fontsize=8)
+        ax.text(x, 1.01, name, transform=ax.get_xaxis_transform(), ha="center", va="bottom", fontsize=8)
     ax.axhline(0, color="0.5", lw=0.6, label="d = 0 (no CMRT)")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("d(t) (cm)")
     ax.set_xlim(0, task.clip_s)
-    ax.legend(loc="lower right", fontsize=8)
+    _legend(ax)
     fig.tight_layout()
     return fig
 
@@ -126,7 +125,7 @@ def convergence_figure(evaluations: list[StoredEvaluation], threshold: float, ti
     idx = np.arange(1, obj.size + 1)
     fig, ax = plt.subplots(figsize=(7, 3))
     ax.semilogy(idx[success], obj[success], ".", ms=3, label="success")
-    ax.semilogy(idx[other], obj[other], ".", ms=3, color="0.6", label="balanced, not a success (penalised)")
+    ax.semilogy(idx[other], obj[other], ".", ms=3, color="0.6", label="balance kept, not a success (penalised)")
     ax.semilogy(idx[fell], obj[fell], "x", ms=3, color="r", label="lost balance (penalised)")
     ax.semilogy(idx, np.minimum.accumulate(obj), "k-", lw=1, label="best so far")
     if threshold > 0:
