@@ -796,10 +796,7 @@ class Render(Command):
         r = render(task, curve, args.out, compare, (f"{name} CMRT", f"{cname} CMRT"), n_frames=args.frames,
                    fps=args.fps)
         lines = [f"wrote {escape(r['out'])} ({r['frames']} frames)"] + [
-            f"  {escape(c['label'])}: "
-            f"{'SUCCESS' if c['success'] else 'lost balance' if c['fell'] else 'balance kept, not a success'}, "
-            f"objective {c['objective']:.4f}"
-            for c in r["clips"]
+            f"  {escape(c['label'])}: {c['verdict']}, objective {c['objective']:.4f}" for c in r["clips"]
         ]
         return Output(r, "\n".join(lines))
 

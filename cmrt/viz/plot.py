@@ -6,6 +6,10 @@
   phases marked (Fig. 3);
 * ``convergence.png``: every evaluation's objective in order, best so far, the stop
   threshold, falls marked (Fig. 4).
+
+Every line and shaded region is in a legend, and a CoP trace ends where the character lost its balance
+(a recorded clip plays the topple out; its CoP then says nothing about balance). Each figure is built by a
+``*_figure`` function (tests read its artists) and written by the ``plot_*`` one.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from cmrt.service.query import task_of  # noqa: E402
 from cmrt.service.store import Store, StoredEvaluation  # noqa: E402
 from cmrt.sim.objective import evaluate  # noqa: E402
 from cmrt.sim.simulate import simulate  # noqa: E402
+from cmrt.viz.render import verdict  # noqa: E402
 
 
 def _save(fig, out: Path) -> Path:
@@ -43,57 +48,75 @@ def _save(fig, out: Path) -> Path:
 
 
 def _phases(ax, task: Task) -> None:
+    """The motion's window [P, P + T], shaded and edged in black."""
     P, T = task.preparation_s, task.duration_s
-    for x in (P, P + T):
-        ax.axvline(x, color="k", lw=0.8)
-    ax.axvspan(P, P + T, color="0.9", zorder=0)
+    ax.axvspan(P, P + T, facecolor="0.9", edgecolor="k", lw=0.8, zorder=0, label=f"motion, P to P + T (T = {T:g} s)")
 
 
-def plot_cop_error(task: Task, curves: list[tuple[str, Cmrt]], out: Path) -> Path:
+def _legend(ax) -> None:
+    """The axes' legend outside them, on the right, where it hides no curve."""
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+
+
+def until_fall(traj, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(time, values) of a recorded clip up to its fall (all of it when it kept its balance)."""
+    n = traj.time_s.size if traj.fall_time_s is None else int(np.searchsorted(traj.time_s, traj.fall_time_s, "right"))
+    return traj.time_s[:n], values[:n]
+
+
+def cop_error_figure(task: Task, curves: list[tuple[str, Cmrt]]):
     """ABC Fig. 2: CoP and support centre over the clip, one panel per CMRT."""
-    fig, axes = plt.subplots(len(curves), 1, figsize=(7, 2.4 * len(curves)), sharex=True, squeeze=False)
+    fig, axes = plt.subplots(len(curves), 1, figsize=(9.5, 2.4 * len(curves)), sharex=True, squeeze=False)
     for ax, (label, curve) in zip(axes[:, 0], curves, strict=True):
         traj = simulate(task, curve)
         ev = evaluate(task, traj)
-        t = traj.time_s
-        ax.plot(t, 100 * (traj.cop_x_m - traj.support_center_x_m), lw=1.2, label="CoP error")
-        ax.plot(t, 100 * (traj.support_lo_x_m - traj.support_center_x_m), "k--", lw=0.8, label="support edges")
-        ax.plot(t, 100 * (traj.support_hi_x_m - traj.support_center_x_m), "k--", lw=0.8)
+        ax.plot(*until_fall(traj, 100 * (traj.cop_x_m - traj.support_center_x_m)), lw=1.2, label="CoP error p - s")
+        t, lo = until_fall(traj, 100 * (traj.support_lo_x_m - traj.support_center_x_m))
+        ax.plot(t, lo, "k--", lw=0.8, label="support edges (heel, toe)")
+        ax.plot(*until_fall(traj, 100 * (traj.support_hi_x_m - traj.support_center_x_m)), "k--", lw=0.8)
         if traj.fall_time_s is not None:
-            ax.axvline(traj.fall_time_s, color="r", ls=":", label="balance lost")
+            ax.axvline(traj.fall_time_s, color="r", ls=":", label=f"balance lost ({traj.fall_time_s:.2f} s)")
         _phases(ax, task)
-        status = "success" if ev.success else ("lost balance" if ev.fell else "balanced, not a success")
-        ax.set_title(f"{label}: objective {ev.objective:.3f} ({status})", fontsize=10)
+        ax.set_title(f"{label}: objective {ev.objective:.3f} ({verdict(ev)})", fontsize=10)
         ax.set_ylabel("p - s (cm)")
         ax.set_xlim(0, task.clip_s + task.tail_s)
-        ax.axvspan(task.clip_s, task.clip_s + task.tail_s, color="0.95", zorder=0)  # standing tail, not scored
-    axes[0, 0].legend(loc="upper right", fontsize=8)
+        ax.axvspan(task.clip_s, task.clip_s + task.tail_s, color="0.95", zorder=0, label="standing tail (not scored)")
+        _legend(ax)
     axes[-1, 0].set_xlabel("time (s)")
     fig.tight_layout()
-    return _save(fig, out)
+    return fig
 
 
-def plot_cmrt(task: Task, curve: Cmrt, out: Path, label: str = "best CMRT") -> Path:
+def plot_cop_error(task: Task, curves: list[tuple[str, Cmrt]], out: Path) -> Path:
+    """ABC Fig. 2 written to ``out``."""
+    return _save(cop_error_figure(task, curves), out)
+
+
+def cmrt_figure(task: Task, curve: Cmrt, label: str = "best CMRT"):
     """ABC Fig. 3: the CMRT with its knots and the task's phases."""
-    fig, ax = plt.subplots(figsize=(7, 2.8))
+    fig, ax = plt.subplots(figsize=(9.5, 2.8))
     t = np.linspace(0, task.clip_s, 400)
     ax.plot(t, 100 * curve.displacement_m(t), lw=1.5, label=label)
     ax.plot(curve.knot_times_s, 100 * np.asarray(curve.values_m), "o", ms=5, label="knots")
     _phases(ax, task)
-    top = ax.get_ylim()[1]
     P, T = task.preparation_s, task.duration_s
     for x, name in ((P / 2, "preparation"), (P + T / 2, "task"), ((P + T + task.clip_s) / 2, "decay")):
-        ax.text(x, top, name, ha="center", va="top", fontsize=8)
-    ax.axhline(0, color="0.5", lw=0.6)
+        ax.text(x, 1.01, name, transform=ax.get_xaxis_transform(), ha="center", va="bottom", fontsize=8)
+    ax.axhline(0, color="0.5", lw=0.6, label="d = 0 (no CMRT)")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("d(t) (cm)")
     ax.set_xlim(0, task.clip_s)
-    ax.legend(loc="lower right", fontsize=8)
+    _legend(ax)
     fig.tight_layout()
-    return _save(fig, out)
+    return fig
 
 
-def plot_convergence(evaluations: list[StoredEvaluation], threshold: float, out: Path, title: str) -> Path:
+def plot_cmrt(task: Task, curve: Cmrt, out: Path, label: str = "best CMRT") -> Path:
+    """ABC Fig. 3 written to ``out``."""
+    return _save(cmrt_figure(task, curve, label), out)
+
+
+def convergence_figure(evaluations: list[StoredEvaluation], threshold: float, title: str):
     """Objective of every evaluation in order (successes, falls, the rest) against the stop threshold."""
     obj = np.array([e.objective for e in evaluations])
     fell = np.array([e.fell for e in evaluations])
@@ -102,7 +125,7 @@ def plot_convergence(evaluations: list[StoredEvaluation], threshold: float, out:
     idx = np.arange(1, obj.size + 1)
     fig, ax = plt.subplots(figsize=(7, 3))
     ax.semilogy(idx[success], obj[success], ".", ms=3, label="success")
-    ax.semilogy(idx[other], obj[other], ".", ms=3, color="0.6", label="balanced, not a success (penalised)")
+    ax.semilogy(idx[other], obj[other], ".", ms=3, color="0.6", label="balance kept, not a success (penalised)")
     ax.semilogy(idx[fell], obj[fell], "x", ms=3, color="r", label="lost balance (penalised)")
     ax.semilogy(idx, np.minimum.accumulate(obj), "k-", lw=1, label="best so far")
     if threshold > 0:
@@ -112,7 +135,12 @@ def plot_convergence(evaluations: list[StoredEvaluation], threshold: float, out:
     ax.set_title(title, fontsize=10)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    return _save(fig, out)
+    return fig
+
+
+def plot_convergence(evaluations: list[StoredEvaluation], threshold: float, out: Path, title: str) -> Path:
+    """The objectives of a run's evaluations written to ``out``."""
+    return _save(convergence_figure(evaluations, threshold, title), out)
 
 
 def run_figure_paths(run_id: int, out_dir: str | Path) -> list[Path]:
@@ -146,9 +174,8 @@ def plot_run(store: Store, run_id: int, out_dir: str | Path) -> list[Path]:
     ]
 
 
-def plot_family(
-    task_name: str, out: Path, between: tuple[float, ...] = (), source: str = "library", store: Store | None = None
-) -> Path:
+def family_figure(task_name: str, between: tuple[float, ...] = (), source: str = "library",
+                  store: Store | None = None):
     """ABC Fig. 5: CMRTs optimized at several speeds (solid) and interpolated between them (dashed)."""
     base = load_task(task_name)
     if base.speed_param is None:
@@ -158,62 +185,70 @@ def plot_family(
         raise CmrtError(f"need two {source} results for '{task_name}' at different speeds; found {len(pts)}")
     speeds = [v for v, _, _ in pts]
     between = between or tuple((a + b) / 2 for a, b in zip(speeds, speeds[1:], strict=False))
-    fig, ax = plt.subplots(figsize=(7.5, 3.6))
+    fig, ax = plt.subplots(figsize=(10, 3.6))
     colors = plt.cm.viridis(np.linspace(0, 0.9, len(speeds) + len(between)))
     t = np.linspace(0, base.clip_s, 400)
     rows = sorted([(v, "opt", c) for v, c, _ in pts] + [(v, "int", None) for v in between], key=lambda r: r[0])
-    for color, (v, kind, curve) in zip(colors, rows, strict=True):
+    for i, (color, (v, kind, curve)) in enumerate(zip(colors, rows, strict=True)):
         task = base.with_speed(v)
         if kind == "int":
             curve = interpolate(task, source=source, store=store).curve
         ev = evaluate(task, simulate(task, curve, record=False))
-        style = "-" if kind == "opt" else "--"
-        ax.plot(
-            t,
-            100 * curve.displacement_m(t),
-            style,
-            color=color,
-            lw=1.4,
-            label=f"T={v:g} e={ev.objective:.3f}{'' if ev.success else ' (not a success)'}",
-        )
-        ax.axvline(task.preparation_s + v, color=color, lw=0.6)
-    ax.axvline(base.preparation_s, color="k", lw=1.0)
+        ax.plot(t, 100 * curve.displacement_m(t), "-" if kind == "opt" else "--", color=color, lw=1.4,
+                label=f"T={v:g} {'optimized' if kind == 'opt' else 'interpolated'} e={ev.objective:.3f}"
+                      f"{'' if ev.success else ' (not a success)'}")
+        ax.axvline(task.preparation_s + v, color=color, lw=0.6,
+                   label="motion ends, P + T (the curve's colour)" if i == 0 else "_nolegend_")
+    ax.axvline(base.preparation_s, color="k", lw=1.0, label="motion starts, P")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("d(t) (cm)")
     ax.set_title(f"{task_name}: optimized (solid) and interpolated (dashed) CMRTs", fontsize=10)
-    ax.legend(fontsize=7, ncol=2)
+    _legend(ax)
     fig.tight_layout()
-    return _save(fig, out)
+    return fig
 
 
-def plot_sequence(seq_file: str, out: Path) -> Path:
-    """ABC Fig. 6: the motions' shifted CMRTs and their sum, and the CoP error with zero vs superposed."""
+def plot_family(
+    task_name: str, out: Path, between: tuple[float, ...] = (), source: str = "library", store: Store | None = None
+) -> Path:
+    """ABC Fig. 5 written to ``out``."""
+    return _save(family_figure(task_name, between, source, store), out)
+
+
+def sequence_figure(seq_file: str):
+    """ABC Fig. 6: the motions' shifted CMRTs and their sum, and the CoP error with zero vs superposed CMRTs
+    (each up to its fall)."""
     seq = load_sequence(seq_file)
     sup = superpose(seq)
     t = np.linspace(0, seq.clip_s, 800)
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7.5, 5), sharex=True)
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
     for (off, c), m in zip(sup.parts, seq.motions, strict=True):
         ax1.plot(
             t, 100 * c.displacement_m(t - off), "--", lw=1, label=f"{m.task.name} T={m.task.speed:g} @ {m.start_s:g} s"
         )
     ax1.plot(t, 100 * sup.displacement_m(t), "k-", lw=1.8, label="superposed")
     ax1.set_ylabel("d(t) (cm)")
-    ax1.legend(fontsize=7, ncol=2)
-    for label, curve in (("zero CMRTs", Cmrt.zero(seq.clip_s)), ("superposed CMRTs", sup)):
+    for i, (label, curve) in enumerate((("zero CMRTs", Cmrt.zero(seq.clip_s)), ("superposed CMRTs", sup))):
         traj = simulate(seq, curve)
         ev = evaluate(seq, traj)
-        ax2.plot(
-            traj.time_s,
-            100 * (traj.cop_x_m - traj.support_center_x_m),
-            lw=1,
-            label=f"{label}: e={ev.objective:.3f}{'' if ev.success else ' (not a success)'}",
-        )
-    for m in seq.motions:
+        ax2.plot(*until_fall(traj, 100 * (traj.cop_x_m - traj.support_center_x_m)), lw=1, color=f"C{i}",
+                 label=f"{label}: e={ev.objective:.3f} ({verdict(ev)})")
+        if traj.fall_time_s is not None:
+            ax2.axvline(traj.fall_time_s, color=f"C{i}", ls=":", lw=1.2,
+                        label=f"{label}: balance lost ({traj.fall_time_s:.2f} s)")
+    for i, m in enumerate(seq.motions):
         for ax in (ax1, ax2):
-            ax.axvspan(m.start_s, m.start_s + m.task.duration_s, color="0.92", zorder=0)
+            ax.axvspan(m.start_s, m.start_s + m.task.duration_s, color="0.92", zorder=0,
+                       label="a motion's window" if i == 0 else "_nolegend_")
     ax2.set_ylabel("p - s (cm)")
     ax2.set_xlabel("time (s)")
-    ax2.legend(fontsize=7)
+    _legend(ax1)
+    _legend(ax2)
     ax1.set_title(f"sequence {seq.name}", fontsize=10)
     fig.tight_layout()
-    return _save(fig, out)
+    return fig
+
+
+def plot_sequence(seq_file: str, out: Path) -> Path:
+    """ABC Fig. 6 written to ``out``."""
+    return _save(sequence_figure(seq_file), out)

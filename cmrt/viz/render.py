@@ -1,10 +1,12 @@
 """Offscreen renders of clips with the balance markers of ABC Figs. 7-9.
 
 Markers: the CoM (cyan sphere) and its ground projection (cyan disc), the reference CoM
-c_r = s + d(t) (green vertical line) and the measured CoP (red disc). A PNG is a
-filmstrip of evenly spaced frames (with ``compare``: the comparison clip on the top row,
-as in the paper's "top: without anticipation, bottom: with"); an MP4 is a video
-(imageio's ffmpeg plugin) with the two clips side by side.
+c_r = s + d(t) (green vertical line) and the measured CoP (red disc). Every frame carries a caption
+(``cmrt.viz.overlay``): the task, the curve, the verdict and the clock. A PNG is a filmstrip whose
+frames crowd into the motion's window and around a fall (:func:`filmstrip_times`; with ``compare``: the
+comparison clip on the top row, as in the paper's "top: without anticipation, bottom: with"); an MP4 is
+a video (imageio's ffmpeg plugin) with the two clips side by side. The camera stands still while the body
+does and pans after it when its CoM or its limbs would leave the picture (:func:`lookat_x`).
 
 OpenGL is loaded here, when the first frame is rendered, and nowhere else (``cmrt/__init__`` has MuJoCo
 imported with GL disabled, so that simulating never needs it): the user's ``MUJOCO_GL`` if set (kept in
@@ -26,8 +28,9 @@ from cmrt import inputs
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.task import Task
-from cmrt.sim.objective import evaluate
+from cmrt.sim.objective import Evaluation, evaluate
 from cmrt.sim.simulate import Trajectory, simulate
+from cmrt.viz import overlay
 
 CYAN = np.array([0.1, 0.8, 0.9, 1.0], dtype=np.float32)
 GREEN = np.array([0.1, 0.8, 0.2, 1.0], dtype=np.float32)
@@ -37,6 +40,15 @@ FOOTPRINT_HALF_M = (0.12, 0.05, 0.002)  # half length (heel point to toe point /
 MARKER_Y_M = -0.35  # the camera looks along +y from the -y side
 OUT_SUFFIXES = (".png", ".mp4")
 VIDEO_CHUNK = 64  # video frames rendered at a time per clip: memory stays ~15 MB per clip however long the clip
+CAMERA_HOME_M = (0.05, 0.0, 0.8)  # where the camera looks while the body stands
+CAMERA_DISTANCE_M, CAMERA_AZIMUTH_DEG, CAMERA_ELEVATION_DEG = 3.2, 90.0, -8.0
+FOLLOW_DEADZONE_M = 0.15  # the camera stays home while the CoM is this close to it, then follows it
+VIEW_MARGIN_M = 0.1  # kept between the body's horizontal extent and the picture's edge
+FILMSTRIP_LEAD_S = 0.2  # a filmstrip starts this long before the motion: the pose it starts from
+MOTION_DENSITY = 6.0  # a filmstrip's frames per second inside the motion's window, relative to outside it
+FALL_DENSITY = 4.0  # ... and from FALL_BEFORE_S before a fall to FALL_AFTER_S after it
+FALL_BEFORE_S, FALL_AFTER_S = 0.2, 0.3
+PUSH_REACTION_S = 0.5  # a task without a pose change: its window is the pushes and this long after the last
 
 
 GL_BACKENDS = ("egl", "osmesa", "glfw", "glx")  # what MuJoCo's Python bindings can use offscreen on Linux
@@ -117,27 +129,147 @@ def _frame(renderer, data, camera, traj: Trajectory, k: int) -> np.ndarray:
     return renderer.render().copy()
 
 
+def verdict(score: Evaluation) -> str:
+    """A clip's verdict in words, as ``cmrt render`` prints it and every frame shows it."""
+    return "SUCCESS" if score.success else "lost balance" if score.fell else "balance kept, not a success"
+
+
+def task_label(task: Task) -> str:
+    """The task and its speed, e.g. ``bend T = 0.4 s``."""
+    if task.speed is None:
+        return task.name
+    if task.speed_param == "duration_s":
+        return f"{task.name} T = {task.speed:g} s"
+    return f"{task.name} {task.speed_param} = {task.speed:g}"
+
+
+def motion_window(task: Task) -> tuple[float, float]:
+    """When the task happens: [P, P + T] for a pose change; else from the first push to ``PUSH_REACTION_S``
+    after the last; else (nothing happens) the whole clip."""
+    if task.duration_s > 0:
+        return task.task_window_s()
+    t = np.arange(0.0, task.clip_s, 0.005)
+    pushed = t[task.pushes_n(t) != 0]
+    if pushed.size:
+        return float(pushed[0]), min(float(pushed[-1]) + PUSH_REACTION_S, task.clip_s)
+    return 0.0, task.clip_s
+
+
+def filmstrip_times(window: tuple[float, float], falls: list[float], end_s: float, n: int) -> np.ndarray:
+    """``n`` frame times from ``FILMSTRIP_LEAD_S`` before the motion's ``window`` to ``end_s``, spaced by a
+    density ``MOTION_DENSITY`` times higher inside the window and ``FALL_DENSITY`` times higher about each
+    fall; each fall's own time replaces the frame nearest it. Times in 0.01 s (a fall's exact)."""
+    lo, hi = window
+    start = max(0.0, min(lo - FILMSTRIP_LEAD_S, end_s))
+    grid = np.linspace(start, end_s, 4001)
+    density = np.where((grid >= lo) & (grid <= hi), MOTION_DENSITY, 1.0)
+    for f in falls:
+        density = np.where((grid >= f - FALL_BEFORE_S) & (grid <= f + FALL_AFTER_S),
+                           np.maximum(density, FALL_DENSITY), density)
+    cdf = np.concatenate([[0.0], np.cumsum(0.5 * (density[1:] + density[:-1]) * np.diff(grid))])
+    times = np.round(np.interp(np.linspace(0.0, cdf[-1], n) if n > 1 else [cdf[-1] / 2], cdf, grid), 2)
+    fixed = np.zeros(times.size, bool)
+    for f in sorted(falls)[:n]:
+        k = np.argmin(np.where(fixed, np.inf, np.abs(times - f)))
+        times[k], fixed[k] = f, True
+    return np.sort(times)
+
+
+def phase(task: Task, t: float, fall_s: float | None) -> str:
+    """What the clip is doing at ``t``: before / motion (or push) / after, standing tail; balance lost (the
+    fall's own frame), after the fall."""
+    if fall_s is not None and t >= fall_s - 5e-4:
+        return "balance lost" if t < fall_s + 5e-3 else "after the fall"
+    if t > task.clip_s:
+        return "standing tail"
+    lo, hi = motion_window(task)
+    if (lo, hi) == (0.0, task.clip_s):
+        return ""
+    name = "motion" if task.duration_s > 0 else "push"
+    return f"before the {name}" if t < lo else name if t <= hi else f"after the {name}"
+
+
+def frame_caption(task: Task, label: str, score: Evaluation, t: float) -> list[tuple[str, tuple, bool]]:
+    """The lines burned above a frame (text, colour, bold): task, curve, verdict, clock."""
+    fall_s = score.fall_time_s if score.fell else None
+    color = overlay.GREEN if score.success else overlay.RED if score.fell else overlay.AMBER
+    what = phase(task, t, fall_s)
+    clock = overlay.RED if what in ("balance lost", "after the fall") else overlay.GREY
+    return [(task_label(task), overlay.WHITE, True), (label or "CMRT", overlay.WHITE, False),
+            (verdict(score) + (f" at {fall_s:.2f} s" if fall_s is not None else ""), color, True),
+            (f"t = {t:.2f} s" + (f"  {what}" if what else ""), clock, False)]
+
+
+def half_view_m(model: mujoco.MjModel, height: int, width: int) -> float:
+    """Half the picture's width at the body's depth (m)."""
+    return CAMERA_DISTANCE_M * float(np.tan(np.radians(model.vis.global_.fovy) / 2)) * width / height
+
+
+def lookat_x(com_x: float, lo_x: float, hi_x: float, half_view: float) -> float:
+    """Where the camera looks: home while the CoM is within ``FOLLOW_DEADZONE_M`` of it, else that far
+    behind the CoM; then moved so the body's extent [lo_x, hi_x] (plus ``VIEW_MARGIN_M``) is in the picture,
+    or centred on it when it is wider than the picture."""
+    home = CAMERA_HOME_M[0]
+    x = home + float(np.sign(com_x - home)) * max(abs(com_x - home) - FOLLOW_DEADZONE_M, 0.0)
+    lo_x, hi_x = lo_x - VIEW_MARGIN_M, hi_x + VIEW_MARGIN_M
+    if hi_x - lo_x >= 2 * half_view:
+        return (lo_x + hi_x) / 2
+    return min(max(x, hi_x - half_view), lo_x + half_view)
+
+
+def _pose(m: mujoco.MjModel, data: mujoco.MjData, traj: Trajectory, t: float) -> int:
+    k = min(int(round(t / m.opt.timestep)), traj.time_s.size - 1)
+    data.qpos[:] = traj.qpos[k]
+    mujoco.mj_forward(m, data)
+    return k
+
+
+def _aim(m: mujoco.MjModel, data: mujoco.MjData, half_view: float) -> float:
+    """The camera's lookat x for the pose in ``data`` (the humanoid's geoms bound its extent)."""
+    geoms = np.flatnonzero(m.body_rootid[m.geom_bodyid] == 1)
+    x, r = data.geom_xpos[geoms, 0], m.geom_rbound[geoms]
+    return lookat_x(float(data.subtree_com[1][0]), float((x - r).min()), float((x + r).max()), half_view)
+
+
+def camera_track(task: Task, traj: Trajectory, times_s, height: int = 320, width: int = 240) -> np.ndarray:
+    """The camera's lookat x at ``times_s`` (what :func:`render_frames` uses), without rendering."""
+    m = task.model()
+    data = mujoco.MjData(m)
+    half = half_view_m(m, height, width)
+    out = []
+    for t in times_s:
+        _pose(m, data, traj, t)
+        out.append(_aim(m, data, half))
+    return np.array(out)
+
+
 def render_frames(task: Task, traj: Trajectory, times_s: np.ndarray, height: int, width: int, progress=None):
-    """Images of ``traj`` at ``times_s`` (a clip cut short by a fall holds its last pose)."""
+    """Images of ``traj`` at ``times_s`` (a clip cut short by a fall holds its last pose), the camera
+    following the body (:func:`lookat_x`)."""
     m = task.model()
     data = mujoco.MjData(m)
     camera = mujoco.MjvCamera()
     camera.type = mujoco.mjtCamera.mjCAMERA_FREE
-    camera.lookat[:] = [0.05, 0.0, 0.8]
-    camera.distance, camera.azimuth, camera.elevation = 3.2, 90.0, -8.0
+    camera.lookat[:] = CAMERA_HOME_M
+    camera.distance, camera.azimuth, camera.elevation = CAMERA_DISTANCE_M, CAMERA_AZIMUTH_DEG, CAMERA_ELEVATION_DEG
+    half = half_view_m(m, height, width)
     renderer = _renderer(m, height, width)
     frames = []
     try:
         for t in times_s:
-            k = min(int(round(t / m.opt.timestep)), traj.time_s.size - 1)
-            data.qpos[:] = traj.qpos[k]
-            mujoco.mj_forward(m, data)
+            k = _pose(m, data, traj, t)
+            camera.lookat[0] = _aim(m, data, half)
             frames.append(_frame(renderer, data, camera, traj, k))
             if progress:
                 progress.update(1)
     finally:
         renderer.close()
     return frames
+
+
+def _captioned(task: Task, frames, times, label: str, score: Evaluation) -> list[np.ndarray]:
+    return [overlay.caption(img, frame_caption(task, label, score, float(t))) for img, t in zip(frames, times,
+                                                                                                strict=True)]
 
 
 def render(
@@ -155,58 +287,42 @@ def render(
     trajs = [simulate(task, c) for c, _ in clips]  # recorded: past a fall, the topple plays out
     scores = [evaluate(task, tr) for tr in trajs]
     end_s = max(tr.time_s[-1] for tr in trajs)  # the clip, its standing tail, or a topple
+    falls = sorted({s.fall_time_s for s in scores if s.fell and s.fall_time_s is not None})
     if not video:
-        times = np.linspace(max(0.0, task.preparation_s - 0.2), end_s, n_frames)
+        times = filmstrip_times(motion_window(task), falls, end_s, n_frames)
     else:
         times = np.arange(0.0, end_s, 1.0 / fps)
+    footprints = any(tr.footprints for tr in trajs)
     with tqdm(total=len(times) * len(trajs), desc="render", unit="frame", file=sys.stderr,
               disable=not sys.stderr.isatty()) as bar, inputs.atomic_output(out, "--out", OUT_SUFFIXES) as tmp:
         if not video:
-            rows = [render_frames(task, tr, times, height, width, bar) for tr in trajs]
-            _filmstrip(tmp, rows, times, [lab for _, lab in clips], scores)
+            rows = [_captioned(task, render_frames(task, tr, times, height, width, bar), times, lab, s)
+                    for tr, (_, lab), s in zip(trajs, clips, scores, strict=True)]
+            overlay.save_png(overlay.tile(rows, footprints), tmp)
         else:
-            _video(tmp, task, trajs, times, fps, height, width, bar)
-    return {"out": str(out), "frames": len(times), "clips": [
-        {"label": lab, "success": s.success, "fell": s.fell, "fall_time_s": s.fall_time_s, "objective": s.objective}
-        for (_, lab), s in zip(clips, scores, strict=True)]}
+            _video(tmp, task, trajs, [(lab, s) for (_, lab), s in zip(clips, scores, strict=True)], times, fps,
+                   (height, width), bar, footprints)
+    return {"out": str(out), "frames": len(times), "times_s": [round(float(t), 3) for t in times] if not video
+            else None, "clips": [
+        {"label": lab, "verdict": verdict(s), "success": s.success, "fell": s.fell, "fall_time_s": s.fall_time_s,
+         "objective": s.objective} for (_, lab), s in zip(clips, scores, strict=True)]}
 
 
-def _video(out: Path, task: Task, trajs, times, fps: int, height: int, width: int, bar) -> None:
-    """The clips side by side as an MP4 (imageio's ffmpeg), rendered ``VIDEO_CHUNK`` frames at a time."""
+def _video(out: Path, task: Task, trajs, captions, times, fps: int, size: tuple[int, int], bar,
+           footprints: bool) -> None:
+    """The clips side by side as an MP4 (imageio's ffmpeg), rendered ``VIDEO_CHUNK`` frames at a time, each
+    frame captioned and the markers' key under them."""
     import imageio.v2 as imageio
 
+    key = overlay.key_band(size[1] * len(trajs), footprints)
     try:
         with imageio.get_writer(out, format="FFMPEG", fps=fps, codec="libx264", quality=7,
                                 macro_block_size=8) as writer:
             for start in range(0, len(times), VIDEO_CHUNK):
                 chunk = times[start:start + VIDEO_CHUNK]
-                rows = [render_frames(task, tr, chunk, height, width, bar) for tr in trajs]
+                rows = [_captioned(task, render_frames(task, tr, chunk, *size, bar), chunk, lab, s)
+                        for tr, (lab, s) in zip(trajs, captions, strict=True)]
                 for i in range(len(chunk)):
-                    writer.append_data(np.concatenate([row[i] for row in rows], axis=1))
+                    writer.append_data(np.concatenate([np.concatenate([row[i] for row in rows], axis=1), key]))
     except (RuntimeError, ValueError) as exc:  # ffmpeg missing or failing
         raise CmrtError(f"cannot write the video: {type(exc).__name__}: {str(exc).splitlines()[0]}") from None
-
-
-def _filmstrip(out: Path, rows, times, labels, scores) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    n_rows, n_cols = len(rows), len(times)
-    fig, axes = plt.subplots(n_rows, n_cols, figsize=(1.6 * n_cols, 2.3 * n_rows), squeeze=False)
-    for r, (row, label, score) in enumerate(zip(rows, labels, scores, strict=True)):
-        status = ("success" if score.success else
-                  f"fell at {score.fall_time_s:.2f} s" if score.fell else "not a success")
-        for c, img in enumerate(row):
-            ax = axes[r, c]
-            ax.imshow(img)
-            ax.set_xticks([])
-            ax.set_yticks([])
-            ax.set_title(f"{times[c]:.2f} s", fontsize=8)
-        axes[r, 0].set_ylabel(f"{label}\n{status}", fontsize=9)
-    fig.tight_layout()
-    try:
-        fig.savefig(out, dpi=110, format="png")
-    finally:
-        plt.close(fig)

@@ -1,12 +1,19 @@
 import json
+from types import SimpleNamespace
 
 import matplotlib.image as mpimg
+import matplotlib.pyplot as plt
+import numpy as np
 import pytest
+from matplotlib.lines import Line2D
 
 from cmrt.cli.commands import main
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.library import library_curve
 from cmrt.motion.taskfile import load_task
 from cmrt.service.jobs import submit
 from cmrt.service.store import open_store
+from cmrt.viz import plot
 from tests.service_helpers import FAST_BEND, cmrt
 
 
@@ -38,3 +45,91 @@ def test_plot_unknown_run_in_process(tmp_path, capsys):
         rid = submit(s, load_task("bend").with_speed(0.4), init="none")
     assert main(["plot", str(rid), "--out", str(tmp_path / "figs"), "--store", str(store)]) == 2
     assert "no result" in capsys.readouterr().err
+
+
+# --- legends and falls (issue 29 item 7): the figures' artists, read from the figures the plot verbs save ------
+
+
+def _key(artist):
+    """What makes two artists read the same in a legend: a line's style and width, a region's fill."""
+    if isinstance(artist, Line2D):
+        return "line", artist.get_linestyle(), artist.get_linewidth()
+    return "region", tuple(np.round(artist.get_facecolor(), 3))
+
+
+def assert_legend_covers_everything(ax):
+    """Every line and shaded region of ``ax`` is in its legend, itself or as the twin of one that is (the
+    second support edge, the second motion window)."""
+    legend = ax.get_legend()
+    assert legend is not None
+    shown = {t.get_text() for t in legend.get_texts()}
+    artists = list(ax.lines) + list(ax.patches)
+    labelled = [a for a in artists if not a.get_label().startswith("_")]
+    assert {a.get_label() for a in labelled} <= shown
+    keys = {_key(a) for a in labelled}
+    for a in artists:
+        assert a in labelled or _key(a) in keys, f"{a} is in no legend"
+
+
+def _line(ax, prefix):
+    (line,) = [ln for ln in ax.lines if ln.get_label().startswith(prefix)]
+    return line
+
+
+def test_sequence_figure_stops_the_cop_at_the_fall():
+    """four-poses with zero CMRTs loses its balance at 3.25 s (recorded: the topple plays out to 8.6 s);
+    its CoP line ends there, the superposed one (a success) runs to the end."""
+    fig = plot.sequence_figure("four-poses")
+    try:
+        top, bottom = fig.axes[:2]
+        for ax in (top, bottom):
+            assert_legend_covers_everything(ax)
+        fall = _line(bottom, "zero CMRTs: balance lost").get_xdata()[0]
+        assert 3.0 < fall < 3.5
+        assert _line(bottom, "zero CMRTs: e=").get_xdata().max() <= fall
+        assert _line(bottom, "superposed CMRTs: e=").get_xdata().max() > 8.0
+        assert "(SUCCESS)" in _line(bottom, "superposed CMRTs: e=").get_label()
+    finally:
+        plt.close(fig)
+
+
+def test_cop_error_figure_of_a_fall():
+    task = load_task("punch")
+    fig = plot.cop_error_figure(task, [("zero CMRT", Cmrt.zero(task.clip_s)), ("library CMRT",
+                                                                               library_curve(task))])
+    try:
+        fallen, kept = fig.axes
+        for ax in (fallen, kept):
+            assert_legend_covers_everything(ax)
+        assert "lost balance" in fallen.get_title() and "SUCCESS" in kept.get_title()
+        fall = _line(fallen, "balance lost").get_xdata()[0]
+        for line in fallen.lines[:3]:  # the CoP error and the support edges
+            assert line.get_xdata().max() <= fall
+        assert _line(kept, "CoP error").get_xdata().max() > task.clip_s  # no fall: the tail too
+        assert any(p.get_label() == "standing tail (not scored)" for p in kept.patches)
+    finally:
+        plt.close(fig)
+
+
+def test_cmrt_and_convergence_figures_have_complete_legends():
+    task = load_task("bend").with_speed(0.4)
+    fig = plot.cmrt_figure(task, library_curve(task))
+    try:
+        assert_legend_covers_everything(fig.axes[0])
+    finally:
+        plt.close(fig)
+    evals = [SimpleNamespace(objective=o, fell=f, success=s) for o, f, s in
+             ((9.0, True, False), (3.0, False, False), (0.4, False, True), (0.5, False, True))]
+    fig = plot.convergence_figure(evals, 0.45, "run 1")
+    try:
+        assert_legend_covers_everything(fig.axes[0])
+    finally:
+        plt.close(fig)
+
+
+def test_family_figure_has_a_complete_legend():
+    fig = plot.family_figure("bend")
+    try:
+        assert_legend_covers_everything(fig.axes[0])
+    finally:
+        plt.close(fig)

@@ -9,6 +9,10 @@ import pytest
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.taskfile import load_task
+from cmrt.sim.objective import evaluate
+from cmrt.sim.simulate import simulate
+from cmrt.viz import overlay
+from cmrt.viz import render as rr
 from cmrt.viz.render import render as render_clip
 from tests.service_helpers import FAST_BEND, cmrt
 
@@ -45,8 +49,19 @@ def test_compare_stacks_two_rows(tmp_path):
 @pytest.mark.slow  # encodes a video
 def test_mp4(tmp_path):
     out = tmp_path / "clip.mp4"
-    cmrt("render", *FAST_BEND, "--fps", "5", "--out", str(out), check=True)
+    cmrt("render", *FAST_BEND, "--fps", "5", "--curve", "library", "--compare", "zero", "--out", str(out),
+         check=True)
     assert out.stat().st_size > 5_000
+    import imageio.v2 as imageio
+
+    frames = imageio.mimread(out, format="FFMPEG")
+    assert len(frames) == 16  # 0 to 3.1 s at 5 frames a second
+    first = frames[0].astype(int)
+    assert first.shape[1] == 2 * 240 and first.shape[0] > 320 + overlay.CAPTION_PX  # side by side, key under them
+    band = first[:overlay.CAPTION_PX]
+    assert (band.sum(-1) > 600).sum() > 200  # the captions' white text, through the codec's blur
+    green = np.abs(band[:, 240:] - overlay.GREEN).sum(-1) < 60  # "SUCCESS" over the library clip, not the zero one
+    assert green.sum() > 20 and (np.abs(band[:, :240] - overlay.GREEN).sum(-1) < 60).sum() < green.sum() / 4
 
 
 @pytest.mark.slow  # a cmrt process
@@ -59,3 +74,122 @@ def test_bad_output_name_in_process(tmp_path):
     """The same refusal by ``cmrt.viz.render.render`` in this process, before anything is simulated or drawn."""
     with pytest.raises(CmrtError, match=r"\.png or \.mp4"):
         render_clip(load_task("bend").with_speed(0.4), Cmrt.zero(2.6), tmp_path / "clip.gif")
+
+
+# --- what a researcher reads off a picture (issue 29 item 7) ---------------------------------------------------
+
+FAST_BEND_END_S = 3.098  # the fast bend's clip and standing tail (the last recorded step)
+
+
+def test_fast_bend_filmstrip_crowds_into_the_motion_window():
+    """The fast bend's 0.4 s motion gets most of the 8 frames (evenly spaced from 0.8 s, one fell in it)."""
+    task = load_task("bend").with_speed(0.4)
+    window = rr.motion_window(task)
+    assert window == (1.0, 1.4)
+    times = rr.filmstrip_times(window, [], FAST_BEND_END_S, 8)
+    inside = times[(times >= 1.0) & (times <= 1.4)]
+    assert inside.size >= 3
+    assert np.diff(inside).max() <= 0.15  # spread over the motion, not bunched at one end
+    assert times[0] == pytest.approx(0.8) and times[-1] == pytest.approx(3.1)  # the pose before, the end
+    uniform = np.linspace(0.8, FAST_BEND_END_S, 8)
+    assert ((uniform >= 1.0) & (uniform <= 1.4)).sum() == 1  # what the evenly spaced strip showed
+    assert 1.0 <= rr.filmstrip_times(window, [], FAST_BEND_END_S, 3)[1] <= 1.4  # three frames: one in the motion
+
+
+@pytest.mark.parametrize("n", [3, 8, 20])
+def test_a_falling_clips_frames_include_the_fall(n):
+    times = rr.filmstrip_times((1.0, 1.4), [2.064], FAST_BEND_END_S, n)
+    assert times.size == n and 2.064 in times
+    if n >= 8:  # a frame before the fall and one after it, besides the last
+        assert ((times > 1.8) & (times < 2.064)).any() and ((times > 2.064) & (times < 2.5)).any()
+        assert (((times >= 1.0) & (times <= 1.4)).sum()) >= 3  # the motion keeps its frames
+    both = rr.filmstrip_times((1.0, 1.4), [1.5, 2.064], FAST_BEND_END_S, n)  # two clips falling apart
+    assert {1.5, 2.064} <= set(both.tolist())
+
+
+def test_a_push_tasks_window_is_its_pushes_and_the_reaction():
+    lo, hi = rr.motion_window(load_task("push-recovery"))
+    assert lo == pytest.approx(1.0) and hi > lo + 0.5
+    assert rr.motion_window(load_task("stand")) == (0.0, 10.0)  # nothing happens: the whole clip
+
+
+def test_lookat_stays_home_then_follows_the_com_and_keeps_the_body_in_view():
+    home, half = rr.CAMERA_HOME_M[0], 1.0
+    assert rr.lookat_x(home + 0.1, -0.3, 0.4, half) == home  # standing sway: the camera holds still
+    assert rr.lookat_x(home + 0.6, 0.3, 0.9, half) == pytest.approx(home + 0.6 - rr.FOLLOW_DEADZONE_M)
+    x = rr.lookat_x(home + 0.2, -0.2, 1.8, 1.2)  # lying along +x: its head would leave the picture
+    assert x > home + 0.2 and 1.8 + rr.VIEW_MARGIN_M <= x + 1.2 + 1e-9 and -0.2 - rr.VIEW_MARGIN_M >= x - 1.2 - 1e-9
+    assert rr.lookat_x(0.0, -2.0, 2.0, half) == pytest.approx(0.0)  # wider than the picture: centred
+
+
+def test_the_camera_follows_a_fallen_catch():
+    """Real MuJoCo: the 7 kg catch without a CMRT falls forward and ends with its CoM ~1.2 m ahead of the feet;
+    the camera stays home while it stands and ends within the dead zone of the CoM."""
+    task = load_task("catch")
+    traj = simulate(task, Cmrt.zero(task.clip_s))
+    times = np.array([0.5, traj.fall_time_s, traj.time_s[-1]])
+    track = rr.camera_track(task, traj, times)
+    assert track[0] == rr.CAMERA_HOME_M[0]
+    com_end = traj.com_m[-1, 0]
+    assert com_end > 0.8 and abs(track[-1] - com_end) <= rr.FOLLOW_DEADZONE_M + 1e-9
+    assert track[-1] > track[0] + 0.5
+
+
+@pytest.fixture(scope="module")
+def punch_fall():
+    task = load_task("punch")
+    traj = simulate(task, Cmrt.zero(task.clip_s))
+    return task, traj, evaluate(task, traj)
+
+
+def test_frame_captions_name_task_curve_verdict_and_clock(punch_fall):
+    task, _, score = punch_fall
+    assert score.fell and rr.verdict(score) == "lost balance"
+    fall = score.fall_time_s
+    text = [line for line, _, _ in rr.frame_caption(task, "zero CMRT", score, 1.2)]
+    assert text == ["punch T = 0.4 s", "zero CMRT", f"lost balance at {fall:.2f} s", "t = 1.20 s  motion"]
+    assert rr.frame_caption(task, "zero CMRT", score, fall)[3][0] == f"t = {fall:.2f} s  balance lost"
+    assert rr.frame_caption(task, "zero CMRT", score, 3.0)[3][0] == "t = 3.00 s  after the fall"
+    assert rr.frame_caption(task, "zero CMRT", score, 0.8)[3][0] == "t = 0.80 s  before the motion"
+
+
+def test_caption_draws_the_text_above_the_frame():
+    img = np.full((320, 240, 3), 40, np.uint8)
+    lines = [("bend T = 0.4 s", overlay.WHITE, True), ("library CMRT", overlay.WHITE, False),
+             ("SUCCESS", overlay.GREEN, True), ("t = 1.23 s  motion", overlay.GREY, False)]
+    out = overlay.caption(img, lines)
+    assert out.shape == (320 + overlay.CAPTION_PX, 240, 3) and (out.shape[0] % 8) == 0  # a video's macro block
+    assert np.array_equal(out[overlay.CAPTION_PX:], img)  # the picture itself untouched
+    band = out[:overlay.CAPTION_PX]
+    for i, (_, color, _) in enumerate(lines):  # each line drawn in its colour on its own row
+        rows = band[overlay.PAD_PX + i * overlay.LINE_PX:overlay.PAD_PX + (i + 1) * overlay.LINE_PX]
+        assert (np.abs(rows.astype(int) - color).sum(-1) < 10).sum() > 20
+    empty = overlay.caption(img, [])[:overlay.CAPTION_PX]
+    assert not empty.any()
+    long = overlay.caption(img, [("x" * 200, overlay.WHITE, False)])[:overlay.CAPTION_PX]
+    assert not long[:, -overlay.PAD_PX + 1:].any()  # a long label is cut, not run off the frame
+
+
+def test_key_names_the_markers_in_their_colours():
+    band = overlay.key_band(240, footprints=True)  # narrow: wraps
+    assert band.shape[0] % 8 == 0 and band.shape[0] > overlay.LINE_PX * 2
+    for _, color, _ in overlay.KEY + (overlay.FOOTPRINT_KEY,):
+        assert (np.abs(band.astype(int) - color).sum(-1) < 10).sum() > 10
+
+
+def test_filmstrip_of_a_fall_in_process(tmp_path, punch_fall):
+    """A real OSMesa render (3 frames): the fall's frame is in it, every panel is captioned in the verdict's
+    red and the key sits under the strip."""
+    task = punch_fall[0]
+    out = tmp_path / "punch.png"
+    r = render_clip(task, Cmrt.zero(task.clip_s), out, labels=("zero CMRT", ""), n_frames=3)
+    fall = r["clips"][0]["fall_time_s"]
+    assert r["clips"][0]["verdict"] == "lost balance" and fall in r["times_s"]
+    img = (mpimg.imread(out)[..., :3] * 255).round().astype(int)
+    assert img.shape[1] == 3 * 240 + 2 * overlay.GAP_PX
+    verdict_row = img[overlay.PAD_PX + 2 * overlay.LINE_PX:overlay.PAD_PX + 3 * overlay.LINE_PX]
+    for c in range(3):
+        panel = verdict_row[:, c * (240 + overlay.GAP_PX):c * (240 + overlay.GAP_PX) + 240]
+        assert (np.abs(panel - overlay.RED).sum(-1) < 10).sum() > 20
+    key = img[320 + overlay.CAPTION_PX + overlay.GAP_PX:]
+    assert (np.abs(key - overlay.KEY[0][1]).sum(-1) < 10).sum() > 10
