@@ -72,7 +72,8 @@ def _load_gl() -> None:
     """Give MuJoCo's renderer an OpenGL context class, loaded now (see the module docstring). MuJoCo's
     ``Renderer`` looks the class up in its ``gl_context`` module when it is built."""
     gl_context = importlib.import_module(mujoco.Renderer.__module__).gl_context
-    if getattr(gl_context, "GLContext", None) is not None:
+    existing = getattr(gl_context, "GLContext", None)
+    if existing is not None and not _headless_default(existing):
         return  # loaded already, or chosen by mujoco itself (imported before cmrt)
     backend = gl_backend()
     if backend not in GL_BACKENDS:
@@ -88,6 +89,14 @@ def _load_gl() -> None:
         raise CmrtError(f"cannot render: OpenGL backend {backend} does not load ({type(exc).__name__}: "
                         f"{exc}); {_gl_hint(backend)}") from None
     gl_context.GLContext = GLContext
+
+
+def _headless_default(context_class: type) -> bool:
+    """MuJoCo imported before cmrt with no ``MUJOCO_GL`` picks GLFW, which needs a display: on a machine
+    without one (``$DISPLAY`` unset) that is MuJoCo's default, not a choice, and cmrt loads its own backend
+    instead (a script doing ``import mujoco`` first - as the tests' conftest does - could not render)."""
+    chosen = os.environ.get("MUJOCO_GL", "").lower() not in ("", "disable")
+    return context_class.__module__.startswith("mujoco.glfw") and not chosen and not os.environ.get("DISPLAY")
 
 
 def _renderer(model: mujoco.MjModel, height: int, width: int) -> mujoco.Renderer:

@@ -42,3 +42,16 @@ def test_the_api_imports_no_opengl_until_it_renders():
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
                        env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert r.returncode == 0 and r.stdout.split() == ["False", "True"], r.stderr
+
+
+def test_a_script_that_imports_mujoco_first_still_renders_headless(tmp_path):
+    """``import mujoco`` before cmrt with no MUJOCO_GL: MuJoCo picks GLFW, which needs a display. Without one
+    cmrt loads its own backend (the in-process render tests failed after tests/control/conftest.py did this)."""
+    out = tmp_path / "x.png"
+    code = ("import mujoco, cmrt; from cmrt.viz.render import render; t = cmrt.load_task('bend').with_speed(0.4); "
+            f"render(t, cmrt.Cmrt.zero(t.clip_s), {str(out)!r}, n_frames=2)")
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "CMRT_MUJOCO_GL", "DISPLAY")}
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                       env={**env, "PYTHONPATH": str(ROOT)})
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert out.stat().st_size > 10_000
