@@ -19,6 +19,7 @@ import datetime
 import json
 import math
 import os
+import shlex
 import signal
 import sqlite3
 import sys
@@ -285,7 +286,7 @@ def _store(path: str | None, readonly: bool = False, create: bool = True) -> Sto
                         f"{shown(str(p))})")
     store = open_store(path, readonly=readonly, create=create)
     if new:
-        print(f"cmrt: created a new store at {shown(str(p))}", file=sys.stderr, flush=True)
+        print(f"cmrt: created a new store at {escape(str(p))}", file=sys.stderr, flush=True)  # whole: to copy
     return store
 
 
@@ -1010,7 +1011,7 @@ def _resume_hint(exc: KeyboardInterrupt, args: argparse.Namespace | None) -> str
     run_id = getattr(exc, "released_run", None)
     if run_id is None:
         return ""
-    store = shown(str(resolve_path(getattr(args, "store", None))))
+    store = shlex.quote(escape(str(resolve_path(getattr(args, "store", None)))))  # whole, ready to paste
     return (f": run {run_id} is back in the queue, its checkpoint kept; resume it with: "
             f"cmrt worker --once --store {store}")
 

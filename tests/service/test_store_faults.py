@@ -242,7 +242,7 @@ def test_a_terminating_signal_gives_the_run_back_at_once(tmp_path, sig):
     assert time.time() - sent < 10
     said = "interrupted" if sig == signal.SIGINT else f"terminated ({sig.name})"
     assert worker.returncode == 128 + sig and err.startswith(f"cmrt: {said}: run {rid} is back in the queue"), err
-    assert f"resume it with: cmrt worker --once --store '{path}'" in err, err
+    assert f"resume it with: cmrt worker --once --store {path}\n" in err, err
     with open_store(path, readonly=True) as store:
         run = store.run(rid)
     assert run.status == "queued" and run.worker is None  # no waiting for the heartbeat to go stale
