@@ -21,14 +21,18 @@ $(BIN)/cmrt: pyproject.toml
 demo: $(BIN)/cmrt
 	$(BIN)/cmrt demo
 
+# Python may write its bytecode caches whatever the shell says (PYTHONDONTWRITEBYTECODE made every test
+# process recompile cmrt and pytest re-rewrite every test module's asserts: ~7 s of CPU per process).
+PYTEST := env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest
+
 test: $(BIN)/cmrt
 	$(BIN)/ruff check cmrt tests tools
-	$(BIN)/python -m pytest -q
+	$(PYTEST) -q
 
 # The quick loop while editing: everything but the tests marked slow (pyproject.toml), on every core
 # (pytest-xdist): about 2 minutes on 2 cores. CI (`make test`) stays in one process.
 test-fast: $(BIN)/cmrt
-	$(BIN)/python -m pytest -q -m "not slow" -n auto
+	$(PYTEST) -q -m "not slow" -n auto
 
 clean:
 	rm -rf $(VENV)
