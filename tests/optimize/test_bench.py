@@ -61,7 +61,8 @@ def test_floor_replays_each_clip_for_the_steps_it_was_evaluated(name):
         assert replay_physics(task, replay, threads=threads).tolist() == replay.steps.tolist()
 
 
-@pytest.mark.parametrize("name", ["bend", "catch", "push"])
+@pytest.mark.parametrize("name", [pytest.param("bend", marks=pytest.mark.slow), "catch",
+                                  pytest.param("push", marks=pytest.mark.slow)])  # catch fast: props replayed
 def test_replayed_torques_reproduce_the_closed_loop_trajectory(name):
     """Open loop with the recorded torques, the CoM follows the closed-loop one step for step: the floor is
     the same physics as the evaluation (the first 100 control steps to 1e-9 m; in fact every step, bit for bit)."""

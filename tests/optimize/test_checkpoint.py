@@ -549,6 +549,7 @@ print(lean, cma.s._pyplot is None, es.ask()[0][0])
 """
 
 
+@pytest.mark.slow  # a fresh process
 def test_pycma_is_imported_without_matplotlib_and_scipy_stats():
     """``import_cma`` keeps matplotlib and scipy.stats (1.5 s) out of pycma's import; both import as usual
     afterwards and CMA-ES samples exactly as with the plain import. A user's matplotlib, imported first, is

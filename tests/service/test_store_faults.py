@@ -185,6 +185,7 @@ def test_a_full_disk_mid_run_puts_the_run_back_and_it_resumes_bit_identical(tmp_
     assert [(e.params, e.objective) for e in evals] == [(e.params, e.objective) for e in ref_evals]
 
 
+@pytest.mark.slow  # an optimization with a worker
 def test_the_wal_stays_small_under_a_fast_heartbeat(tmp_path):
     """A heartbeat is a one-page commit; with a short --stale-after it beats every few ms. SQLite's default
     checkpoint (1000 pages) let the WAL grow to 4 MB in 3 s, which filled a small disk (the full-disk test

@@ -149,7 +149,9 @@ def test_a_changed_inlined_module_drops_the_compiled_ticks_cache(tmp_path):
     assert drop_stale_cache(here) and not stale[0].exists()
 
 
-@pytest.mark.parametrize("name", ["bend", "punch", "catch", "push"])
+# catch (props, the most rows) in the fast subset; the others in the full suite
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n != "catch" else n
+                                  for n in ("bend", "punch", "catch", "push")])
 def test_the_warm_start_changes_no_plan_the_qp_solves(name):
     """ControllerConfig.warm_start (each QP starts from the active set its simulation's last control step
     ended on) saves KKT solves, not results: the zero and library CMRTs' clips, falls included, are the cold

@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 
 # PyOpenGL, when the library of its platform cannot be loaded (no libOSMesa, no EGL driver), fails on import
@@ -44,6 +46,7 @@ def test_the_api_imports_no_opengl_until_it_renders():
     assert r.returncode == 0 and r.stdout.split() == ["False", "True"], r.stderr
 
 
+@pytest.mark.slow  # a fresh process that renders
 def test_a_script_that_imports_mujoco_first_still_renders_headless(tmp_path):
     """``import mujoco`` before cmrt with no MUJOCO_GL: MuJoCo picks GLFW, which needs a display. Without one
     cmrt loads its own backend (the in-process render tests failed after tests/control/conftest.py did this)."""
