@@ -158,7 +158,9 @@ def _report_text(r: dict) -> str:
           if r.get("steps") and isinstance(r.get("step_times_s"), list | tuple) else []),
         f"  planned vs executed CoP {_n(r.get('max_plan_cop_error_m'), '.2f', 1000)} mm  timing lag "
         f"{_n(r.get('timing_lag_s'), '.3f')} s"
-        + (f" (bound {_n(r['timing_lag_bound_s'], '.3f')} s)" if r.get("timing_lag_bound_s") is not None else ""),
+        + (f" (bound {_n(r['timing_lag_bound_s'], '.3f')} s"
+           + ("" if r.get("timing_lag_enforced", True) else ", reported only: not part of success yet") + ")"
+           if r.get("timing_lag_bound_s") is not None else ""),
         *([_after_fall_text(r)] if r.get("fall_direction") is not None else []),
     ])
 

@@ -12,7 +12,7 @@ from cmrt import inputs
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.sequence import SequenceTask
 from cmrt.motion.task import Task
-from cmrt.sim.objective import Evaluation, evaluate
+from cmrt.sim.objective import ENFORCE_TIMING, Evaluation, evaluate
 from cmrt.sim.simulate import Trajectory, simulate
 
 
@@ -57,6 +57,7 @@ def simulate_report(task: Task, curve: Cmrt, curve_name: str, trace: str | None 
         "curve": curve_name,
         "cmrt": curve.to_dict(),
         **evaluation_dict(ev),
+        "timing_lag_enforced": ENFORCE_TIMING,  # whether success requires timing_lag_s <= its bound (not yet)
         "wall_s": round(wall, 4),
     }
 
