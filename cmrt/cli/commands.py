@@ -137,7 +137,10 @@ def _readable(key: str, value: object) -> str:
 
 def _n(x, spec: str, scale: float = 1.0) -> str:
     """A number for the text form; ``-`` for one that is not there (a NaN, null in JSON)."""
-    return "-" if x is None else format(scale * x, spec)
+    if x is None:
+        return "-"
+    text = format(scale * x, spec)
+    return format(0.0, spec) if float(text) == 0 else text  # -0.004 cm is "0.0", not "-0.0"
 
 
 def _report_text(r: dict) -> str:
