@@ -129,7 +129,8 @@ def _frame(renderer, data, camera, traj: Trajectory, k: int) -> np.ndarray:
     if np.isfinite(ref):
         _add_geom(scene, mujoco.mjtGeom.mjGEOM_CAPSULE, [0.008, 0.6, 0], [ref, y, 0.6], GREEN)
     cop = traj.cop_x_m[k]
-    if np.isfinite(cop):
+    fallen = traj.fall_time_s is not None and traj.time_s[k] > traj.fall_time_s + 1e-9
+    if np.isfinite(cop) and not fallen:  # after the fall there is no balance to mark (as the plots stop there)
         _add_geom(scene, mujoco.mjtGeom.mjGEOM_CYLINDER, [0.03, 0.005, 0], [cop, y, 0.008], RED)
     for _foot, landed_s, heel_x in traj.footprints:  # where each step of a stepping task landed
         if landed_s <= traj.time_s[k]:

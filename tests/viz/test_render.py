@@ -193,3 +193,25 @@ def test_filmstrip_of_a_fall_in_process(tmp_path, punch_fall):
         assert (np.abs(panel - overlay.RED).sum(-1) < 10).sum() > 20
     key = img[320 + overlay.CAPTION_PX + overlay.GAP_PX:]
     assert (np.abs(key - overlay.KEY[0][1]).sum(-1) < 10).sum() > 10
+
+
+def test_the_cop_marker_is_drawn_until_the_fall_and_not_after(punch_fall):
+    """After a fall there is no balance to mark: the red CoP disc goes, as the plots' CoP traces end there."""
+    import mujoco
+
+    task, traj, score = punch_fall
+    m = task.model()
+    data = mujoco.MjData(m)
+    camera = mujoco.MjvCamera()
+    renderer = rr._renderer(m, 120, 90)
+    try:
+        def red_discs(t):
+            k = rr._pose(m, data, traj, t)
+            rr._frame(renderer, data, camera, traj, k)
+            scene = renderer.scene
+            return sum(np.allclose(scene.geoms[i].rgba, rr.RED) for i in range(scene.ngeom))
+
+        before, after = red_discs(score.fall_time_s - 0.3), red_discs(score.fall_time_s + 0.3)
+    finally:
+        renderer.close()
+    assert before == 1 and after == 0
