@@ -209,27 +209,29 @@ def _result(run: Run) -> dict:
     }
 
 
+def _outcome_word(success, fell) -> str:
+    """A stored result's verdict, as ``optimize``, ``best`` and a worker print it."""
+    return "SUCCESS" if success else ("balance LOST" if fell else "not a success (balance kept)")
+
+
 def _run_line(run: Run) -> str:
     """One line for a finished run (what a worker prints as each run ends)."""
     speed = f" --speed {run.speed:g}" if run.speed is not None else ""
-    verdict = "SUCCESS" if run.best_success else ("balance LOST" if run.best_fell else "not a success")
+    verdict = _outcome_word(run.best_success, run.best_fell)
     best = "-" if run.best_objective is None else f"{run.best_objective:.4f}"
     return (f"run {run.id} {escape(run.task)}{speed}: {run.status} ({run.stop_reason}), best objective {best} "
             f"{verdict}, {run.evaluations} evaluations")
 
 
 def _result_text(r: dict) -> str:
-    def outcome(success, fell):
-        return "SUCCESS" if success else ("balance LOST" if fell else "not a success (balance kept)")
-
     speed = f" --speed {r['speed']:g}" if r["speed"] is not None else ""
     kind = "robust CMRT:   " if r["robust"] else "optimized CMRT:"
     lines = [
         f"run {r['run_id']} {escape(r['task'])}{speed}: {r['status']} ({r['stop_reason']}) after "
         f"{r['evaluations']} evaluations, {r['restarts']} restarts, {r['wall_s']:.1f} s; start: {escape(r['init'])}",
         f"  zero CMRT:      objective {r['baseline_objective']:.4f}  "
-        f"{outcome(r['baseline_success'], r['baseline_fell'])}",
-        f"  {kind} objective {r['best_objective']:.4f}  {outcome(r['success'], r['fell'])}"
+        f"{_outcome_word(r['baseline_success'], r['baseline_fell'])}",
+        f"  {kind} objective {r['best_objective']:.4f}  {_outcome_word(r['success'], r['fell'])}"
         + ("" if r.get("improvement_over_zero") is None else
            f"  ({r['improvement_over_zero']:.4f} better than no CMRT)" if r["improvement_over_zero"] > 0 else
            "  (no better than no CMRT: the zero CMRT is the best known)"),
