@@ -241,6 +241,15 @@ TASK_PARAMS: dict[str, Range] = {
     "push3_duration_s": Range(0.0, MAX_RUN_S, unit="s"),
     "step_time_s": Range(0.2, 1.0, unit="s"),
     "step_height_m": Range(0.01, 0.15, unit="m"),
+    # the ground (cmrt.body.surface): Yu's slippery floor is 0.08, his slope 15 deg, his shaking plane +-20 deg
+    "floor_friction": Range(0.01, 2.0),
+    "slope_deg": Range(-25.0, 25.0, unit="deg"),
+    "tilt_amplitude_deg": Range(0.0, 30.0, unit="deg"),
+    "tilt_period_s": Range(0.5, 60.0, unit="s"),
+    "sway_amplitude_m": Range(0.0, 0.3, unit="m"),
+    "sway_period_s": Range(0.5, 60.0, unit="s"),
+    "heave_amplitude_m": Range(0.0, 0.1, unit="m"),
+    "heave_period_s": Range(0.5, 60.0, unit="s"),
 }
 OTHER_PARAM = Range(-1e9, 1e9)
 POSE_DEG = Range(-360.0, 360.0, unit="deg")

@@ -45,6 +45,7 @@ from typing import ClassVar
 import mujoco
 import numpy as np
 
+from cmrt.body import surface
 from cmrt.body.character import GRAVITY_M_S2, MODEL_PATH
 from cmrt.errors import CmrtError
 from cmrt.inputs import Range
@@ -526,14 +527,16 @@ def prop_class(kind: str | None) -> type[Prop]:
 
 
 def model_values(kind: str | None, params: dict[str, float]) -> tuple[tuple[str, float], ...]:
-    """The task parameters that change the compiled model, as a hashable key for ``build_model``."""
-    return tuple((k, float(params[k])) for k in sorted(prop_class(kind).MODEL_PARAMS))
+    """The task parameters that change the compiled model, as a hashable key for ``build_model``: the prop's, and
+    the floor's friction where a task sets it (``cmrt.body.surface``)."""
+    return tuple((k, float(params[k])) for k in sorted(prop_class(kind).MODEL_PARAMS)) + surface.model_values(params)
 
 
 @functools.lru_cache(maxsize=32)
 def build_model(kind: str | None, values: tuple[tuple[str, float], ...] = ()) -> mujoco.MjModel:
     """The humanoid plus one prop (or none), compiled once per distinct parameter set."""
     spec = mujoco.MjSpec.from_file(str(MODEL_PATH))
+    surface.add_to_spec(spec, dict(values))
     if kind is not None:
         if kind not in PROPS:
             raise ValueError(kind)

@@ -203,7 +203,8 @@ class MomentumBalanceController:
                 "mass": read_only(np.full(n, self.mass)), "no_swing": read_only(np.full(n, -1.0)),
                 "no_target": read_only(np.zeros((n, kernel.N_SWING))),
                 "cold": read_only(np.zeros((n, self.n_rows), bool)), "warm_out": np.zeros((n, self.n_rows), bool),
-                "no_load": (np.zeros((n, 2)), np.zeros((n, 3)), np.zeros(0, np.int64))}  # read, never written
+                "no_load": (np.zeros((n, 2)), np.zeros((n, 3)), np.zeros(0, np.int64)),  # read, never written
+                "no_field": (np.zeros((n, 0, 3)), np.zeros((n, 0, 3)))}
         return c
 
     @staticmethod
@@ -215,7 +216,7 @@ class MomentumBalanceController:
     def torques(self, f: dict[str, np.ndarray], q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x,
                 in_contact: np.ndarray, mass_kg: np.ndarray | None = None, swing_foot: np.ndarray | None = None,
                 swing_target: np.ndarray | None = None, warm: np.ndarray | None = None,
-                load: tuple | None = None) -> ControlOutput:
+                load: tuple | None = None, field: tuple | None = None) -> ControlOutput:
         """Torques for n simulations. ``f`` holds (n, ...) arrays of the MuJoCo fields at the current state:
         qpos, qvel, cdof, cdof_dot, cvel, cinert, M, qfrc_bias, qfrc_passive, subtree_com, geom_xpos.
         References are (nv,) (shared) or (n, nv) (one per simulation); CoM/CoP targets are (n,);
@@ -225,7 +226,9 @@ class MomentumBalanceController:
         the stance knee's extra bend
         (``cmrt.control.stepping``); default: no foot swings. ``warm`` (n, n_rows) bool: each simulation's QP
         active set from its previous control step, updated in place once every plan has been found (a singular
-        plan raises ``LinAlgError`` and leaves it as it was); None: every QP starts cold."""
+        plan raises ``LinAlgError`` and leaves it as it was); None: every QP starts cold. ``field``: (forces (n, nb, 3),
+        points (n, nb, 3)), the support's field on each humanoid body (``cmrt.body.surface.Support.field``: force
+        x, z at the body's CoM and torque about y); None: a still, level floor."""
         n = f["qvel"].shape[0]
         c = self._constants(n)
         tau = np.empty((n, self.actuated.size))
@@ -240,7 +243,8 @@ class MomentumBalanceController:
              c["no_swing"] if swing_foot is None else _as_kernel(swing_foot),
              c["no_target"] if swing_target is None else _as_kernel(swing_target)),
             (c["cold"] if warm is None else warm, c["warm_out"]),
-            tuple(c["no_load"] if load is None else load), (tau, info),
+            tuple(c["no_load"] if load is None else load) + tuple(c["no_field"] if field is None else field),
+            (tau, info),
         )
         if warm is not None:
             np.copyto(warm, c["warm_out"])

@@ -221,7 +221,7 @@ def solve_qp(Q, g, E, e, C, c, c_on, dual_reg, passes=MAX_PASSES, active=None):
 
 
 @njit(cache=True, nogil=True)
-def _objective(A, a, qd, q, com, mass, mg, params, w2, leg_dofs, pts, swing, i, targets):
+def _objective(A, a, qd, q, com, mass, mg, params, w2, leg_dofs, pts, swing, i, targets, field_w):
     """The QP's objective (Q, g) of simulation ``i``: the momentum rates (the CoM toward its reference, the CoP's
     angular momentum rate) and the joints' tracking, a swing leg's and a crouch's adjustments included.
     ``targets``: (q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, swing_target), row ``i`` read."""
@@ -229,7 +229,10 @@ def _objective(A, a, qd, q, com, mass, mg, params, w2, leg_dofs, pts, swing, i, 
     nv = A.shape[1]
     L_x = A[0] @ qd
     ldot_x = params[P_KL] * mass * (com_ref_x[i] - com[0]) + params[P_DL] * (mass * com_ref_vel_x[i] - L_x)
-    hdot = -com[2] * ldot_x - (cop_des_x[i] - com[0]) * mg
+    if field_w.size == 0:
+        hdot = -com[2] * ldot_x - (cop_des_x[i] - com[0]) * mg
+    else:  # the ground gives the rates less the field's wrench; its moment at the desired CoP, plus the field's
+        hdot = (-com[2] * (ldot_x - field_w[0]) - (cop_des_x[i] - com[0]) * (mg - field_w[1])) + field_w[2]
     Q = params[P_BL] * np.outer(A[0], A[0]) + params[P_BH] * np.outer(A[2], A[2])
     g = params[P_BL] * (ldot_x - a[0]) * A[0] + params[P_BH] * (hdot - a[2]) * A[2]
     for j in range(nv):
@@ -454,6 +457,27 @@ def _load_forces(frame, qd, chain, ext_bodies, ext_p_row, com, fex, fez):
 
 
 @njit(cache=True, nogil=True)
+def _field_load(frame, qd, chain, field_f, field_p, com):
+    """A force field on every body (``cmrt.body.surface``: what the support's tilt and motion add to gravity in
+    its frame): its wrench about the CoM (F_x, F_z, H_y rate) and its generalized force (1, nv); no rows when
+    ``field_f`` (nb, 3: f_x, f_z at the body's CoM ``field_p``, torque about y) has no bodies."""
+    cdof_r, cdof_dot_r, cvel_r = frame
+    nbf = field_f.shape[0]
+    wrench = np.zeros(3)
+    gen = np.zeros((1 if nbf > 0 else 0, qd.size))
+    for b in range(nbf):
+        fx, fz, ty = field_f[b, 0], field_f[b, 1], field_f[b, 2]
+        if fx == 0.0 and fz == 0.0 and ty == 0.0:
+            continue
+        J, _ = point_frame(cdof_r, cdof_dot_r, cvel_r, qd, chain[b], b, field_p[b], com)
+        gen[0] += J[0] * fx + J[1] * fz + J[2] * ty
+        wrench[0] += fx
+        wrench[1] += fz
+        wrench[2] += (field_p[b, 2] - com[2]) * fx - (field_p[b, 0] - com[0]) * fz + ty
+    return wrench, gen
+
+
+@njit(cache=True, nogil=True)
 def _limit_rows(C, c, c_on, torque, q, qd, actuated, limits, params):
     """The motors' limits and the joint stops as rows of the QP (in place, after the ground's N_INEQ rows):
     |T qdd + t0| <= the torque limit, and a joint may approach its stop (less a margin) no faster than a
@@ -542,7 +566,7 @@ def control_step(rows, fields, model, refs, support, warm, load, out):
     chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, limits, w2, params = model
     q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x = refs
     contact, mass_all, swing_foot, swing_target = support
-    (warm_in, warm_out), (ext_f, ext_p, ext_bodies), (tau_out, info_out) = warm, load, out
+    (warm_in, warm_out), (ext_f, ext_p, ext_bodies, field_f, field_p), (tau_out, info_out) = warm, load, out
     n = rows.shape[0]
     nb, nv = chain.shape
     grav = params[P_G]
@@ -567,12 +591,21 @@ def control_step(rows, fields, model, refs, support, warm, load, out):
         a_g[1] -= fez
         a_g[2] -= (ext_p[i, 2] - com[2]) * fex - (ext_p[i, 0] - com[0]) * fez
 
+        # a force field on every body (a tilted or moving support, simulated in its own frame): known to the plan
+        # as the held load is - the ground gives the rates less its wrench, the torques take its generalized
+        # force out. No bodies (a still, level floor): nothing changes, bit for bit.
+        field_w, field_gen = _field_load(frame, qd, chain, field_f[i], field_p[i], com)
+        if field_gen.shape[0] > 0:
+            a_g[0] -= field_w[0]
+            a_g[1] -= field_w[1]
+            a_g[2] -= field_w[2]
         pts, Jp, bp = _contact_points(frame, qd, chain, points, point_bodies, geom_xpos[row], radius, com)
         swing = int(swing_foot[i])
         state = _foot_states(contact[i], swing)
         # the objective, then the support rows (a foot that is not flat gets a soft return-to-flat pitch target)
         Q, g = _objective(A, a, qd, q, com, mass, mg, params, w2, leg_dofs, pts, swing, i,
-                          (q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, swing_target))
+                          (q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, swing_target),
+                          field_w if field_gen.shape[0] > 0 else field_w[:0])
         E, e, ne, lo, hi, n_flat, n_points = _support_rows(state, (pts, Jp, bp), qd, q, params, leg_dofs, swing,
                                                           swing_target[i], Q, g)
         C, c, c_on, ne, arm = _ground_rows(A, a_g, pts, com, mg, params, (lo, hi, n_flat, n_points), nrow, E, e, ne)
@@ -584,6 +617,8 @@ def control_step(rows, fields, model, refs, support, warm, load, out):
         Tm, t0 = _torque_map(dyn, actuated, nu if in_plan else 0, n_points > 0, A, a_g, mg, com, arm, pts, Jp,
                              loaded)
         load_gen = _load_forces(frame, qd, chain, ext_bodies, ext_p[i], com, fex, fez)
+        if field_gen.shape[0] > 0:
+            load_gen = np.concatenate((load_gen, field_gen))
         for eb in range(load_gen.shape[0]):
             t0 -= load_gen[eb]
         if in_plan:

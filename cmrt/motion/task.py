@@ -17,6 +17,7 @@ import numpy as np
 from cmrt import inputs
 from cmrt.body.character import character, feet_flat_qpos, joint_angles_from_pose
 from cmrt.body.props import build_model, model_values, prop_class
+from cmrt.body.surface import SURFACE_PARAMS, Support
 from cmrt.errors import CmrtError
 from cmrt.inputs import MAX_RUN_S, Range, param_range, shown
 from cmrt.modes import DEFAULT_REFERENCE_MODE, REFERENCE_MODES
@@ -45,6 +46,8 @@ DEFAULT_PARAMS: dict[str, float] = {
     "stepping": 0.0,
     "step_time_s": 0.4,  # lift-off to touchdown
     "step_height_m": 0.05,  # how high the swing foot's heel rises
+    # the ground (cmrt.body.surface, docs/surfaces.md): friction, slope, a tilting or moving platform
+    **SURFACE_PARAMS,
 }
 #: Parameters that change nothing while ``stepping`` is 0: left out of the content hash then, so the hashes
 #: of planted-feet tasks (and the stored runs keyed by them) are those of before stepping existed.
@@ -53,10 +56,12 @@ STEPPING_PARAMS = ("stepping", "step_time_s", "step_height_m")
 
 def active_params(params: dict) -> dict:
     """``params`` without those that change nothing - the stepping ones while ``stepping`` is 0 (or absent, as
-    in runs and library entries made before stepping existed): what hashes and matches compare."""
+    in runs and library entries made before stepping existed), and the surface's at the still level floor's
+    values: what hashes and matches compare (so tasks, runs and library entries of before keep theirs)."""
+    out = {k: v for k, v in params.items() if not (k in SURFACE_PARAMS and v == SURFACE_PARAMS[k])}
     if params.get("stepping"):
-        return dict(params)
-    return {k: v for k, v in params.items() if k not in STEPPING_PARAMS}
+        return out
+    return {k: v for k, v in out.items() if k not in STEPPING_PARAMS}
 
 
 #: Further thorax pushes a task file may declare, each as ``<prefix>_force_n``, ``_start_s``, ``_duration_s``.
@@ -152,6 +157,11 @@ class Task:
     def step_height_m(self) -> float:
         """How high the swing foot's heel rises mid-step (m; used when stepping)."""
         return self.params["step_height_m"]
+
+    @property
+    def support(self) -> Support:
+        """The ground it is done on (``cmrt.body.surface``): its surface parameters as one typed record."""
+        return Support.from_params(self.params)
 
     @property
     def speed(self) -> float | None:

@@ -32,7 +32,7 @@ import functools
 import os
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import mujoco
 import mujoco.batch
@@ -40,6 +40,7 @@ import numpy as np
 
 from cmrt.body.character import FOOT_POINT_RADIUS_M, character
 from cmrt.body.props import CONTACT_FORCE_N, model_values, prop_class
+from cmrt.body.surface import Support, body_inertia_yy, tilt_pose
 from cmrt.control import ControllerConfig, MomentumBalanceController
 from cmrt.control.controller import read_only
 from cmrt.control.planar import PlanarKinematics
@@ -186,14 +187,20 @@ def _in_contact(geom_xpos: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def settled_state(task: Task, config: ControllerConfig) -> dict[str, np.ndarray]:
     """The start pose after the controller held it for SETTLE_S (cached per process and model)."""
+    support = Support.from_params(task.params)
+    config = surface_config(config, task)
     q0 = task.start_qpos()
-    key = (q0.tobytes(), config, task.prop, model_values(task.prop, task.params))
+    # on a tilted support the start pose stands upright in the world; it settles in the field of t = 0, held
+    static = replace(support, tilt_period_s=np.inf, sway_period_s=np.inf, heave_period_s=np.inf)
+    field = None if support.still_and_level else _SupportField(static, task.model(), character().model.nbody)
+    q0 = tilt_pose(character().model, q0, float(support.tilt(0.0)[0]))
+    key = (q0.tobytes(), config, task.prop, model_values(task.prop, task.params), static)
     if key not in _SETTLED:
         ch = character()
         m = task.model()
         prop = prop_class(task.prop)(m, task.params)
         batch = mujoco.batch.Batch(m, nsim=1, nthread=1, persistent=True)
-        f = {k: batch.bind(k) for k in set(CONTROL_FIELDS) | set(STATE_FIELDS) | {"ctrl"}}
+        f = {k: batch.bind(k) for k in set(CONTROL_FIELDS) | set(STATE_FIELDS) | {"ctrl", "xipos", "xfrc_applied"}}
         f["qpos"][0, : q0.size] = q0
         f["qpos"][0, 1] -= 0.002  # start just in contact: the feet sink ~2 mm under body weight
         batch.forward(stage=mujoco.mjtStage.mjSTAGE_VEL)
@@ -203,9 +210,14 @@ def settled_state(task: Task, config: ControllerConfig) -> dict[str, np.ndarray]
         center = 0.5 * (lo + hi)
         zeros = np.zeros(q0.size)
         for k in range(int(round(SETTLE_S / m.opt.timestep))):
+            if field is not None:
+                field.update(f, slice(None), 0.0)
+                field.apply(f, slice(None), np.zeros(1), ch.thorax_body)
             if k % config.control_every == 0:
                 contact = _in_contact(f["geom_xpos"], points)
-                f["ctrl"][:] = ctrl.torques(f, q0, zeros, zeros, center, np.zeros(1), center, contact).torque_nm
+                com_ref = center if field is None else center + static.lean_x(0.0, f["subtree_com"][:, 1, 2])
+                f["ctrl"][:] = ctrl.torques(f, q0, zeros, zeros, com_ref, np.zeros(1), center, contact,
+                                            field=None if field is None else field.for_controller()).torque_nm
             prop.settle_hold(f)
             batch.step(stage=mujoco.mjtStage.mjSTAGE_VEL)
         _SETTLED[key] = {k: f[k][0].copy() for k in STATE_FIELDS}
@@ -245,7 +257,7 @@ def _judge_prop(prop, b, rows, force, times, windows, goal, extras) -> None:
 
 
 def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass, step: StepCommand | None = None,
-             warm: np.ndarray | None = None, ids: np.ndarray | None = None, load=None):
+             warm: np.ndarray | None = None, ids: np.ndarray | None = None, load=None, field=None):
     """Torques and the planned CoP (``ControlOutput.cop_x_m``) for the given rows; a row whose plan is singular or
     non-finite gets zero torques, a NaN plan and bad=True. ``warm`` (all simulations, n_rows): the QPs' active
     sets (``ControllerConfig.warm_start``), read and updated at rows ``ids`` (a row whose plan is singular keeps
@@ -261,7 +273,7 @@ def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass, 
     active = None if warm is None else warm[ids]
     try:
         out = controller.torques(f, *refs, com_ref, com_ref_vel, cop_ref, contact, mass, **swing(slice(None)),
-                                 warm=active, load=load)
+                                 warm=active, load=load, field=field)
         ctrl, plan_cop = out.torque_nm, out.cop_x_m
         if warm is not None:
             warm[ids] = active
@@ -276,7 +288,8 @@ def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass, 
                                          cop_ref[i : i + 1], contact[i : i + 1], mass[i : i + 1],
                                          **swing(slice(i, i + 1)), warm=one,
                                          load=None if load is None else (load[0][i : i + 1], load[1][i : i + 1],
-                                                                         load[2]))
+                                                                         load[2]),
+                                         field=None if field is None else (field[0][i : i + 1], field[1][i : i + 1]))
                 ctrl[i], plan_cop[i] = out.torque_nm[0], out.cop_x_m[0]
                 if warm is not None:
                     warm[ids[i]] = one[0]
@@ -345,7 +358,7 @@ def _drive(task: Task, curves: list[Cmrt], members: list[Perturbation], times: n
     scales = sorted({p.time_scale for p in members})
     variant_tasks = [Perturbation(time_scale=s).task_variant(task) for s in scales]
     variant_of = np.array([scales.index(p.time_scale) for p in members])
-    variant_refs = [vt.reference(times) for vt in variant_tasks]
+    variant_refs = [_on_support(vt, vt.reference(times), times) for vt in variant_tasks]
     if len(scales) == 1:
         q_ref, qd_ref, qdd_ref = variant_refs[0]
     else:
@@ -361,6 +374,28 @@ def _drive(task: Task, curves: list[Cmrt], members: list[Perturbation], times: n
         motion_com=[motion_com(character(), r[0][:, :nv], r[1][:, :nv]) for r in variant_refs]
         if task.reference_mode == "yu" else None,
     )
+
+
+def _on_support(task: Task, refs: tuple[np.ndarray, np.ndarray, np.ndarray], times: np.ndarray):
+    """The reference motion on the task's support: on a tilted one the body stays upright in the world (the
+    trunk's pitch less the tilt, the ankles more: the feet stay flat on it). Unchanged on a level support."""
+    theta = Support.from_params(task.params).tilt(times)
+    if not np.any(theta[0]) and not np.any(theta[1]):
+        return refs
+    ankles = [character().model.joint(n).dofadr[0] for n in ("ankle_r", "ankle_l")]
+    out = []
+    for arr, v in zip(refs, theta, strict=True):
+        arr = arr.copy()
+        arr[:, 2] -= v
+        arr[:, ankles] += v[:, None]
+        out.append(arr)
+    return tuple(out)
+
+
+def surface_config(config: ControllerConfig, task: Task) -> ControllerConfig:
+    """The controller's friction cone scaled with the floor's (its margin below MuJoCo's 1.0 kept)."""
+    mu = Support.from_params(task.params).floor_friction
+    return config if mu == 1.0 else replace(config, friction_coef=config.friction_coef * mu)
 
 
 def _targets(yu: YuReference | None, b: dict, sel, ids: np.ndarray, drive: _Drive, k: int, center: np.ndarray,
@@ -393,7 +428,7 @@ def _delayed(targets: Targets, delay_steps: int, k: int, ids: np.ndarray, com_x_
 def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarray, fallen: np.ndarray,
              drive: _Drive, k: int, targets: Targets, contact: np.ndarray, mass: np.ndarray,
              nu: int, step: StepCommand | None = None,
-             warm: np.ndarray | None = None, prop=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             warm: np.ndarray | None = None, prop=None, field=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Torques of simulations ``ids`` (batch rows ``sel``): the controller for those standing, protective
     mode for those that fell. ``bad``: the controller's plan was singular or non-finite; ``plan_cop``: the CoP
     it planned (NaN in protective mode or for a bad plan). ``targets``: the
@@ -404,7 +439,7 @@ def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarra
         f = b if isinstance(sel, slice) else {name: b[name][sel] for name in CONTROL_FIELDS}
         load = None if prop is None else prop.hand_load(b, ids)
         return _control(controller, f, drive.refs_at(k, ids), t.com_x_m, t.com_vel_x_m_s, t.cop_x_m, contact,
-                        mass[sel], step, warm, ids, load)
+                        mass[sel], step, warm, ids, load, field)
     ctrl = np.zeros((ids.size, nu))
     bad = np.zeros(ids.size, bool)
     plan_cop = np.full(ids.size, np.nan)
@@ -415,7 +450,7 @@ def _torques(controller: MomentumBalanceController, b: dict, sel, ids: np.ndarra
         ctrl[up], bad[up], plan_cop[up] = _control(
             controller, f, drive.refs_at(k, rows), t.com_x_m[up], t.com_vel_x_m_s[up], t.cop_x_m[up], contact[up],
             mass[rows], None if step is None else step.rows(up), warm, rows,
-            None if prop is None else prop.hand_load(b, rows))
+            None if prop is None else prop.hand_load(b, rows), None if field is None else (field[0][up], field[1][up]))
     return ctrl, bad, plan_cop  # the fallen: motors off, their joints passive (``ProtectiveMode``)
 
 
@@ -462,6 +497,38 @@ def _no_load(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """No load on the hands (``Prop.hand_load``), for the compiled tick's arguments, made once per n: writable like
     a prop's load (the kernel only reads them; another array type would compile the tick a second time)."""
     return np.zeros((n, 2)), np.zeros((n, 3)), np.zeros(0, np.int64)
+
+
+class _SupportField:
+    """The support's field on every body of a batch (``cmrt.body.surface``; None on a still level floor): made
+    once per physics step from the state the step starts from, applied by MuJoCo in that step (with the thorax
+    push, which it would otherwise overwrite) and known to the controller on a control step."""
+
+    def __init__(self, support: Support, m: mujoco.MjModel, nb: int):
+        self.support = support
+        self.mass_kg = m.body_mass.copy()
+        self.inertia_yy = body_inertia_yy(m)
+        self.rootid = m.body_rootid.copy()
+        self.nb = nb  # the humanoid's bodies: what the controller knows of
+        self.force = self.xipos = None
+
+    def update(self, b: dict, sel, t_s: float) -> None:
+        self.xipos = b["xipos"][sel]
+        cvel = b["cvel"][sel]
+        r = self.xipos - b["subtree_com"][sel][:, self.rootid]  # cvel is about the tree's own CoM
+        w = cvel[..., 1]
+        vel = np.stack([cvel[..., 3] + w * r[..., 2], cvel[..., 5] - w * r[..., 0]], axis=-1)
+        self.force = self.support.field(t_s, self.xipos[..., [0, 2]], vel, self.mass_kg, self.inertia_yy)
+
+    def apply(self, b: dict, sel, push_n: np.ndarray, thorax: int) -> None:
+        x = b["xfrc_applied"]
+        x[sel, :, 0] = self.force[..., 0]
+        x[sel, :, 2] = self.force[..., 1]
+        x[sel, :, 4] = self.force[..., 2]
+        x[sel, thorax, 0] += push_n
+
+    def for_controller(self, rows=slice(None)) -> tuple[np.ndarray, np.ndarray]:
+        return (np.ascontiguousarray(self.force[rows, :self.nb]), np.ascontiguousarray(self.xipos[rows, :self.nb]))
 
 
 class _CompiledTick:
@@ -619,6 +686,7 @@ class _Group:
     warm: np.ndarray  # each simulation's QP active set at its last control step: the next one starts from it
     compiled: _CompiledTick | None
     push_steps: set  # a set: cheaper per step than an array
+    field: _SupportField | None = None  # a tilted or moving support's field (None: a still level floor)
 
     @property
     def diverged_code(self) -> int:
@@ -656,15 +724,17 @@ def _set_up(task: Task, curves: list[Cmrt | None], config: ControllerConfig, rec
     times = np.arange(n_steps) * dt
     drive = _drive(task, [c or Cmrt.zero(task.clip_s) for c in curves], members, times)
     geo = _Geometry()
-    controller = MomentumBalanceController(ch, config)
+    controller = MomentumBalanceController(ch, surface_config(config, task))
     yu = YuReference(ch, config.k_l, config.d_l) if task.reference_mode == "yu" else None
     nq, nb = ch.model.nq, ch.model.nbody  # the humanoid's: a prop's coordinates follow
     act = np.array(ch.actuated_dofs)
 
     batch = mujoco.batch.Batch(m, nsim=n, nthread=1, persistent=True)
     prop = prop_class(task.prop)(m, task.params)
-    names = set(CONTROL_FIELDS) | set(STATE_FIELDS) | {"ctrl", "xfrc_applied", "sensordata", "geom_xmat", "time"}
+    names = set(CONTROL_FIELDS) | set(STATE_FIELDS) | {"ctrl", "xfrc_applied", "sensordata", "geom_xmat", "time",
+                                                       "xipos"}
     b = {k: batch.bind(k) for k in names | prop.fields()}
+    support = Support.from_params(task.params)
     for k, v in settled_state(task, config).items():
         b[k][:] = v
     b["time"][:] = 0.0
@@ -682,7 +752,8 @@ def _set_up(task: Task, curves: list[Cmrt | None], config: ControllerConfig, rec
     warm = np.zeros((n, controller.n_rows), bool)
     compiled = (_CompiledTick(b, geo, controller, drive, rec, falls, act, nb, ch.mass_kg, has_contact_force,
                               delay_steps, fb_vel, warm)
-                if COMPILED_TICK and yu is None and stepper is None and not record else None)
+                if COMPILED_TICK and yu is None and stepper is None and not record and support.still_and_level
+                else None)
     return _Group(
         task=task, config=config, record=record, ch=ch, m=m, n=n, dt=dt, run_steps=run_steps, post_fall=post_fall,
         n_steps=n_steps, times=times, drive=drive, geo=geo, controller=controller, yu=yu,
@@ -692,6 +763,7 @@ def _set_up(task: Task, curves: list[Cmrt | None], config: ControllerConfig, rec
         control_dt=control_dt, sample_every=max(1, int(round(task.cop_sample_step_s / dt))),
         has_contact_force=has_contact_force, delay_steps=delay_steps, fb_vel=fb_vel, warm=warm, compiled=compiled,
         push_steps=set(np.flatnonzero(drive.push_changes).tolist()),
+        field=None if support.still_and_level else _SupportField(support, m, nb),
     )
 
 
@@ -816,6 +888,8 @@ def _python_step(g: _Group, s: _LoopState, k: int) -> None:
     sample = g.record or k % g.sample_every == 0
     if (control or g.prop.every_step) and k != s.prop_stepped:
         g.prop.step(g.batch, b, s.ids, g.times[k])
+    if g.field is not None:
+        g.field.update(b, sel, g.times[k])
     r = _read(g, s, k, control) if control or sample else None
     if control or g.record:
         _read_motion(g, s, k, r, control)
@@ -825,7 +899,9 @@ def _python_step(g: _Group, s: _LoopState, k: int) -> None:
         g.rec["ctrl"][sel, k] = g.ctrl_all[sel]
         g.rec["cref"][sel, k] = g.com_ref_now[sel]
         g.rec["qvel"][sel, k] = b["qvel"][sel]
-    if k in g.push_steps:
+    if g.field is not None:
+        g.field.apply(b, sel, g.drive.push_n[sel, k], g.ch.thorax_body)
+    elif k in g.push_steps:
         b["xfrc_applied"][sel, g.ch.thorax_body, 0] = g.drive.push_n[sel, k]
 
     g.batch.step(ids=s.step_ids, stage=mujoco.mjtStage.mjSTAGE_VEL)
@@ -885,12 +961,22 @@ def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
     rec["jspeed"][sel, k] = r.jspeed
     mass = g.ch.mass_kg + g.prop.carried_kg  # what the controller knows it carries
     targets = _targets(g.yu, b, sel, ids, g.drive, k, r.center, r.lo, r.hi, r.com, r.vel_x, g.nb)
+    if g.field is not None:  # the CoM over the support centre along the field, moving with it
+        com_vel_z = r.momentum[:, 1] / (g.ch.mass_kg + g.prop.carried_kg[ids])
+        lean_vel = g.field.support.lean_rate(g.times[k], r.com[:, 2], com_vel_z)
+        if g.yu is None:  # (yu: the lean is in its reference pose); its acceleration fed forward through the
+            # CoM stiffness: k_l m (c_r + a / k_l - c) asks m a more of the momentum rate
+            support, t_s, z = g.field.support, g.times[k], r.com[:, 2]
+            ahead = support.lean_accel(t_s, z) / g.config.k_l
+            targets = Targets(targets.com_x_m + support.lean_x(t_s, z) + ahead, targets.com_vel_x_m_s + lean_vel,
+                              targets.cop_x_m)
     g.com_ref_now[ids], g.cop_ref_now[ids] = targets.com_x_m, targets.cop_x_m
     rec["cref"][sel, k] = targets.com_x_m
     g.fb_vel[ids, k] = r.vel_x
     felt = _delayed(targets, g.delay_steps, k, ids, r.com[:, 0], r.vel_x, rec["com"], g.fb_vel)
     ctrl, bad, plan_cop = _torques(g.controller, b, sel, ids, g.falls.code[ids] > 0, g.drive, k, felt, r.contact,
-                                   mass, g.m.nu, s.step, g.warm, g.prop)
+                                   mass, g.m.nu, s.step, g.warm, g.prop,
+                                   None if g.field is None else g.field.for_controller())
     if g.record:  # the plan against the CoP measured in the physics step these torques act in
         swinging = np.zeros(ids.size, bool) if stepper is None else stepper.swinging(ids).any(axis=1)
         rec["plan_cop"][sel, k] = np.where(swinging, np.nan, plan_cop)
@@ -905,8 +991,13 @@ def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
     if g.has_contact_force and k > 0:  # leaning on a prop: the pendulum's capture point does not apply
         leaning = rec["prop_force"][ids, k - 1] > CONTACT_FORCE_N
         c_lo, c_hi = np.where(leaning, -np.inf, c_lo), np.where(leaning, np.inf, c_hi)
+    com = r.com
+    if g.field is not None:  # the CoM where the field projects it onto the support (its capture point from there)
+        com = com.copy()
+        com[:, 0] -= g.field.support.lean_x(g.times[k], com[:, 2])
+    vel_x = r.vel_x if g.field is None else r.vel_x - lean_vel
     new = g.falls.check(ids, k, ok=~bad, grounded=r.grounded, support_lo_x=c_lo, support_hi_x=c_hi,
-                        lowest_body_z=r.lowest, qpos=r.qpos, com=r.com, com_vel_x=r.vel_x, roll=roll,
+                        lowest_body_z=r.lowest, qpos=r.qpos, com=com, com_vel_x=vel_x, roll=roll,
                         time_s=b["time"][sel])
     if new.any():
         s.next_end = _fell_now(g, s, k, new, r.qpos, r.momentum)
@@ -939,8 +1030,11 @@ def _finish(g: _Group, s: _LoopState) -> list[Trajectory]:
     momentum = g.kin.linear_momentum(b["cinert"][:, :nb], b["cvel"][:, :nb])
     fallen = falls.code > 0  # judged at the fall, whatever a recorded topple did afterwards
     final_qpos = np.where(fallen[:, None], falls.qpos, b["qpos"][:, :g.nq])
-    final_speed = np.where(fallen, falls.speed_m_s, np.hypot(momentum[:, 0], momentum[:, 1])
-                           / (g.ch.mass_kg + g.prop.carried_kg))
+    vel = momentum / (g.ch.mass_kg + g.prop.carried_kg)[:, None]
+    if g.field is not None:  # standing still on a moving support: upright in the world, moving with its lean
+        for i in range(g.n):
+            vel[i, 0] -= g.field.support.lean_rate(float(b["time"][i]), b["subtree_com"][i, 1, 2], vel[i, 1])
+    final_speed = np.where(fallen, falls.speed_m_s, np.hypot(vel[:, 0], vel[:, 1]))
     standing = np.flatnonzero(~fallen)  # the others were judged when they fell
     _judge_prop(g.prop, b, standing, g.rec["prop_force"][standing, :g.run_steps], g.times[:g.run_steps],
                 g.drive.windows_s, g.goal, g.extras)

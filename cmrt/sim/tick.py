@@ -256,7 +256,7 @@ def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, 
                  (chain, m_rows, m_cols, points, point_bodies, leg_dofs, actuated, torque_limits, w2, params),
                  (qr, qdr, qddr, com_ref, com_ref_vel, cop_ref),
                  (contact, mass, np.full(n, -1.0), np.zeros((n, N_SWING))),
-                 (warm, warm_out), (ext_f, ext_p, ext_bodies), (tau, info))
+                 (warm, warm_out), (ext_f, ext_p, ext_bodies, np.zeros((n, 0, 3)), np.zeros((n, 0, 3))), (tau, info))
     for r in range(n):  # every plan found: keep the active sets (a singular plan raised, keeping none)
         s = ids[r]
         for j in range(warm.shape[1]):

@@ -3,6 +3,7 @@ import pytest
 
 from cmrt.body.character import character
 from cmrt.errors import CmrtError
+from cmrt.body.surface import SURFACE_PARAMS
 from cmrt.motion.task import DEFAULT_PARAMS, Task
 from cmrt.motion.taskfile import available_tasks, load_task, task_from_dict
 
@@ -17,7 +18,9 @@ def test_shipped_tasks_load():
 def test_common_parameters_are_typed_properties():
     """Every task's parameters are explicit read-only properties; any other is read from ``params``."""
     catch = load_task("catch").with_params(duration_s=0.5)
-    for key in DEFAULT_PARAMS:
+    for key in SURFACE_PARAMS:  # the ground's, as one typed record
+        assert getattr(catch.support, key) == catch.params[key]
+    for key in set(DEFAULT_PARAMS) - set(SURFACE_PARAMS):
         assert isinstance(getattr(Task, key), property) and getattr(Task, key).__doc__
         assert getattr(catch, key) == catch.params[key]
     assert catch.duration_s == 0.5
