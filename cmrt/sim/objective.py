@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import mujoco
 import numpy as np
 
 from cmrt.body.character import GRAVITY_M_S2, character
@@ -65,7 +66,7 @@ TIMING_FRACTION = 0.9  # a driving joint has arrived when it covers this fractio
 BODY_ON_FLOOR_Z_M = 0.0  # as the balance monitor's BODY_ON_FLOOR check: a non-foot body below the floor
 # Figures only a recorded run (traces, ``cmrt simulate``) has, or has differently (a topple played out): a scoring
 # run reports None (fall_direction from the capture point). Nothing the score depends on is among them.
-TRACE_ONLY_FIELDS = ("max_plan_cop_error_m", "fall_direction", "fall_direction_source",
+TRACE_ONLY_FIELDS = ("max_plan_cop_error_m", "max_foot_slip_m", "fall_direction", "fall_direction_source",
                      "after_fall_max_joint_speed_rad_s", "after_fall_peak_foot_force_bw", "after_fall_max_foot_lift_m",
                      "after_fall_floor_contact_s")
 
@@ -124,6 +125,7 @@ class Evaluation:
     step_times_s: tuple[float, ...] = ()
     # diagnostics (docs/controller.md, *Diagnostics*); none enters the objective or the verdict
     max_plan_cop_error_m: float | None = None  # planned vs executed CoP (recorded runs)
+    max_foot_slip_m: float | None = None  # how far a heel/toe point slid along the support while touching it
     timing_lag_s: float | None = None  # how late the motion was done (pose changes)
     timing_lag_bound_s: float | None = None  # ...and how late it may be to count as performed
     fall_direction: str | None = None  # "forward" / "backward" (None: no fall, or a blow-up)
@@ -285,11 +287,39 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
         steps=len(traj.step_times_s),
         step_times_s=tuple(round(float(t), 4) for t in traj.step_times_s),
         max_plan_cop_error_m=plan_cop_error_m(traj, contact["first_contact_s"]),
+        max_foot_slip_m=foot_slip_m(traj),
         timing_lag_s=lag,
         timing_lag_bound_s=lag_bound,
         **fall_direction(traj),
         **after_fall(traj),
     )
+
+
+def foot_slip_m(traj: Trajectory) -> float | None:
+    """The farthest a heel/toe point slid along the support (m, in its frame) within one spell of touching it,
+    before any fall (recorded runs: the contacts of every control step; None for a scoring run). A planted foot
+    on a floor of friction 1 slides well under a millimetre; Yu's slippery floor (0.08) lets it go."""
+    contact = traj.point_contact
+    if contact.size == 0 or not np.isfinite(traj.qpos).all(axis=1).any():
+        return None
+    end = len(traj.time_s) if traj.fall_time_s is None else int(np.searchsorted(traj.time_s, traj.fall_time_s))
+    rows = np.flatnonzero(np.isfinite(contact[:end]).all(axis=1) & np.isfinite(traj.qpos[:end]).all(axis=1))
+    if rows.size == 0:
+        return None
+    ch = character()
+    data = mujoco.MjData(ch.model)
+    points = [g for pair in ch.foot_points for g in pair]
+    anchor = np.full(len(points), np.nan)
+    slip = 0.0
+    for k in rows:
+        data.qpos[:] = traj.qpos[k, : ch.model.nq]
+        mujoco.mj_kinematics(ch.model, data)
+        x = data.geom_xpos[points, 0]
+        on = contact[k] > 0.5
+        anchor = np.where(on, np.where(np.isnan(anchor), x, anchor), np.nan)
+        if on.any():
+            slip = max(slip, float(np.max(np.abs(x - anchor)[on])))
+    return slip
 
 
 def _contact_summary(traj: Trajectory, before: np.ndarray) -> dict:

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from cmrt.body.character import character
-from cmrt.errors import CmrtError
 from cmrt.body.surface import SURFACE_PARAMS
+from cmrt.errors import CmrtError
 from cmrt.motion.task import DEFAULT_PARAMS, Task
 from cmrt.motion.taskfile import available_tasks, load_task, task_from_dict
 
