@@ -928,8 +928,8 @@ class Dashboard(Command):
     name, help, json_flag = "dashboard", "serve a read-only web dashboard of the store (runs, CMRTs, clips)", False
 
     def add_arguments(self, p):
-        p.add_argument("--host", default="127.0.0.1", help="address to listen on (another than loopback shows the "
-                       "store to the network)")
+        p.add_argument("--host", default="127.0.0.1", help="address to listen on (any but the loopback shows the store "
+                       "to the network: there is no login)")
         p.add_argument("--port", type=inputs.arg(PORT), default=8080, help="TCP port (0: any free one)")
 
     def run(self, args):
