@@ -101,3 +101,24 @@ def test_the_demo_store_in_a_headless_browser(tmp_path, monkeypatch):
     assert snapshot(store) == before
     if os.environ.get("CMRT_DASHBOARD_SCREENSHOT"):  # docs/dashboard.png: the run page
         shutil.copyfile(tmp_path / "run.png", os.environ["CMRT_DASHBOARD_SCREENSHOT"])
+
+
+@pytest.mark.slow
+def test_the_runs_table_filters_and_sorts(server, monkeypatch):
+    driver = chromium(monkeypatch)
+    ids = "return [...document.querySelectorAll('#runs tbody tr')].map(r => Number(r.dataset.run))"
+    try:
+        driver.get(server.url + "/")
+        assert wait_for(driver, ids) == [1, 2, 3]
+        driver.find_element("css selector", "th[data-key=best_objective]").click()
+        assert driver.execute_script(ids) == [2, 1, 3]  # 0.5, 0.7, then the queued run with none
+        driver.find_element("css selector", "th[data-key=best_objective]").click()
+        assert driver.execute_script(ids) == [1, 2, 3]  # descending; a run without a value stays last
+        driver.find_element("id", "filter").send_keys("0.6")
+        assert driver.execute_script(ids) == [2]
+        driver.find_element("id", "filter").clear()
+        driver.find_element("css selector", "#status option[value=queued]").click()
+        assert driver.execute_script(ids) == [3]
+        assert [e for e in driver.get_log("browser") if e["level"] == "SEVERE"] == []
+    finally:
+        driver.quit()

@@ -33,7 +33,7 @@ function verdictCell(success, fell) {
 
 function robustnessText(r) {
   if (!r) return "-";
-  return `${r.validation_survived}/${r.validation_total} perturbed clips succeed`;
+  return `${r.validation_survived}/${r.validation_total} clips`;
 }
 
 function statusCell(run) {
@@ -90,7 +90,8 @@ function drawRuns() {
       el("td", {}, r.reference), el("td", {}, statusCell(r)),
       el("td", { class: "num" }, num(r.best_objective)), el("td", {}, verdictCell(r.best_success, r.best_fell)),
       el("td", { class: "num" }, num(r.baseline_objective)), el("td", { class: "num" }, num(r.improvement_over_zero)),
-      el("td", {}, robustnessText(r.robustness)), el("td", { class: "num" }, String(r.evaluations)));
+      el("td", { title: "perturbed validation clips that succeed" }, robustnessText(r.robustness)),
+      el("td", { class: "num" }, String(r.evaluations)));
   }));
   document.getElementById("empty").hidden = rows.length > 0;
   for (const th of document.querySelectorAll("#runs th[data-key]")) {
@@ -252,7 +253,7 @@ async function refreshRun(id, tracesLoaded) {
     `${r.restarts} restarts, reference ${r.reference}, seed ${r.seed}. Best objective ${num(r.best_objective)} `,
   verdictCell(r.best_success, r.best_fell), `; no CMRT ${num(r.baseline_objective)} `,
   verdictCell(r.baseline_success, r.baseline_fell), `; improvement ${num(r.improvement_over_zero)}; robustness: ` +
-    robustnessText(r.robustness));
+    (r.robustness ? `${robustnessText(r.robustness)} of the perturbed validation clips succeed` : "-"));
   drawConvergence(page.convergence);
   drawCurves(page);
   document.getElementById("task").textContent = JSON.stringify(page.task_definition, null, 2);
