@@ -13,6 +13,12 @@ $(BIN)/cmrt: pyproject.toml
 	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libosmesa6 >/dev/null; \
 	  else echo "note: libOSMesa not found and cannot be installed here: cmrt render/plot tests need it"; fi; \
 	fi
+	@# The dashboard's browser test drives Debian's chromium through its chromedriver (selenium, never a download).
+	@if ! command -v chromium >/dev/null || ! command -v chromedriver >/dev/null; then \
+	  if command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ]; then \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null; \
+	  else echo "note: chromium and chromedriver not found and cannot be installed here: the dashboard's browser test needs them"; fi; \
+	fi
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[test]'

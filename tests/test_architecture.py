@@ -1,7 +1,8 @@
 """The package's boundaries, checked on its source: which layer may import which, and where SQL lives.
 
 One package per layer (docs/architecture.md), lowest first; a module imports only from its own layer or
-one below it, so data flows one way - body -> control -> motion -> sim -> optimize -> service -> viz -> cli.
+one below it, so data flows one way - body -> control -> motion -> sim -> optimize -> service -> viz ->
+dashboard -> cli.
 The top-level modules (``errors``, ``modes``, ``inputs``) are the base every layer may use.
 """
 
@@ -23,6 +24,7 @@ LAYERS: list[tuple[str, set[str]]] = [
     ("optimize", {"optimize"}),
     ("service", {"service"}),
     ("viz", {"viz"}),
+    ("dashboard", {"dashboard"}),
     ("cli", {"cli"}),
 ]
 RANK = {top: rank for rank, (_, tops) in enumerate(LAYERS) for top in tops}

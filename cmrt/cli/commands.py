@@ -921,9 +921,38 @@ class Demo(Command):
         return None
 
 
+PORT = inputs.Range(0, 65535, integer=True)
+
+
+class Dashboard(Command):
+    name, help, json_flag = "dashboard", "serve a read-only web dashboard of the store (runs, CMRTs, clips)", False
+
+    def add_arguments(self, p):
+        p.add_argument("--host", default="127.0.0.1", help="address to listen on (any but the loopback shows the store "
+                       "to the network: there is no login)")
+        p.add_argument("--port", type=inputs.arg(PORT), default=8080, help="TCP port (0: any free one)")
+
+    def run(self, args):
+        """Check the store opens read-only and the address is free (one line, exit 2 otherwise), then serve until
+        Ctrl-C."""
+        from cmrt.dashboard.app import DashboardConfig, bind, serve, url_of  # Starlette, uvicorn: only this verb
+
+        path = resolve_path(args.store)
+        with _store(args.store, readonly=True) as store:  # a damaged or foreign store: refused before serving
+            store.runs()
+        config = DashboardConfig(store_path=path, host=args.host, port=args.port)
+        sock = bind(config)
+        print(f"cmrt dashboard: {url_of(sock)} shows {escape(str(path))} read-only (Ctrl-C stops)", flush=True)
+        try:
+            serve(config, sock)
+        finally:
+            sock.close()
+        return None
+
+
 COMMANDS: tuple[Command, ...] = (
     Tasks(), Simulate(), Submit(), Optimize(), Worker(), Requeue(), Jobs(), Runs(), Show(), Best(), Export(),
-    Interpolate(), Sequence(), Plot(), Render(), Bench(), Demo(),
+    Interpolate(), Sequence(), Plot(), Render(), Bench(), Demo(), Dashboard(),
 )
 
 

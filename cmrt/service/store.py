@@ -763,6 +763,10 @@ class Store:
             raise CmrtError(f"no run {run_id} in {self.path}")
         return Run.from_row(row)
 
+    def has_run(self, run_id: int) -> bool:
+        """Whether run ``run_id`` exists (an unknown id in a URL is "not found", not a damaged store)."""
+        return self.conn.execute("SELECT 1 FROM runs WHERE id = ?", (run_id,)).fetchone() is not None
+
     def runs(self, task: str | None = None, status: str | None = None, reference: str | None = None) -> list[Run]:
         """Runs, oldest first, optionally of one task name, in one status and/or with one reference mode."""
         sql, args = "SELECT * FROM runs WHERE 1=1", []
