@@ -478,6 +478,28 @@ def _field_load(frame, qd, chain, field_f, field_p, com):
 
 
 @njit(cache=True, nogil=True)
+def _ground_bias(a, frame, qd, chain, com, ext_f_row, ext_p_row, field_f_row, field_p_row):
+    """What the ground must give of the momentum rate at qdd = 0, a_g, and the support's field (its wrench and
+    generalized force, :func:`_field_load`).
+
+    A known external force on the hands (a held load, ``ext_f_row`` (x, z) N at ``ext_p_row``): the ground gives
+    the momentum rate less it, a_g = a - (f_x, f_z, r x f). A force field on every body (a tilted or moving
+    support, simulated in its own frame) is known to the plan the same way, and the torques take its generalized
+    force out. No field bodies (a still, level floor): nothing changes, bit for bit."""
+    a_g = a.copy()
+    fex, fez = ext_f_row[0], ext_f_row[1]
+    a_g[0] -= fex
+    a_g[1] -= fez
+    a_g[2] -= (ext_p_row[2] - com[2]) * fex - (ext_p_row[0] - com[0]) * fez
+    field_w, field_gen = _field_load(frame, qd, chain, field_f_row, field_p_row, com)
+    if field_gen.shape[0] > 0:
+        a_g[0] -= field_w[0]
+        a_g[1] -= field_w[1]
+        a_g[2] -= field_w[2]
+    return a_g, field_w, field_gen
+
+
+@njit(cache=True, nogil=True)
 def _limit_rows(C, c, c_on, torque, q, qd, actuated, limits, params):
     """The motors' limits and the joint stops as rows of the QP (in place, after the ground's N_INEQ rows):
     |T qdd + t0| <= the torque limit, and a joint may approach its stop (less a margin) no faster than a
@@ -583,22 +605,8 @@ def control_step(rows, fields, model, refs, support, warm, load, out):
         com = com_all[row, 1]
         frame = (cdof[row], cdof_dot[row], cvel[row])
         A, a = centroidal(cdof[row], cdof_dot[row], cvel[row], cinert[row], qd, chain)
-        # a known external force on the hands (a held load, ext_f[i] (x, z) N at ext_p[i], shared by the bodies
-        # ext_bodies): the ground gives the momentum rate less it, a_g = a - (f_x, f_z, r x f)
-        a_g = a.copy()
         fex, fez = ext_f[i, 0], ext_f[i, 1]
-        a_g[0] -= fex
-        a_g[1] -= fez
-        a_g[2] -= (ext_p[i, 2] - com[2]) * fex - (ext_p[i, 0] - com[0]) * fez
-
-        # a force field on every body (a tilted or moving support, simulated in its own frame): known to the plan
-        # as the held load is - the ground gives the rates less its wrench, the torques take its generalized
-        # force out. No bodies (a still, level floor): nothing changes, bit for bit.
-        field_w, field_gen = _field_load(frame, qd, chain, field_f[i], field_p[i], com)
-        if field_gen.shape[0] > 0:
-            a_g[0] -= field_w[0]
-            a_g[1] -= field_w[1]
-            a_g[2] -= field_w[2]
+        a_g, field_w, field_gen = _ground_bias(a, frame, qd, chain, com, ext_f[i], ext_p[i], field_f[i], field_p[i])
         pts, Jp, bp = _contact_points(frame, qd, chain, points, point_bodies, geom_xpos[row], radius, com)
         swing = int(swing_foot[i])
         state = _foot_states(contact[i], swing)

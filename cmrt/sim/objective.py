@@ -299,8 +299,8 @@ def foot_slip_m(traj: Trajectory) -> float | None:
     """The farthest a heel/toe point slid along the support (m, in its frame) within one spell of touching it,
     before any fall (recorded runs: the contacts of every control step; None for a scoring run). A planted foot
     on a floor of friction 1 slides well under a millimetre; Yu's slippery floor (0.08) lets it go."""
-    contact = traj.point_contact
-    if contact.size == 0 or not np.isfinite(traj.qpos).all(axis=1).any():
+    contact, qpos = np.asarray(traj.point_contact), np.asarray(traj.qpos)
+    if contact.ndim != 2 or qpos.ndim != 2 or contact.shape[0] != qpos.shape[0] or contact.size == 0:
         return None
     end = len(traj.time_s) if traj.fall_time_s is None else int(np.searchsorted(traj.time_s, traj.fall_time_s))
     rows = np.flatnonzero(np.isfinite(contact[:end]).all(axis=1) & np.isfinite(traj.qpos[:end]).all(axis=1))
