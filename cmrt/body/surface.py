@@ -25,7 +25,9 @@ content hashes of such tasks do not change):
 * ``sway_amplitude_m``, ``sway_period_s``; ``heave_amplitude_m``, ``heave_period_s``: the platform translating
   horizontally / vertically, A sin(2 pi t / T).
 
-Each oscillation fades in over its first period (``_oscillation``): a platform starts from rest.
+Each oscillation fades in over its first period and out over the last period of the clip (``_oscillation``): a
+platform starts from rest, and the standing tail after the clip is on a support at rest (at its slope), so that a
+success still ends standing still.
 """
 
 from __future__ import annotations
@@ -66,10 +68,12 @@ class Support:
     sway_period_s: float = 1.0
     heave_amplitude_m: float = 0.0
     heave_period_s: float = 1.0
+    moving_until_s: float = math.inf  # the motions fade out before this (the clip's end: the tail stands still)
 
     @classmethod
     def from_params(cls, params: dict[str, float]) -> Support:
-        return cls(**{k: float(params.get(k, v)) for k, v in SURFACE_PARAMS.items()})
+        return cls(**{k: float(params.get(k, v)) for k, v in SURFACE_PARAMS.items()},
+                   moving_until_s=float(params.get("clip_s", math.inf)))
 
     @property
     def still_and_level(self) -> bool:
@@ -93,13 +97,14 @@ class Support:
     # --- the frame's motion (theta about +y: positive takes the floor's +x end down) ---------------------------
     def tilt(self, t_s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """theta (rad), omega (rad/s), alpha (rad/s^2) at times ``t_s``."""
-        theta, omega, alpha = _oscillation(t_s, -math.radians(self.tilt_amplitude_deg), self.tilt_period_s)
+        theta, omega, alpha = _oscillation(t_s, -math.radians(self.tilt_amplitude_deg), self.tilt_period_s,
+                                           self.moving_until_s)
         return theta - math.radians(self.slope_deg), omega, alpha  # rising ahead: theta < 0
 
     def origin(self, t_s) -> tuple[np.ndarray, np.ndarray]:
         """The pivot's world position (x, z) and acceleration (x, z) at times ``t_s``, each (..., 2)."""
-        sway = _oscillation(t_s, self.sway_amplitude_m, self.sway_period_s)
-        heave = _oscillation(t_s, self.heave_amplitude_m, self.heave_period_s)
+        sway = _oscillation(t_s, self.sway_amplitude_m, self.sway_period_s, self.moving_until_s)
+        heave = _oscillation(t_s, self.heave_amplitude_m, self.heave_period_s, self.moving_until_s)
         return np.stack([sway[0], heave[0]], axis=-1), np.stack([sway[2], heave[2]], axis=-1)
 
     def uniform_field(self, t_s) -> np.ndarray:
@@ -155,19 +160,33 @@ class Support:
         return float(o[0] + c * x_m + s * z_m), float(o[1] - s * x_m + c * z_m)
 
 
-def _oscillation(t_s, amplitude: float, period_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A sin(2 pi t / T) faded in over its first period (a platform starts from rest: without the fade the
-    plane would start turning at full speed, an infinite acceleration), and its first two derivatives."""
+def _ramp(u: np.ndarray, scale_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The quintic smoothstep of ``u`` = t / scale (0 before, 1 after; zero rate and acceleration at both ends)
+    and its first two time derivatives."""
+    v = np.clip(u, 0.0, 1.0)
+    inside = (u > 0.0) & (u < 1.0)
+    e = v ** 3 * (10.0 - 15.0 * v + 6.0 * v * v)
+    de = np.where(inside, 30.0 * v * v * (1.0 - v) ** 2 / scale_s, 0.0)
+    dde = np.where(inside, 60.0 * v * (1.0 - v) * (1.0 - 2.0 * v) / scale_s ** 2, 0.0)
+    return e, de, dde
+
+
+def _oscillation(t_s, amplitude: float, period_s: float, until_s: float = math.inf):
+    """A sin(2 pi t / T), faded in over its first period and out over the period before ``until_s`` (a platform
+    starts from rest - without the fade it would start turning at full speed, an infinite acceleration - and is at
+    rest again for the standing tail, so "standing still" keeps its meaning), and its first two derivatives."""
     t = np.asarray(t_s, dtype=float)
     if amplitude == 0.0 or not math.isfinite(period_s):
         zero = np.zeros_like(t)
         return zero, zero, zero
     w = 2.0 * math.pi / period_s
-    u = np.clip(t / period_s, 0.0, 1.0)
-    inside = (t > 0.0) & (t < period_s)
-    e = u ** 3 * (10.0 - 15.0 * u + 6.0 * u * u)  # quintic smoothstep: zero rate and acceleration at both ends
-    de = np.where(inside, 30.0 * u * u * (1.0 - u) ** 2 / period_s, 0.0)
-    dde = np.where(inside, 60.0 * u * (1.0 - u) * (1.0 - 2.0 * u) / period_s ** 2, 0.0)
+    e1, de1, dde1 = _ramp(t / period_s, period_s)
+    if math.isfinite(until_s):
+        e2, de2, dde2 = _ramp((until_s - t) / period_s, period_s)
+        de2, dde2 = -de2, dde2  # d/dt of a function of (until - t)
+    else:
+        e2, de2, dde2 = np.ones_like(t), np.zeros_like(t), np.zeros_like(t)
+    e, de, dde = e1 * e2, de1 * e2 + e1 * de2, dde1 * e2 + 2.0 * de1 * de2 + e1 * dde2
     s, c = np.sin(w * t), np.cos(w * t)
     return (amplitude * e * s, amplitude * (de * s + e * w * c),
             amplitude * (dde * s + 2.0 * de * w * c - e * w * w * s))
