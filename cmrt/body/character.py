@@ -55,6 +55,11 @@ class Character:
         return self.model.nv
 
     @property
+    def ankle_dofs(self) -> tuple[int, int]:
+        """The right and left ankle's dof (a tilted support turns them: ``cmrt.body.surface``)."""
+        return tuple(int(self.model.joint(n).dofadr[0]) for n in ("ankle_r", "ankle_l"))
+
+    @property
     def foot_point_geoms(self) -> tuple[int, ...]:
         """Geom ids of the heel and toe spheres (right heel, right toe, left heel, left toe)."""
         return tuple(g for pair in self.foot_points for g in pair)

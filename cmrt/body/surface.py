@@ -54,7 +54,17 @@ SURFACE_PARAMS: dict[str, float] = {
 #: The one that changes the compiled model (the others act through ``Support.field``).
 MODEL_PARAMS = ("floor_friction",)
 FLOOR_PRIORITY = 1  # above the feet's and props' 0: the contact takes the floor's friction, not the larger of two
-
+# The contact model on any support but the still level floor of default friction (the floor of before keeps its
+# model, bit for bit: its tangential loads are brief). Measured on stand with a 100 N push, 4 s:
+# * MuJoCo's soft friction lets a contact creep under a lasting tangential load (the constraint is a damper on the
+#   contact's velocity: a steady force needs a steady slip): on a 15 degree slope a planted foot crept 4 cm in 4 s;
+# * its default pyramidal cone with the no-slip pass stops that creep, but at Yu's friction 0.08 it unloaded
+#   sliding feet for a step and hit the floor at 2.7 body weights;
+# * the elliptic cone slides them smoothly (peak 1.01 body weights), and a frictional impedance IMPRATIO times the
+#   normal one holds a planted foot (0.2 mm in 4 s on the slope, against 2.1 mm at 10); the no-slip pass then
+#   changes nothing measurable, so it is off.
+CONE = mujoco.mjtCone.mjCONE_ELLIPTIC
+IMPRATIO = 100.0
 
 @dataclass(frozen=True)
 class Support:
@@ -193,16 +203,23 @@ def _oscillation(t_s, amplitude: float, period_s: float, until_s: float = math.i
 
 
 def add_to_spec(spec: mujoco.MjSpec, values: dict[str, float]) -> None:
-    """The floor's friction (only when a task sets it: the default model is the one of before, bit for bit)."""
+    """The floor's friction and the contact model of a surface (only when a task sets one: the default model is
+    the one of before, bit for bit)."""
     if "floor_friction" in values:
         floor = spec.geom("floor")
         floor.friction[0] = values["floor_friction"]
         floor.priority = FLOOR_PRIORITY
+    if values.get("surface"):
+        spec.option.cone = CONE
+        spec.option.impratio = IMPRATIO
 
 
 def model_values(params: dict[str, float]) -> tuple[tuple[str, float], ...]:
-    """The surface's part of the model key: the friction when it is not the default's."""
-    return tuple((k, float(params[k])) for k in MODEL_PARAMS if k in params and params[k] != SURFACE_PARAMS[k])
+    """The surface's part of the model key: the friction when it is not the default's, and the contact model of
+    any surface but the still level floor of default friction."""
+    changed = tuple((k, float(params[k])) for k in MODEL_PARAMS if k in params and params[k] != SURFACE_PARAMS[k])
+    other = any(params.get(k, v) != v for k, v in SURFACE_PARAMS.items())
+    return changed + ((("surface", 1.0),) if other else ())
 
 
 def body_inertia_yy(model: mujoco.MjModel, data: mujoco.MjData | None = None) -> np.ndarray:

@@ -282,8 +282,21 @@ class Task:
         return [(f, q.copy()) for f, q in ref.keyframes(self.schedule())]
 
     def reference(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Reference q, qd, qdd at times ``t_s`` (shape (n, nv)): see ``cmrt.motion.reference.reference``."""
-        return ref.reference(self.schedule(), t_s)
+        """Reference q, qd, qdd at times ``t_s`` (shape (n, nv)): see ``cmrt.motion.reference.reference``. On a
+        tilted support the body stays upright in the world: the trunk's pitch less the tilt, the ankles more (the
+        feet stay flat on it; ``cmrt.body.surface``)."""
+        q, qd, qdd = ref.reference(self.schedule(), t_s)
+        theta = self.support.tilt(t_s)
+        if not np.any(theta[0]) and not np.any(theta[1]):
+            return q, qd, qdd
+        ankles = list(character().ankle_dofs)
+        out = []
+        for arr, v in zip((q, qd, qdd), theta, strict=True):
+            arr = np.array(arr, dtype=float)
+            arr[..., 2] -= v
+            arr[..., ankles] += np.asarray(v)[..., None]
+            out.append(arr)
+        return tuple(out)
 
     def joint_windows(self) -> dict[str, tuple[float, float]]:
         """Per-dof easing window as fractions of T (bare names expand to both sides)."""
@@ -361,9 +374,12 @@ class Task:
         return float(np.sqrt(np.mean((q[:, dofs] - q_late[:, dofs]) ** 2))) if len(times_s) else 0.0
 
     def final_pose_error_rad(self, qpos: np.ndarray) -> float:
-        """Euclidean distance of the actuated joint angles from the task's target pose."""
+        """Euclidean distance of the actuated joint angles from the task's target pose (on a slope: stood upright
+        on it, as the reference is at the end)."""
         dofs = list(character().actuated_dofs)
-        return float(np.linalg.norm(qpos[dofs] - self.end_qpos()[dofs]))
+        end = self.end_qpos()
+        end[list(character().ankle_dofs)] += float(self.support.tilt(self.clip_s + self.tail_s)[0])
+        return float(np.linalg.norm(qpos[dofs] - end[dofs]))
 
 
 def _angles(pose_deg: dict[str, float]) -> dict[str, float]:

@@ -358,7 +358,7 @@ def _drive(task: Task, curves: list[Cmrt], members: list[Perturbation], times: n
     scales = sorted({p.time_scale for p in members})
     variant_tasks = [Perturbation(time_scale=s).task_variant(task) for s in scales]
     variant_of = np.array([scales.index(p.time_scale) for p in members])
-    variant_refs = [_on_support(vt, vt.reference(times), times) for vt in variant_tasks]
+    variant_refs = [vt.reference(times) for vt in variant_tasks]
     if len(scales) == 1:
         q_ref, qd_ref, qdd_ref = variant_refs[0]
     else:
@@ -374,22 +374,6 @@ def _drive(task: Task, curves: list[Cmrt], members: list[Perturbation], times: n
         motion_com=[motion_com(character(), r[0][:, :nv], r[1][:, :nv]) for r in variant_refs]
         if task.reference_mode == "yu" else None,
     )
-
-
-def _on_support(task: Task, refs: tuple[np.ndarray, np.ndarray, np.ndarray], times: np.ndarray):
-    """The reference motion on the task's support: on a tilted one the body stays upright in the world (the
-    trunk's pitch less the tilt, the ankles more: the feet stay flat on it). Unchanged on a level support."""
-    theta = Support.from_params(task.params).tilt(times)
-    if not np.any(theta[0]) and not np.any(theta[1]):
-        return refs
-    ankles = [character().model.joint(n).dofadr[0] for n in ("ankle_r", "ankle_l")]
-    out = []
-    for arr, v in zip(refs, theta, strict=True):
-        arr = arr.copy()
-        arr[:, 2] -= v
-        arr[:, ankles] += v[:, None]
-        out.append(arr)
-    return tuple(out)
 
 
 def surface_config(config: ControllerConfig, task: Task) -> ControllerConfig:
@@ -956,9 +940,10 @@ def _read_motion(g: _Group, s: _LoopState, k: int, r: _Reading, control: bool) -
 
 
 def _leaning(g: _Group, k: int, targets: Targets, com_z: np.ndarray, com_vel_z: np.ndarray) -> Targets:
-    """The center mode's targets on a tilting support: the CoM over the support centre along gravity, moving
-    with it (``Support.lean_x``). The delayed feedback compares the CoM of ``tau`` ago with the lean of then (the
-    balance feedback's delay, ``_delayed``, shifts the CoM, so the lean is taken at t - tau here); the lean's
+    """The targets on a tilting support: the CoM over the support centre along gravity, moving with it
+    (``Support.lean_x``; Yu's mode has it from its reference pose, upright in the world). The delayed feedback
+    compares the CoM of ``tau`` ago with the lean of then (the balance feedback's delay, ``_delayed``, shifts the
+    CoM, so the lean is taken at t - tau here); the lean's
     acceleration at t is fed forward through the CoM stiffness, k_l m (c_r + a / k_l - c) asking m a more of the
     momentum rate: the platform's motion is a known pattern, as a reference motion is. Without the feed-forward
     the PD feedback lags a +-20 degree, 0.5 Hz plane's +-0.35 m lean by ~27 degrees; with the lean of t instead of
@@ -966,8 +951,11 @@ def _leaning(g: _Group, k: int, targets: Targets, com_z: np.ndarray, com_vel_z: 
     support, t_now = g.field.support, g.times[k]
     t_felt = max(t_now - g.delay_steps * g.dt, 0.0)
     lean = support.lean_x(t_felt, com_z) + support.lean_accel(t_now, com_z) / g.config.k_l
-    return Targets(targets.com_x_m + lean, targets.com_vel_x_m_s + support.lean_rate(t_felt, com_z, com_vel_z),
-                   targets.cop_x_m)
+    rate = support.lean_rate(t_felt, com_z, com_vel_z)
+    if g.yu is not None:  # Yu's target already leans with its (tilted) reference pose, at t: moved to t - tau
+        lean = lean - support.lean_x(t_now, com_z)
+        rate = rate - support.lean_rate(t_now, com_z, com_vel_z)
+    return Targets(targets.com_x_m + lean, targets.com_vel_x_m_s + rate, targets.cop_x_m)
 
 
 def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
@@ -979,8 +967,7 @@ def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
     if g.field is not None:  # the CoM over the support centre along the field, moving with it
         com_vel_z = r.momentum[:, 1] / (g.ch.mass_kg + g.prop.carried_kg[ids])
         lean_vel = g.field.support.lean_rate(g.times[k], r.com[:, 2], com_vel_z)
-        if g.yu is None:  # (yu: the lean is in its reference pose)
-            targets = _leaning(g, k, targets, r.com[:, 2], com_vel_z)
+        targets = _leaning(g, k, targets, r.com[:, 2], com_vel_z)
     g.com_ref_now[ids], g.cop_ref_now[ids] = targets.com_x_m, targets.cop_x_m
     rec["cref"][sel, k] = targets.com_x_m
     g.fb_vel[ids, k] = r.vel_x
