@@ -545,3 +545,31 @@ def test_every_tool_starts_as_a_script(name):
     argument parser (``--help``); the fast tests run its body in this process."""
     r = run_script(name, "--help", timeout=300)
     assert r.returncode == 0 and "usage:" in r.stdout, r.stderr[-2000:]
+
+
+# --- tools/compare_surfaces.py -------------------------------------------------------------------
+
+def test_compare_surfaces_prints_one_row_per_surface_mode_task_and_curve():
+    """On the slope and the shaking plane the standing character survives a 50 N push both ways, its planted feet
+    slide under a millimetre, and the ground force stays about one body weight; the fast bend's zero CMRT fails
+    and, with no budget, gets no CMRT row."""
+    out = run_tool("compare_surfaces.py", "--surfaces", "slope,shaking", "--modes", "center", "--tasks",
+                   "stand,bend", "--max-evals", "0", "--pushes", "50", "--json")
+    assert out.returncode == 0, out.stderr
+    rows = json.loads(out.stdout)["rows"]
+    assert [(r["surface"], r["task"], r["curve"]) for r in rows] == [
+        ("slope", "stand", "zero"), ("slope", "bend", "zero"), ("shaking", "stand", "zero"),
+        ("shaking", "bend", "zero")]
+    for r in rows:
+        if r["task"] == "stand":
+            assert r["success"] and r["largest_push_n"] == 50.0
+            assert r["max_foot_slip_m"] < 1e-3 and r["peak_normal_force_bw"] < 1.2
+        else:
+            assert not r["success"]
+
+
+@pytest.mark.parametrize("args", [["--surfaces", "moon"], ["--modes", "fast"], ["--pushes", "100,50"],
+                                  ["--max-evals", "-1"]])
+def test_compare_surfaces_bad_input_is_one_line_and_exit_2(args):
+    out = run_tool("compare_surfaces.py", *args)
+    assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr
