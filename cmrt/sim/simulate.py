@@ -671,6 +671,7 @@ class _Group:
     compiled: _CompiledTick | None
     push_steps: set  # a set: cheaper per step than an array
     field: _SupportField | None = None  # a tilted or moving support's field (None: a still level floor)
+    com_ref_shown: np.ndarray | None = None  # the reference CoM as traces show it (``_control_and_monitor``)
 
     @property
     def diverged_code(self) -> int:
@@ -747,7 +748,7 @@ def _set_up(task: Task, curves: list[Cmrt | None], config: ControllerConfig, rec
         control_dt=control_dt, sample_every=max(1, int(round(task.cop_sample_step_s / dt))),
         has_contact_force=has_contact_force, delay_steps=delay_steps, fb_vel=fb_vel, warm=warm, compiled=compiled,
         push_steps=set(np.flatnonzero(drive.push_changes).tolist()),
-        field=None if support.still_and_level else _SupportField(support, m, nb),
+        field=None if support.still_and_level else _SupportField(support, m, nb), com_ref_shown=np.full(n, np.nan),
     )
 
 
@@ -881,7 +882,7 @@ def _python_step(g: _Group, s: _LoopState, k: int) -> None:
         _control_and_monitor(g, s, k, r)
     if g.record:
         g.rec["ctrl"][sel, k] = g.ctrl_all[sel]
-        g.rec["cref"][sel, k] = g.com_ref_now[sel]
+        g.rec["cref"][sel, k] = g.com_ref_now[sel] if g.field is None else g.com_ref_shown[sel]
         g.rec["qvel"][sel, k] = b["qvel"][sel]
     if g.field is not None:
         g.field.apply(b, sel, g.drive.push_n[sel, k], g.ch.thorax_body)
@@ -964,12 +965,16 @@ def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
     rec["jspeed"][sel, k] = r.jspeed
     mass = g.ch.mass_kg + g.prop.carried_kg  # what the controller knows it carries
     targets = _targets(g.yu, b, sel, ids, g.drive, k, r.center, r.lo, r.hi, r.com, r.vel_x, g.nb)
-    if g.field is not None:  # the CoM over the support centre along the field, moving with it
+    shown = targets.com_x_m  # the reference CoM as recorded: where the CoM is asked to be now
+    if g.field is not None:  # the CoM over the support centre along gravity, moving with it
         com_vel_z = r.momentum[:, 1] / (g.ch.mass_kg + g.prop.carried_kg[ids])
         lean_vel = g.field.support.lean_rate(g.times[k], r.com[:, 2], com_vel_z)
+        if g.yu is None:  # (without the delay's shift and the feed-forward the controller is given)
+            shown = shown + g.field.support.lean_x(g.times[k], r.com[:, 2])
         targets = _leaning(g, k, targets, r.com[:, 2], com_vel_z)
     g.com_ref_now[ids], g.cop_ref_now[ids] = targets.com_x_m, targets.cop_x_m
-    rec["cref"][sel, k] = targets.com_x_m
+    g.com_ref_shown[ids] = shown
+    rec["cref"][sel, k] = shown
     g.fb_vel[ids, k] = r.vel_x
     felt = _delayed(targets, g.delay_steps, k, ids, r.com[:, 0], r.vel_x, rec["com"], g.fb_vel)
     ctrl, bad, plan_cop = _torques(g.controller, b, sel, ids, g.falls.code[ids] > 0, g.drive, k, felt, r.contact,

@@ -25,6 +25,7 @@ import mujoco
 import numpy as np
 
 from cmrt import inputs
+from cmrt.body.surface import Support
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.task import Task
@@ -118,16 +119,39 @@ def _add_geom(scene: mujoco.MjvScene, gtype, size, pos, rgba, mat=None) -> None:
     scene.ngeom += 1
 
 
-def _frame(renderer, data, camera, traj: Trajectory, k: int) -> np.ndarray:
+def _to_world(scene: mujoco.MjvScene, support: Support, t_s: float, upright: tuple[int, ...] = ()) -> None:
+    """Every geom of a scene built in the support's frame (the simulation's) placed where the support is at
+    ``t_s``: a slope or a tilting plane is drawn tilted, a moving platform moved, the character on it. The geoms
+    ``upright`` (a vertical marker) are moved but stay vertical in the world."""
+    theta = float(support.tilt(t_s)[0])
+    c, s = np.cos(theta), np.sin(theta)
+    rot = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])  # support -> world, a turn of theta about +y
+    origin = support.origin(t_s)[0]
+    shift = np.array([origin[0], 0.0, origin[1]])
+    for i in range(scene.ngeom):
+        g = scene.geoms[i]
+        g.pos[:] = rot @ g.pos + shift
+        if i not in upright:
+            g.mat[:] = rot @ g.mat.reshape(3, 3)
+
+
+def _frame(renderer, data, camera, traj: Trajectory, k: int, support: Support | None = None) -> np.ndarray:
     renderer.update_scene(data, camera)
     scene = renderer.scene
     com = data.subtree_com[1]
     y = MARKER_Y_M  # markers sit between the body and the camera so they are never hidden
+    # on a tilted support the ground points are along gravity: the CoM's over the CoP it balances on
+    lean = 0.0 if support is None else float(support.lean_x(float(traj.time_s[k]), com[2]))
     _add_geom(scene, mujoco.mjtGeom.mjGEOM_SPHERE, [0.035, 0, 0], [com[0], y, com[2]], CYAN)
-    _add_geom(scene, mujoco.mjtGeom.mjGEOM_CYLINDER, [0.04, 0.003, 0], [com[0], y, 0.003], CYAN)
+    _add_geom(scene, mujoco.mjtGeom.mjGEOM_CYLINDER, [0.04, 0.003, 0], [com[0] - lean, y, 0.003], CYAN)
     ref = traj.com_ref_x_m[k]
+    upright = ()
     if np.isfinite(ref):
-        _add_geom(scene, mujoco.mjtGeom.mjGEOM_CAPSULE, [0.008, 0.6, 0], [ref, y, 0.6], GREEN)
+        upright = (scene.ngeom,)
+        theta = 0.0 if support is None else float(support.tilt(float(traj.time_s[k]))[0])
+        up = (-np.sin(theta), np.cos(theta))  # the world's vertical in the support's frame: the line stands on
+        _add_geom(scene, mujoco.mjtGeom.mjGEOM_CAPSULE, [0.008, 0.6, 0],  # its ground point, upright in the world
+                  [ref - lean + 0.6 * up[0], y, 0.6 * up[1]], GREEN)
     cop = traj.cop_x_m[k]
     fallen = traj.fall_time_s is not None and traj.time_s[k] > traj.fall_time_s + 1e-9
     if np.isfinite(cop) and not fallen:  # after the fall there is no balance to mark (as the plots stop there)
@@ -136,6 +160,8 @@ def _frame(renderer, data, camera, traj: Trajectory, k: int) -> np.ndarray:
         if landed_s <= traj.time_s[k]:
             _add_geom(scene, mujoco.mjtGeom.mjGEOM_BOX, FOOTPRINT_HALF_M,
                       [heel_x + FOOTPRINT_HALF_M[0], y, FOOTPRINT_HALF_M[2]], AMBER)
+    if support is not None:
+        _to_world(scene, support, float(traj.time_s[k]), upright)
     return renderer.render().copy()
 
 
@@ -264,12 +290,16 @@ def render_frames(task: Task, traj: Trajectory, times_s: np.ndarray, height: int
     camera.distance, camera.azimuth, camera.elevation = CAMERA_DISTANCE_M, CAMERA_AZIMUTH_DEG, CAMERA_ELEVATION_DEG
     half = half_view_m(m, height, width)
     renderer = _renderer(m, height, width)
+    support = None if task.support.still_and_level else task.support  # drawn where it is in the world
     frames = []
     try:
         for t in times_s:
             k = _pose(m, data, traj, t)
             camera.lookat[0] = _aim(m, data, half)
-            frames.append(_frame(renderer, data, camera, traj, k))
+            if support is not None:  # the camera follows the body in the world
+                camera.lookat[0], camera.lookat[2] = support.to_world(float(traj.time_s[k]), camera.lookat[0],
+                                                                      CAMERA_HOME_M[2])
+            frames.append(_frame(renderer, data, camera, traj, k, support))
             if progress:
                 progress.update(1)
     finally:
