@@ -215,3 +215,39 @@ def test_the_cop_marker_is_drawn_until_the_fall_and_not_after(punch_fall):
     finally:
         renderer.close()
     assert before == 1 and after == 0
+
+
+def _scene_on(task, tilt: bool):
+    """The start pose's scene in the support's frame, moved to the world (``_to_world``) if ``tilt``."""
+    import mujoco
+
+    from cmrt.body.surface import tilt_pose
+
+    m = task.model()
+    data = mujoco.MjData(m)
+    data.qpos[:] = tilt_pose(m, task.start_qpos(), float(task.support.tilt(0.0)[0]))
+    mujoco.mj_forward(m, data)
+    scene = mujoco.MjvScene(m, maxgeom=200)
+    mujoco.mjv_updateScene(m, data, mujoco.MjvOption(), None, mujoco.MjvCamera(), mujoco.mjtCatBit.mjCAT_ALL,
+                           scene)
+    if tilt:
+        rr._to_world(scene, task.support, 0.0)
+
+    def axis(name):
+        i = next(i for i in range(scene.ngeom) if scene.geoms[i].objtype == mujoco.mjtObj.mjOBJ_GEOM
+                 and scene.geoms[i].objid == m.geom(name).id)
+        return scene.geoms[i].mat.reshape(3, 3)[:, 2]
+    return axis
+
+
+def test_a_tilted_support_is_drawn_tilted_and_the_body_upright():
+    """The simulation runs in the support's frame; a picture shows the world: on a 15 degree slope (rising ahead)
+    the floor's normal leans back by 15 degrees, and the trunk stands as it does on the level floor."""
+    level = _scene_on(load_task("stand"), tilt=False)
+    slope = _scene_on(load_task("stand").with_params(slope_deg=15.0), tilt=True)
+    normal = slope("floor")
+    assert np.degrees(np.arctan2(-normal[0], normal[2])) == pytest.approx(15.0, abs=1e-4)
+
+    def lean_deg(axis):
+        return np.degrees(np.arctan(axis[0] / axis[2]))
+    assert lean_deg(slope("thorax")) == pytest.approx(lean_deg(level("thorax")), abs=0.01)
