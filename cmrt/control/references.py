@@ -129,7 +129,7 @@ class YuReference:
     def targets(self, *, foot_force_n: np.ndarray, ankle_xz: np.ndarray, foot_to_com_x: np.ndarray,
                 foot_to_com_vel_x: np.ndarray, disp_m: np.ndarray, disp_vel_m_s: np.ndarray, com: np.ndarray,
                 com_vel_x: np.ndarray, cinert: np.ndarray, support_lo_x: np.ndarray,
-                support_hi_x: np.ndarray) -> Targets:
+                support_hi_x: np.ndarray, lean_x: np.ndarray | None = None) -> Targets:
         """References with the CMRT ``disp_m`` (n,) included (eq. 3.4 needs the CoM target it tracks).
 
         ``foot_force_n`` (n, 2) measured normal force per foot (right, left); ``ankle_xz`` (n, 2, 2) each
@@ -144,5 +144,8 @@ class YuReference:
         acc_des = self.k_l * (com_ref - com[:, 0]) + self.d_l * (com_ref_vel - com_vel_x)
         ankle = np.take_along_axis(ankle_xz, np.argmax(foot_force_n, axis=1)[:, None, None], axis=1)[:, 0]
         ratio = self.winter.ratio_s2(cinert, com, ankle[:, 0], ankle[:, 1])
-        cop = np.clip(com[:, 0] - ratio * acc_des, support_lo_x, support_hi_x)
+        # Winter's CoP under the CoM; on a tilted support under its ground point along gravity (``lean_x``: the
+        # CoM's offset from it, cmrt.body.surface.Support.lean_x)
+        under = com[:, 0] if lean_x is None else com[:, 0] - lean_x
+        cop = np.clip(under - ratio * acc_des, support_lo_x, support_hi_x)
         return Targets(com_ref, com_ref_vel, cop)

@@ -383,7 +383,8 @@ def surface_config(config: ControllerConfig, task: Task) -> ControllerConfig:
 
 
 def _targets(yu: YuReference | None, b: dict, sel, ids: np.ndarray, drive: _Drive, k: int, center: np.ndarray,
-             lo: np.ndarray, hi: np.ndarray, com: np.ndarray, com_vel_x: np.ndarray, nb: int) -> Targets:
+             lo: np.ndarray, hi: np.ndarray, com: np.ndarray, com_vel_x: np.ndarray, nb: int,
+             lean_x: np.ndarray | None = None) -> Targets:
     """The controller's reference CoM (CMRT included), its rate and the reference CoP of simulations ``ids``
     (batch rows ``sel``) at step ``k``, in the task's reference mode (``cmrt.control.references``)."""
     if yu is None:  # center: the support centre (Macchietto; ABC)
@@ -393,7 +394,8 @@ def _targets(yu: YuReference | None, b: dict, sel, ids: np.ndarray, drive: _Driv
     return yu.targets(foot_force_n=np.stack([touch[:, 0] + touch[:, 1], touch[:, 2] + touch[:, 3]], axis=1),
                       ankle_xz=b["xpos"][sel][:, yu.feet][:, :, [0, 2]], foot_to_com_x=rel, foot_to_com_vel_x=rel_vel,
                       disp_m=drive.disp_m[sel, k], disp_vel_m_s=drive.disp_vel_m_s[sel, k], com=com,
-                      com_vel_x=com_vel_x, cinert=b["cinert"][sel, :nb], support_lo_x=lo, support_hi_x=hi)
+                      com_vel_x=com_vel_x, cinert=b["cinert"][sel, :nb], support_lo_x=lo, support_hi_x=hi,
+                      lean_x=lean_x)
 
 
 def _delayed(targets: Targets, delay_steps: int, k: int, ids: np.ndarray, com_x_m: np.ndarray,
@@ -964,7 +966,8 @@ def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
     b, sel, ids, rec, stepper = g.b, s.sel, s.ids, g.rec, g.stepper
     rec["jspeed"][sel, k] = r.jspeed
     mass = g.ch.mass_kg + g.prop.carried_kg  # what the controller knows it carries
-    targets = _targets(g.yu, b, sel, ids, g.drive, k, r.center, r.lo, r.hi, r.com, r.vel_x, g.nb)
+    targets = _targets(g.yu, b, sel, ids, g.drive, k, r.center, r.lo, r.hi, r.com, r.vel_x, g.nb,
+                       None if g.field is None else g.field.support.lean_x(g.times[k], r.com[:, 2]))
     shown = targets.com_x_m  # the reference CoM as recorded: where the CoM is asked to be now
     if g.field is not None:  # the CoM over the support centre along gravity, moving with it
         com_vel_z = r.momentum[:, 1] / (g.ch.mass_kg + g.prop.carried_kg[ids])
@@ -1033,11 +1036,13 @@ def _finish(g: _Group, s: _LoopState) -> list[Trajectory]:
     momentum = g.kin.linear_momentum(b["cinert"][:, :nb], b["cvel"][:, :nb])
     fallen = falls.code > 0  # judged at the fall, whatever a recorded topple did afterwards
     final_qpos = np.where(fallen[:, None], falls.qpos, b["qpos"][:, :g.nq])
-    vel = momentum / (g.ch.mass_kg + g.prop.carried_kg)[:, None]
-    if g.field is not None:  # standing still on a moving support: upright in the world, moving with its lean
+    speed = np.hypot(momentum[:, 0], momentum[:, 1]) / (g.ch.mass_kg + g.prop.carried_kg)
+    if g.field is not None:  # relative to the world-upright lean (at rest by now: the support stops before the tail)
+        vel = momentum / (g.ch.mass_kg + g.prop.carried_kg)[:, None]
         for i in range(g.n):
             vel[i, 0] -= g.field.support.lean_rate(float(b["time"][i]), b["subtree_com"][i, 1, 2], vel[i, 1])
-    final_speed = np.where(fallen, falls.speed_m_s, np.hypot(vel[:, 0], vel[:, 1]))
+        speed = np.hypot(vel[:, 0], vel[:, 1])
+    final_speed = np.where(fallen, falls.speed_m_s, speed)
     standing = np.flatnonzero(~fallen)  # the others were judged when they fell
     _judge_prop(g.prop, b, standing, g.rec["prop_force"][standing, :g.run_steps], g.times[:g.run_steps],
                 g.drive.windows_s, g.goal, g.extras)
