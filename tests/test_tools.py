@@ -573,3 +573,16 @@ def test_compare_surfaces_prints_one_row_per_surface_mode_task_and_curve():
 def test_compare_surfaces_bad_input_is_one_line_and_exit_2(args):
     out = run_tool("compare_surfaces.py", *args)
     assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr
+
+
+@pytest.mark.slow  # one short CMA-ES run
+def test_compare_surfaces_optimizes_a_cmrt_where_the_zero_one_fails():
+    """The fast bend on the shaking plane fails without a CMRT; with a budget the tool optimizes one there (the
+    library start succeeds in its first generation) and reports it in a row of its own."""
+    out = run_tool("compare_surfaces.py", "--surfaces", "shaking", "--modes", "center", "--tasks", "bend",
+                   "--max-evals", "10", "--json")
+    assert out.returncode == 0, out.stderr
+    zero, cmrt_row = json.loads(out.stdout)["rows"]
+    assert (zero["curve"], zero["success"]) == ("zero", False)
+    assert cmrt_row["curve"] == "cmrt" and cmrt_row["success"] and cmrt_row["evaluations"] <= 10
+    assert cmrt_row["objective"] < zero["objective"]
