@@ -16,6 +16,7 @@ from cmrt.cli.commands import main
 from cmrt.motion.taskfile import load_task
 from cmrt.service.jobs import submit
 from cmrt.service.store import open_store
+from tests.service_helpers import as_in_a_terminal
 
 TASK = load_task("bend").with_speed(1.2)
 
@@ -113,7 +114,7 @@ def test_the_worker_says_what_it_waits_for_and_each_run_it_finishes(tmp_path):
     with open_store(path) as store:
         rid = submit(store, TASK, seed=3, max_evals=6, popsize=3, init="none")
     proc = subprocess.Popen([sys.executable, "-m", "cmrt.cli", "worker", "--store", str(path), "--backend", "serial"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=as_in_a_terminal)
     lines = []
     try:
         deadline = time.time() + 300

@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from ..service_helpers import FAST_BEND, cmrt
+from ..service_helpers import FAST_BEND, as_in_a_terminal, cmrt
 from .conftest import snapshot
 
 CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
@@ -38,7 +38,7 @@ def chromium(monkeypatch):
 def serve(store) -> tuple[subprocess.Popen, str]:
     """``cmrt dashboard --port 0`` in a process of its own; its URL from the line it prints."""
     proc = subprocess.Popen([sys.executable, "-m", "cmrt.cli", "dashboard", "--store", str(store), "--port", "0"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=as_in_a_terminal)
     line = proc.stdout.readline()
     match = re.search(r"(http://127\.0\.0\.1:\d+)/", line)
     assert match, (line, proc.stderr.read() if proc.poll() is not None else "")

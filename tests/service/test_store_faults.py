@@ -19,7 +19,7 @@ from cmrt.motion.taskfile import load_task
 from cmrt.optimize.parallel import Evaluator
 from cmrt.service.jobs import claim, run_claimed, submit, work
 from cmrt.service.store import MAX_RETRIES, open_store
-from tests.service_helpers import cmrt, spawn_worker
+from tests.service_helpers import as_in_a_terminal, cmrt, spawn_worker
 
 TASK = load_task("bend").with_speed(0.4)
 SMALL = dict(seed=5, max_evals=20, popsize=5, init="none")
@@ -289,7 +289,7 @@ def test_stale_after_must_be_a_positive_finite_time(tmp_path, capsys):
 def test_ctrl_c_during_start_up_is_one_line(tmp_path):
     """The console script's entry point (``cmrt.cli.launch``) imports the heavy CLI with Ctrl-C handled."""
     proc = subprocess.Popen([sys.executable, "-m", "cmrt.cli.launch", "tasks"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=as_in_a_terminal)
     maps = f"/proc/{proc.pid}/maps"
     deadline = time.time() + 30
     while time.time() < deadline and proc.poll() is None:  # wait until it is importing the heavy modules
