@@ -111,3 +111,28 @@ def test_a_warm_start_from_the_final_active_set_gives_the_same_solution_in_one_p
     off = final.copy()
     kernel.solve_qp(Q, g, E, e, C, c, np.zeros(4, bool), 1e-9, 1, off)  # every row off now
     assert not off.any()
+
+
+def test_the_support_fields_load_is_mujocos_own_mapping_of_it(state):
+    """The wrench and generalized force the controller plans with for a tilting, moving support's field
+    (``kernel._field_load``) are what MuJoCo makes of the same ``xfrc_applied``: its generalized force
+    (``mj_applyFT`` per body at its CoM) and the field's total force and moment about the CoM."""
+    from cmrt.body.surface import Support, body_inertia_yy
+
+    _, m, d, rng = state
+    support = Support(slope_deg=-7.0, tilt_amplitude_deg=20.0, tilt_period_s=2.0, sway_amplitude_m=0.05)
+    r = d.xipos - d.subtree_com[m.body_rootid]
+    vel = np.stack([d.cvel[:, 3] + d.cvel[:, 1] * r[:, 2], d.cvel[:, 5] - d.cvel[:, 1] * r[:, 0]], axis=-1)
+    field = support.field(1.3, d.xipos[None, :, [0, 2]], vel[None], m.body_mass, body_inertia_yy(m, d))[0]
+    assert np.abs(field).max() > 1.0  # a field worth checking
+    chain = PlanarKinematics(m).chain
+    com = d.subtree_com[1]
+    wrench, gen = kernel._field_load((d.cdof, d.cdof_dot, d.cvel), d.qvel.copy(), chain, field, d.xipos.copy(), com)
+    expected = np.zeros(m.nv)
+    for b in range(1, m.nbody):
+        mujoco.mj_applyFT(m, d, np.array([field[b, 0], 0.0, field[b, 1]]), np.array([0.0, field[b, 2], 0.0]),
+                          d.xipos[b], b, expected)
+    np.testing.assert_allclose(gen[0], expected, rtol=1e-10, atol=1e-9)
+    arm = d.xipos[1:] - com
+    moment = np.sum(arm[:, 2] * field[1:, 0] - arm[:, 0] * field[1:, 1] + field[1:, 2])
+    np.testing.assert_allclose(wrench, [field[1:, 0].sum(), field[1:, 1].sum(), moment], rtol=1e-12, atol=1e-9)
