@@ -88,11 +88,8 @@ class Support:
     @property
     def still_and_level(self) -> bool:
         """No field at all: the floor of before (friction aside)."""
-        return self.slope_deg == 0.0 and self.tilt_amplitude_deg == 0.0 and self.moves_linearly is False
-
-    @property
-    def moves_linearly(self) -> bool:
-        return self.sway_amplitude_m != 0.0 or self.heave_amplitude_m != 0.0
+        return (self.slope_deg == 0.0 and self.tilt_amplitude_deg == 0.0 and self.sway_amplitude_m == 0.0
+                and self.heave_amplitude_m == 0.0)
 
     @property
     def kind(self) -> str:
@@ -131,7 +128,7 @@ class Support:
         """(n, nb, 3): force x, z (N) at each body's CoM and torque about y (N m) that the support's tilt and
         motion add to MuJoCo's gravity, for bodies at ``pos`` moving at ``vel`` ((n, nb, 2) x, z in support
         coordinates); ``mass_kg``, ``inertia_yy`` (nb,) (the world body's zero mass gives it nothing)."""
-        theta, omega, alpha = (float(v) for v in self.tilt(t_s))
+        _, omega, alpha = (float(v) for v in self.tilt(t_s))
         u = self.uniform_field(t_s)
         x, z = pos[..., 0], pos[..., 1]
         vx, vz = vel[..., 0], vel[..., 1]
@@ -162,12 +159,19 @@ class Support:
         sec2 = 1.0 / math.cos(theta) ** 2
         return -com_z_m * (alpha * sec2 + 2.0 * omega * omega * math.tan(theta) * sec2)
 
+    def pose(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """The support frame's world pose at ``t_s``: rotation (3, 3; a turn of theta about +y) and origin (3,),
+        world = rotation @ support + origin. For pictures."""
+        theta = float(self.tilt(t_s)[0])
+        c, s = math.cos(theta), math.sin(theta)
+        o = self.origin(t_s)[0]
+        return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]), np.array([o[0], 0.0, o[1]])
+
     def to_world(self, t_s: float, x_m: float, z_m: float) -> tuple[float, float]:
         """A support-frame point's world (x, z): for pictures."""
-        theta = float(self.tilt(t_s)[0])
-        o = self.origin(t_s)[0]
-        c, s = math.cos(theta), math.sin(theta)
-        return float(o[0] + c * x_m + s * z_m), float(o[1] - s * x_m + c * z_m)
+        rot, origin = self.pose(t_s)
+        w = rot @ np.array([x_m, 0.0, z_m]) + origin
+        return float(w[0]), float(w[2])
 
 
 def _ramp(u: np.ndarray, scale_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -123,11 +123,7 @@ def _to_world(scene: mujoco.MjvScene, support: Support, t_s: float, upright: tup
     """Every geom of a scene built in the support's frame (the simulation's) placed where the support is at
     ``t_s``: a slope or a tilting plane is drawn tilted, a moving platform moved, the character on it. The geoms
     ``upright`` (a vertical marker) are moved but stay vertical in the world."""
-    theta = float(support.tilt(t_s)[0])
-    c, s = np.cos(theta), np.sin(theta)
-    rot = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])  # support -> world, a turn of theta about +y
-    origin = support.origin(t_s)[0]
-    shift = np.array([origin[0], 0.0, origin[1]])
+    rot, shift = support.pose(t_s)
     for i in range(scene.ngeom):
         g = scene.geoms[i]
         g.pos[:] = rot @ g.pos + shift
