@@ -250,6 +250,10 @@ TASK_PARAMS: dict[str, Range] = {
     "sway_period_s": Range(0.5, 60.0, unit="s"),
     "heave_amplitude_m": Range(0.0, 0.1, unit="m"),
     "heave_period_s": Range(0.5, 60.0, unit="s"),
+    # Yu's floating box (cmrt.body.floating_box): 0 kg is no box
+    "box_mass_kg": Range(0.0, 5000.0, unit="kg"),
+    "box_stiffness_n_m": Range(500.0, 1e6, unit="N/m"),
+    "box_damping_ratio": Range(0.0, 2.0),
 }
 OTHER_PARAM = Range(-1e9, 1e9)
 POSE_DEG = Range(-360.0, 360.0, unit="deg")

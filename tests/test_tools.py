@@ -550,16 +550,16 @@ def test_every_tool_starts_as_a_script(name):
 # --- tools/compare_surfaces.py -------------------------------------------------------------------
 
 def test_compare_surfaces_prints_one_row_per_surface_mode_task_and_curve():
-    """On the slope and the shaking plane the standing character survives a 50 N push both ways, its planted feet
-    slide under a millimetre, and the ground force stays about one body weight; the fast bend's zero CMRT fails
-    and, with no budget, gets no CMRT row."""
-    out = run_tool("compare_surfaces.py", "--surfaces", "slope,shaking", "--modes", "center", "--tasks",
+    """On the slope, the shaking plane and the floating box the standing character survives a 50 N push both
+    ways, its planted feet slide under a millimetre, and the ground force stays about one body weight; the fast
+    bend's zero CMRT fails and, with no budget, gets no CMRT row."""
+    out = run_tool("compare_surfaces.py", "--surfaces", "slope,shaking,floating", "--modes", "center", "--tasks",
                    "stand,bend", "--max-evals", "0", "--pushes", "50", "--json")
     assert out.returncode == 0, out.stderr
     rows = json.loads(out.stdout)["rows"]
     assert [(r["surface"], r["task"], r["curve"]) for r in rows] == [
         ("slope", "stand", "zero"), ("slope", "bend", "zero"), ("shaking", "stand", "zero"),
-        ("shaking", "bend", "zero")]
+        ("shaking", "bend", "zero"), ("floating", "stand", "zero"), ("floating", "bend", "zero")]
     for r in rows:
         if r["task"] == "stand":
             assert r["success"] and r["largest_push_n"] == 50.0

@@ -4,7 +4,7 @@
     python tools/compare_surfaces.py --surfaces level,shaking --modes center --tasks bend --max-evals 100
 
 For every surface (``SURFACES``: the still level floor, Yu's slippery floor, his 15 degree slope, his shaking
-plane, a swaying platform) and reference mode (``center``, ``yu``), each task of ``--tasks``:
+plane, a swaying platform, his floating box) and reference mode (``center``, ``yu``), each task of ``--tasks``:
 
 * ``stand``: quiet standing with thorax pushes of 0.1 s, +-F at F = 50, 100, ... N (``--pushes``), both
   directions, in that order until one falls: the largest F survived both ways;
@@ -13,7 +13,7 @@ plane, a swaying platform) and reference mode (``center``, ``yu``), each task of
 
 One row per surface x mode x task x curve: success, objective, the largest push survived (stand), the farthest
 a planted heel or toe slid (``max_foot_slip_m``) and the plausibility figures (peak ground force in body
-weights, time airborne, fastest joint). The floating box of Yu's thesis is not among the surfaces yet.
+weights, time airborne, fastest joint).
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ SURFACES: dict[str, dict[str, float]] = {
     "slope": {"slope_deg": 15.0},
     "shaking": {"tilt_amplitude_deg": 20.0, "tilt_period_s": 2.0},  # Yu: -20 to +20 degrees
     "swaying": {"sway_amplitude_m": 0.05, "sway_period_s": 1.0},
+    "floating": {"box_mass_kg": 200.0},  # Yu's floating box: 200 kg on water of 9.81 kN/m (cmrt.body.floating_box)
 }
 TASKS: dict[str, tuple[str, dict[str, float]]] = {
     "stand": ("stand", {"clip_s": 4.0}),  # the push at 2 s, 2 s to recover, then the tail

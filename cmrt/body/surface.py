@@ -50,7 +50,12 @@ SURFACE_PARAMS: dict[str, float] = {
     "sway_period_s": 1.0,
     "heave_amplitude_m": 0.0,
     "heave_period_s": 1.0,
+    "box_mass_kg": 0.0,  # > 0: the character stands on a box floating on water (cmrt.body.floating_box)
+    "box_stiffness_n_m": 9810.0,  # the water's buoyancy stiffness: rho g x 1 m^2 of waterline
+    "box_damping_ratio": 0.3,
 }
+#: The floating box's parameters (the others are the prescribed support's).
+BOX_PARAMS = ("box_mass_kg", "box_stiffness_n_m", "box_damping_ratio")
 #: The one that changes the compiled model (the others act through ``Support.field``).
 MODEL_PARAMS = ("floor_friction",)
 FLOOR_PRIORITY = 1  # above the feet's and props' 0: the contact takes the floor's friction, not the larger of two
@@ -78,6 +83,9 @@ class Support:
     sway_period_s: float = 1.0
     heave_amplitude_m: float = 0.0
     heave_period_s: float = 1.0
+    box_mass_kg: float = 0.0
+    box_stiffness_n_m: float = 9810.0
+    box_damping_ratio: float = 0.3
     moving_until_s: float = math.inf  # the motions fade out before this (the clip's end: the tail stands still)
 
     @classmethod
@@ -89,13 +97,20 @@ class Support:
     def still_and_level(self) -> bool:
         """No field at all: the floor of before (friction aside)."""
         return (self.slope_deg == 0.0 and self.tilt_amplitude_deg == 0.0 and self.sway_amplitude_m == 0.0
-                and self.heave_amplitude_m == 0.0)
+                and self.heave_amplitude_m == 0.0 and not self.floating)
+
+    @property
+    def floating(self) -> bool:
+        """On a floating box: the support's motion is the box's (``cmrt.body.floating_box``), not ``tilt``/``origin``
+        (which then describe a still level floor)."""
+        return self.box_mass_kg > 0.0
 
     @property
     def kind(self) -> str:
         """A one-word name for tables: level, slippery, slope, shaking, swaying, heaving (or a mix: '+')."""
         kinds = [k for k, on in (("slope", self.slope_deg != 0.0), ("shaking", self.tilt_amplitude_deg != 0.0),
-                                 ("swaying", self.sway_amplitude_m != 0.0), ("heaving", self.heave_amplitude_m != 0.0))
+                                 ("swaying", self.sway_amplitude_m != 0.0), ("heaving", self.heave_amplitude_m != 0.0),
+                                 ("floating", self.floating))
                  if on]
         if self.floor_friction != 1.0:
             kinds.append("slippery" if self.floor_friction < 1.0 else "rough")
@@ -130,15 +145,7 @@ class Support:
         coordinates); ``mass_kg``, ``inertia_yy`` (nb,) (the world body's zero mass gives it nothing)."""
         _, omega, alpha = (float(v) for v in self.tilt(t_s))
         u = self.uniform_field(t_s)
-        x, z = pos[..., 0], pos[..., 1]
-        vx, vz = vel[..., 0], vel[..., 1]
-        ax = (u[0] + omega * omega * x - alpha * z - 2.0 * omega * vz)
-        az = (u[1] + GRAVITY_M_S2) + omega * omega * z + alpha * x + 2.0 * omega * vx
-        out = np.empty(pos.shape[:-1] + (3,))
-        out[..., 0] = mass_kg * ax
-        out[..., 1] = mass_kg * az
-        out[..., 2] = -inertia_yy * alpha
-        return out
+        return frame_field(omega, alpha, u[0], u[1], pos, vel, mass_kg, inertia_yy)
 
     def lean_x(self, t_s, com_z_m):
         """Where the CoM stands over a CoP at 0 under gravity in support coordinates: x = z g_x / g_z = -z tan
@@ -162,16 +169,54 @@ class Support:
     def pose(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
         """The support frame's world pose at ``t_s``: rotation (3, 3; a turn of theta about +y) and origin (3,),
         world = rotation @ support + origin. For pictures."""
-        theta = float(self.tilt(t_s)[0])
-        c, s = math.cos(theta), math.sin(theta)
         o = self.origin(t_s)[0]
-        return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]), np.array([o[0], 0.0, o[1]])
+        return pose_matrix(float(self.tilt(t_s)[0]), float(o[0]), float(o[1]))
 
     def to_world(self, t_s: float, x_m: float, z_m: float) -> tuple[float, float]:
         """A support-frame point's world (x, z): for pictures."""
         rot, origin = self.pose(t_s)
         w = rot @ np.array([x_m, 0.0, z_m]) + origin
         return float(w[0]), float(w[2])
+
+
+def frame_field(omega, alpha, ux, uz, pos: np.ndarray, vel: np.ndarray, mass_kg: np.ndarray,
+                inertia_yy: np.ndarray) -> np.ndarray:
+    """``Support.field`` for a frame turning at ``omega`` (rad/s), ``alpha`` (rad/s^2) whose gravity less its
+    acceleration is (``ux``, ``uz``) in its own axes (m/s^2): scalars, or (n, 1) per simulation of a batch
+    (a floating box: each simulation's box moves its own way)."""
+    x, z = pos[..., 0], pos[..., 1]
+    vx, vz = vel[..., 0], vel[..., 1]
+    ax = (ux + omega * omega * x - alpha * z - 2.0 * omega * vz)
+    az = (uz + GRAVITY_M_S2) + omega * omega * z + alpha * x + 2.0 * omega * vx
+    out = np.empty(pos.shape[:-1] + (3,))
+    out[..., 0] = mass_kg * ax
+    out[..., 1] = mass_kg * az
+    out[..., 2] = -inertia_yy * alpha
+    return out
+
+
+def uniform_field(theta, origin_acc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """R^T (g - O''), support axes (``Support.uniform_field``), for per-simulation tilts ``theta`` (n,) and
+    origin accelerations (n, 2)."""
+    gx, gz = -origin_acc[..., 0], -GRAVITY_M_S2 - origin_acc[..., 1]
+    c, s = np.cos(theta), np.sin(theta)
+    return c * gx - s * gz, s * gx + c * gz
+
+
+def lean_x(theta, com_z_m):
+    """``Support.lean_x`` for per-simulation tilts."""
+    return -com_z_m * np.tan(theta)
+
+
+def lean_rate(theta, omega, com_z_m, com_vel_z_m_s):
+    """``Support.lean_rate`` for per-simulation tilts and turning rates."""
+    return -com_z_m * omega / np.cos(theta) ** 2 - com_vel_z_m_s * np.tan(theta)
+
+
+def pose_matrix(theta: float, x_m: float, z_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """A support frame's world pose (``Support.pose``) from its tilt and its origin's world x, z."""
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]), np.array([x_m, 0.0, z_m])
 
 
 def _ramp(u: np.ndarray, scale_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

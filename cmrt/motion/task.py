@@ -17,7 +17,7 @@ import numpy as np
 from cmrt import inputs
 from cmrt.body.character import character, feet_flat_qpos, joint_angles_from_pose
 from cmrt.body.props import build_model, model_values, prop_class
-from cmrt.body.surface import SURFACE_PARAMS, Support
+from cmrt.body.surface import BOX_PARAMS, SURFACE_PARAMS, Support
 from cmrt.errors import CmrtError
 from cmrt.inputs import MAX_RUN_S, Range, param_range, shown
 from cmrt.modes import DEFAULT_REFERENCE_MODE, REFERENCE_MODES
@@ -243,6 +243,7 @@ class Task:
             keys = [f"{prefix}_{k}" for k in ("force_n", "start_s", "duration_s")]
             if any(k in p for k in keys) and not all(k in p for k in keys):
                 raise CmrtError(f"a second push needs all of {', '.join(keys)}")
+        _check_box(p, self.prop)
         if p["stepping"] not in (0, 1, 2):
             raise CmrtError("stepping must be 0 (feet planted), 1 (momentum supervisor) or 2 (capture point)")
 
@@ -380,6 +381,22 @@ class Task:
         end = self.end_qpos()
         end[list(character().ankle_dofs)] += float(self.support.tilt(self.clip_s + self.tail_s)[0])
         return float(np.linalg.norm(qpos[dofs] - end[dofs]))
+
+
+def _check_box(p: dict, prop: str | None) -> None:
+    """The floating box carries the character alone, on still water: its motion is its own."""
+    if p.get("box_mass_kg", 0.0) <= 0.0:
+        changed = [k for k in BOX_PARAMS[1:] if p.get(k, SURFACE_PARAMS[k]) != SURFACE_PARAMS[k]]
+        if changed:
+            raise CmrtError(f"{changed[0]} describes the floating box: set box_mass_kg > 0 too")
+        return
+    moving = [k for k in ("slope_deg", "tilt_amplitude_deg", "sway_amplitude_m", "heave_amplitude_m")
+              if p.get(k, 0.0) != 0.0]
+    if moving:
+        raise CmrtError(f"the floating box moves as the water and the character move it: {moving[0]} cannot be "
+                        "set with box_mass_kg")
+    if prop:
+        raise CmrtError(f"the floating box carries the character alone: task with prop '{prop}' cannot stand on it")
 
 
 def _angles(pose_deg: dict[str, float]) -> dict[str, float]:

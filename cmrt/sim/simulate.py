@@ -39,8 +39,9 @@ import mujoco.batch
 import numpy as np
 
 from cmrt.body.character import FOOT_POINT_RADIUS_M, character
+from cmrt.body.floating_box import FloatingBox, contact_wrench
 from cmrt.body.props import CONTACT_FORCE_N, model_values, prop_class
-from cmrt.body.surface import Support, body_inertia_yy, tilt_pose
+from cmrt.body.surface import Support, body_inertia_yy, frame_field, lean_rate, lean_x, tilt_pose, uniform_field
 from cmrt.control import ControllerConfig, MomentumBalanceController
 from cmrt.control.controller import read_only
 from cmrt.control.planar import PlanarKinematics
@@ -113,6 +114,8 @@ class Trajectory:
     prop_extras: dict[str, float] = field(default_factory=dict)  # e.g. grip_s, ball_sag_m for a ball
     fall_capture_point_x_m: float | None = None  # at the fall (the direction of a fall not played out)
     fall_com_vel_x_m_s: float | None = None
+    support_pose: np.ndarray | None = None  # (n, 3): the support frame's world tilt (rad), x, z (m); None: a
+    # still level floor (a floating box's pose is known only from its run: pictures take it from here)
 
     @property
     def max_lift_m(self) -> float:
@@ -190,8 +193,11 @@ def settled_state(task: Task, config: ControllerConfig) -> dict[str, np.ndarray]
     support = Support.from_params(task.params)
     config = surface_config(config, task)
     q0 = task.start_qpos()
+    if support.floating:  # the feet's centre over the deck's
+        q0 = _centred(q0)
     # on a tilted support the start pose stands upright in the world; it settles in the field of t = 0, held
-    static = replace(support, tilt_period_s=np.inf, sway_period_s=np.inf, heave_period_s=np.inf)
+    static = replace(support, tilt_period_s=np.inf, sway_period_s=np.inf, heave_period_s=np.inf,
+                     box_mass_kg=0.0)  # a floating box settles the character at rest on still water
     field = None if support.still_and_level else _SupportField(static, task.model(), character().model.nbody)
     q0 = tilt_pose(character().model, q0, float(support.tilt(0.0)[0]))
     key = (q0.tobytes(), config, task.prop, model_values(task.prop, task.params), static)
@@ -222,6 +228,18 @@ def settled_state(task: Task, config: ControllerConfig) -> dict[str, np.ndarray]
             batch.step(stage=mujoco.mjtStage.mjSTAGE_VEL)
         _SETTLED[key] = {k: f[k][0].copy() for k in STATE_FIELDS}
     return _SETTLED[key]
+
+
+def _centred(qpos: np.ndarray) -> np.ndarray:
+    """``qpos`` moved along x so that the feet's heel-to-toe span is centred on x = 0."""
+    ch = character()
+    d = mujoco.MjData(ch.model)
+    d.qpos[:] = qpos
+    mujoco.mj_kinematics(ch.model, d)
+    lo, hi = _support(d.geom_xpos[None], np.array(ch.foot_point_geoms))
+    q = np.array(qpos, dtype=float)
+    q[0] -= 0.5 * float(lo[0] + hi[0])
+    return q
 
 
 def _support(geom_xpos: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -488,23 +506,71 @@ def _no_load(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 class _SupportField:
     """The support's field on every body of a batch (``cmrt.body.surface``; None on a still level floor): made
     once per physics step from the state the step starts from, applied by MuJoCo in that step (with the thorax
-    push, which it would otherwise overwrite) and known to the controller on a control step."""
+    push, which it would otherwise overwrite) and known to the controller on a control step. On a floating box
+    (``cmrt.body.floating_box``) each simulation's box is advanced here first, from the contact load of the step
+    before; its tilt per step is kept (``tilt_at``: the controller feels it with the feedback delay)."""
 
-    def __init__(self, support: Support, m: mujoco.MjModel, nb: int):
+    def __init__(self, support: Support, m: mujoco.MjModel, nb: int, n: int = 1, n_steps: int = 1,
+                 delay_steps: int = 0):
         self.support = support
         self.mass_kg = m.body_mass.copy()
         self.inertia_yy = body_inertia_yy(m)
         self.rootid = m.body_rootid.copy()
         self.nb = nb  # the humanoid's bodies: what the controller knows of
         self.force = self.xipos = None
+        self.box: FloatingBox | None = None
+        self.dt = m.opt.timestep
+        # the support frame's world pose (theta, x, z) per step (a floating box's is known only as it happens)
+        self.pose = np.full((n, n_steps, 3), np.nan) if support.floating else None
+        self.omega = np.full((n, n_steps), np.nan) if support.floating else None
+        self.anchor = None  # the root's position (support x, z) in the step before: the box's load is about it
+        self.delay_steps = delay_steps  # the feedback delay: how late the controller feels a box's tilt
+        self.known = None
 
-    def update(self, b: dict, sel, t_s: float) -> None:
+    def update(self, b: dict, sel, t_s: float, ids: np.ndarray | None = None, k: int = 0,
+               fallen: np.ndarray | None = None) -> None:
         self.xipos = b["xipos"][sel]
         cvel = b["cvel"][sel]
         r = self.xipos - b["subtree_com"][sel][:, self.rootid]  # cvel is about the tree's own CoM
         w = cvel[..., 1]
         vel = np.stack([cvel[..., 3] + w * r[..., 2], cvel[..., 5] - w * r[..., 0]], axis=-1)
-        self.force = self.support.field(t_s, self.xipos[..., [0, 2]], vel, self.mass_kg, self.inertia_yy)
+        if not self.support.floating:
+            self.force = self.support.field(t_s, self.xipos[..., [0, 2]], vel, self.mass_kg, self.inertia_yy)
+            return
+        ids = np.arange(self.xipos.shape[0]) if ids is None else ids
+        body = slice(1, self.nb)  # the humanoid as a rigid body (the world body has no mass)
+        mass = self.mass_kg[body].sum()
+        com = b["subtree_com"][sel][:, 1, [0, 2]]
+        rel = self.xipos[:, body][..., [0, 2]] - com[:, None]
+        inertia_com = (self.inertia_yy[body] + self.mass_kg[body] * (rel ** 2).sum(axis=-1)).sum(axis=1)
+        if self.box is None:  # the water's damping is a ratio of the critical damping of the loaded box at rest
+            about_deck = float(inertia_com[0] + mass * (com[0] ** 2).sum())
+            self.box = FloatingBox(self.pose.shape[0], self.support.box_mass_kg, self.support.box_stiffness_n_m,
+                                   self.support.box_damping_ratio, mass, about_deck, self.dt)
+        if k > 0:  # the contact load of the step just taken moves the box (none before the first step)
+            wrench = contact_wrench(b["qfrc_constraint"][sel][:, :3], self.anchor[ids])
+            self.box.advance(ids, wrench, np.full(ids.size, mass), com, inertia_com)
+            if fallen is not None and fallen.any():
+                # A topple played out for the pictures: the box is held where it was. A body lying beyond the
+                # 1 m deck would load an infinite one (the floor plane), and a light box then flips over.
+                self.box.hold(ids[fallen])
+        else:
+            self.anchor = np.zeros((self.pose.shape[0], 2))
+        self.anchor[ids] = b["xpos"][sel][:, 1, [0, 2]]
+        theta, omega, alpha, acc = self.box.frame(ids)
+        self.pose[ids, k, 0], self.pose[ids, k, 1:] = theta, self.box.q[ids, :2]
+        self.omega[ids, k] = omega
+        ux, uz = uniform_field(theta, acc)
+        self.force = frame_field(omega[:, None], alpha[:, None], ux[:, None], uz[:, None], self.xipos[..., [0, 2]],
+                                 vel, self.mass_kg, self.inertia_yy)
+        # What the controller knows of it: gravity along the deck as tilted ``delay_steps`` ago (felt, like the
+        # CoM it balances), not the box's acceleration - that follows from the controller's own forces one step
+        # before, and planning against it closes a loop the box's pitch then swings in (measured: a still stand
+        # on 200 kg, 9.81 kN/m rocked +-7 degrees and fell at 8.8 s; with the felt tilt it settles at 3 degrees).
+        felt = uniform_field(self.pose[ids, max(k - self.delay_steps, 0), 0], np.zeros_like(acc))
+        still = np.zeros((ids.size, 1))
+        self.known = frame_field(still, still, felt[0][:, None], felt[1][:, None], self.xipos[..., [0, 2]], vel,
+                                 self.mass_kg, self.inertia_yy)
 
     def apply(self, b: dict, sel, push_n: np.ndarray, thorax: int) -> None:
         x = b["xfrc_applied"]
@@ -514,7 +580,32 @@ class _SupportField:
         x[sel, thorax, 0] += push_n
 
     def for_controller(self, rows=slice(None)) -> tuple[np.ndarray, np.ndarray]:
-        return (np.ascontiguousarray(self.force[rows, :self.nb]), np.ascontiguousarray(self.xipos[rows, :self.nb]))
+        force = self.known if self.box is not None else self.force
+        return (np.ascontiguousarray(force[rows, :self.nb]), np.ascontiguousarray(self.xipos[rows, :self.nb]))
+
+    # --- the lean of a body upright in the world, for rows ``ids`` at step ``k`` (time ``t_s``) --------------
+    def lean_x(self, ids: np.ndarray, k: int, t_s: float, com_z: np.ndarray) -> np.ndarray:
+        if self.pose is None:
+            return self.support.lean_x(t_s, com_z)
+        return lean_x(self.pose[ids, k, 0], com_z)
+
+    def lean_rate(self, ids: np.ndarray, k: int, t_s: float, com_z: np.ndarray, com_vel_z: np.ndarray) -> np.ndarray:
+        if self.pose is None:
+            return self.support.lean_rate(t_s, com_z, com_vel_z)
+        return lean_rate(self.pose[ids, k, 0], self.omega[ids, k], com_z, com_vel_z)
+
+    def lean_accel(self, ids: np.ndarray, t_s: float, com_z: np.ndarray):
+        """The feed-forward of a prescribed motion; a floating box's is not known ahead (0: felt, as any push)."""
+        return 0.0 if self.pose is not None else self.support.lean_accel(t_s, com_z)
+
+    def poses(self, times_s: np.ndarray) -> np.ndarray:
+        """(n, steps, 3): the support frame's world pose (theta, x, z) at every step, for the trajectories."""
+        if self.pose is not None:
+            return self.pose
+        theta = self.support.tilt(times_s)[0]
+        origin = self.support.origin(times_s)[0]
+        one = np.stack([np.broadcast_to(theta, times_s.shape), origin[:, 0], origin[:, 1]], axis=1)
+        return np.broadcast_to(one, (1, *one.shape))
 
 
 class _CompiledTick:
@@ -720,8 +811,10 @@ def _set_up(task: Task, curves: list[Cmrt | None], config: ControllerConfig, rec
     prop = prop_class(task.prop)(m, task.params)
     names = set(CONTROL_FIELDS) | set(STATE_FIELDS) | {"ctrl", "xfrc_applied", "sensordata", "geom_xmat", "time",
                                                        "xipos"}
-    b = {k: batch.bind(k) for k in names | prop.fields()}
     support = Support.from_params(task.params)
+    if support.floating:  # the box's load: the contact force on the root's coordinates, about the root
+        names |= {"qfrc_constraint", "xpos"}
+    b = {k: batch.bind(k) for k in names | prop.fields()}
     for k, v in settled_state(task, config).items():
         b[k][:] = v
     b["time"][:] = 0.0
@@ -750,7 +843,8 @@ def _set_up(task: Task, curves: list[Cmrt | None], config: ControllerConfig, rec
         control_dt=control_dt, sample_every=max(1, int(round(task.cop_sample_step_s / dt))),
         has_contact_force=has_contact_force, delay_steps=delay_steps, fb_vel=fb_vel, warm=warm, compiled=compiled,
         push_steps=set(np.flatnonzero(drive.push_changes).tolist()),
-        field=None if support.still_and_level else _SupportField(support, m, nb), com_ref_shown=np.full(n, np.nan),
+        field=None if support.still_and_level else _SupportField(support, m, nb, n, n_steps, delay_steps),
+        com_ref_shown=np.full(n, np.nan),
     )
 
 
@@ -876,7 +970,7 @@ def _python_step(g: _Group, s: _LoopState, k: int) -> None:
     if (control or g.prop.every_step) and k != s.prop_stepped:
         g.prop.step(g.batch, b, s.ids, g.times[k])
     if g.field is not None:
-        g.field.update(b, sel, g.times[k])
+        g.field.update(b, sel, g.times[k], s.ids, k, g.falls.code[s.ids] > 0)
     r = _read(g, s, k, control) if control or sample else None
     if control or g.record:
         _read_motion(g, s, k, r, control)
@@ -942,7 +1036,8 @@ def _read_motion(g: _Group, s: _LoopState, k: int, r: _Reading, control: bool) -
         rec["body_z"][sel, k] = r.lowest if control else g.geo.lowest_body_z(r.geom_xpos, b["geom_xmat"][sel])
 
 
-def _leaning(g: _Group, k: int, targets: Targets, com_z: np.ndarray, com_vel_z: np.ndarray) -> Targets:
+def _leaning(g: _Group, k: int, targets: Targets, com_z: np.ndarray, com_vel_z: np.ndarray,
+             s_ids: np.ndarray) -> Targets:
     """The targets on a tilting support: the CoM over the support centre along gravity, moving with it
     (``Support.lean_x``; Yu's mode has it from its reference pose, upright in the world). The delayed feedback
     compares the CoM of ``tau`` ago with the lean of then (the balance feedback's delay, ``_delayed``, shifts the
@@ -951,13 +1046,15 @@ def _leaning(g: _Group, k: int, targets: Targets, com_z: np.ndarray, com_vel_z: 
     momentum rate: the platform's motion is a known pattern, as a reference motion is. Without the feed-forward
     the PD feedback lags a +-20 degree, 0.5 Hz plane's +-0.35 m lean by ~27 degrees; with the lean of t instead of
     t - tau the delayed feedback sees 0.1 s of the lean's travel (up to 0.1 m) as an error (measured: both fall)."""
-    support, t_now = g.field.support, g.times[k]
+    field, t_now, ids = g.field, g.times[k], None if g.field.pose is None else s_ids
+    k_felt = max(k - g.delay_steps, 0)
     t_felt = max(t_now - g.delay_steps * g.dt, 0.0)
-    lean = support.lean_x(t_felt, com_z) + support.lean_accel(t_now, com_z) / g.config.k_l
-    rate = support.lean_rate(t_felt, com_z, com_vel_z)
-    if g.yu is not None:  # Yu's target already leans with its (tilted) reference pose, at t: moved to t - tau
-        lean = lean - support.lean_x(t_now, com_z)
-        rate = rate - support.lean_rate(t_now, com_z, com_vel_z)
+    lean = field.lean_x(ids, k_felt, t_felt, com_z) + field.lean_accel(ids, t_now, com_z) / g.config.k_l
+    rate = field.lean_rate(ids, k_felt, t_felt, com_z, com_vel_z)
+    if g.yu is not None and field.pose is None:  # Yu's target already leans with its (tilted) reference pose, at t:
+        # moved to t - tau (a floating box's tilt is not in the reference pose: it is not known ahead)
+        lean = lean - field.lean_x(ids, k, t_now, com_z)
+        rate = rate - field.lean_rate(ids, k, t_now, com_z, com_vel_z)
     return Targets(targets.com_x_m + lean, targets.com_vel_x_m_s + rate, targets.cop_x_m)
 
 
@@ -967,14 +1064,15 @@ def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
     rec["jspeed"][sel, k] = r.jspeed
     mass = g.ch.mass_kg + g.prop.carried_kg  # what the controller knows it carries
     targets = _targets(g.yu, b, sel, ids, g.drive, k, r.center, r.lo, r.hi, r.com, r.vel_x, g.nb,
-                       None if g.field is None else g.field.support.lean_x(g.times[k], r.com[:, 2]))
+                       None if g.field is None else g.field.lean_x(ids, k, g.times[k], r.com[:, 2]))
     shown = targets.com_x_m  # the reference CoM as recorded: where the CoM is asked to be now
     if g.field is not None:  # the CoM over the support centre along gravity, moving with it
         com_vel_z = r.momentum[:, 1] / (g.ch.mass_kg + g.prop.carried_kg[ids])
-        lean_vel = g.field.support.lean_rate(g.times[k], r.com[:, 2], com_vel_z)
-        if g.yu is None:  # (without the delay's shift and the feed-forward the controller is given)
-            shown = shown + g.field.support.lean_x(g.times[k], r.com[:, 2])
-        targets = _leaning(g, k, targets, r.com[:, 2], com_vel_z)
+        lean_vel = g.field.lean_rate(ids, k, g.times[k], r.com[:, 2], com_vel_z)
+        if g.yu is None or g.field.pose is not None:  # (without the delay's shift and the feed-forward the
+            # controller is given; Yu's reference pose leans with a prescribed tilt, not with a box's)
+            shown = shown + g.field.lean_x(ids, k, g.times[k], r.com[:, 2])
+        targets = _leaning(g, k, targets, r.com[:, 2], com_vel_z, ids)
     g.com_ref_now[ids], g.cop_ref_now[ids] = targets.com_x_m, targets.cop_x_m
     g.com_ref_shown[ids] = shown
     rec["cref"][sel, k] = shown
@@ -1000,7 +1098,7 @@ def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
     com = r.com
     if g.field is not None:  # the CoM where the field projects it onto the support (its capture point from there)
         com = com.copy()
-        com[:, 0] -= g.field.support.lean_x(g.times[k], com[:, 2])
+        com[:, 0] -= g.field.lean_x(ids, k, g.times[k], com[:, 2])
     vel_x = r.vel_x if g.field is None else r.vel_x - lean_vel
     new = g.falls.check(ids, k, ok=~bad, grounded=r.grounded, support_lo_x=c_lo, support_hi_x=c_hi,
                         lowest_body_z=r.lowest, qpos=r.qpos, com=com, com_vel_x=vel_x, roll=roll,
@@ -1040,14 +1138,16 @@ def _finish(g: _Group, s: _LoopState) -> list[Trajectory]:
     if g.field is not None:  # relative to the world-upright lean (at rest by now: the support stops before the tail)
         vel = momentum / (g.ch.mass_kg + g.prop.carried_kg)[:, None]
         for i in range(g.n):
-            vel[i, 0] -= g.field.support.lean_rate(float(b["time"][i]), b["subtree_com"][i, 1, 2], vel[i, 1])
+            k_end = min(s.last[i], g.n_steps) - 1
+            vel[i, 0] -= float(np.squeeze(g.field.lean_rate(np.array([i]), k_end, float(b["time"][i]),
+                                                            b["subtree_com"][i, 1, 2], vel[i, 1])))
         speed = np.hypot(vel[:, 0], vel[:, 1])
     final_speed = np.where(fallen, falls.speed_m_s, speed)
     standing = np.flatnonzero(~fallen)  # the others were judged when they fell
     _judge_prop(g.prop, b, standing, g.rec["prop_force"][standing, :g.run_steps], g.times[:g.run_steps],
                 g.drive.windows_s, g.goal, g.extras)
     return _trajectories(g.task, g.rec, g.times, s.last, falls, g.drive.disp_m, g.extras, g.goal, final_qpos,
-                         final_speed, g.stepper)
+                         final_speed, g.stepper, None if g.field is None else g.field.poses(g.times))
 
 
 def _stepper(task: Task, n: int) -> StepSupervisor | None:
@@ -1072,7 +1172,8 @@ def _step_command(stepper: StepSupervisor, kin: PlanarKinematics, b: dict, sel, 
 
 def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarray, falls: FallMonitor, disp: np.ndarray,
                   extras: dict[str, np.ndarray], goal: np.ndarray, final_qpos: np.ndarray,
-                  final_speed: np.ndarray, stepper: StepSupervisor | None = None) -> list[Trajectory]:
+                  final_speed: np.ndarray, stepper: StepSupervisor | None = None,
+                  poses: np.ndarray | None = None) -> list[Trajectory]:
     """One Trajectory per simulation, cut where it stopped."""
     out = []
     for i in range(last.size):
@@ -1101,6 +1202,7 @@ def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarra
                                                           if not code or t <= times[falls.step[i]]),
             footprints=() if stepper is None else tuple(f for f in stepper.footprints[i]
                                                         if not code or f[1] <= times[falls.step[i]]),
+            support_pose=None if poses is None else poses[min(i, poses.shape[0] - 1), : last[i]].copy(),
         ))
     return out
 

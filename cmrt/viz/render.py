@@ -25,7 +25,9 @@ import mujoco
 import numpy as np
 
 from cmrt import inputs
-from cmrt.body.surface import Support
+from cmrt.body.character import GRAVITY_M_S2, character
+from cmrt.body.floating_box import BOX_HEIGHT_M, BOX_WIDTH_M
+from cmrt.body.surface import lean_x, pose_matrix
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.task import Task
@@ -37,6 +39,8 @@ CYAN = np.array([0.1, 0.8, 0.9, 1.0], dtype=np.float32)
 GREEN = np.array([0.1, 0.8, 0.2, 1.0], dtype=np.float32)
 RED = np.array([0.9, 0.1, 0.1, 1.0], dtype=np.float32)
 AMBER = np.array([0.95, 0.6, 0.1, 0.8], dtype=np.float32)
+WOOD = np.array([0.55, 0.38, 0.2, 1.0], dtype=np.float32)
+WATER = np.array([0.2, 0.45, 0.8, 0.45], dtype=np.float32)
 FOOTPRINT_HALF_M = (0.12, 0.05, 0.002)  # half length (heel point to toe point / 2), half width, half height
 MARKER_Y_M = -0.35  # the camera looks along +y from the -y side
 OUT_SUFFIXES = (".png", ".mp4")
@@ -119,11 +123,12 @@ def _add_geom(scene: mujoco.MjvScene, gtype, size, pos, rgba, mat=None) -> None:
     scene.ngeom += 1
 
 
-def _to_world(scene: mujoco.MjvScene, support: Support, t_s: float, upright: tuple[int, ...] = ()) -> None:
-    """Every geom of a scene built in the support's frame (the simulation's) placed where the support is at
-    ``t_s``: a slope or a tilting plane is drawn tilted, a moving platform moved, the character on it. The geoms
-    ``upright`` (a vertical marker) are moved but stay vertical in the world."""
-    rot, shift = support.pose(t_s)
+def _to_world(scene: mujoco.MjvScene, pose: np.ndarray, upright: tuple[int, ...] = ()) -> None:
+    """Every geom of a scene built in the support's frame (the simulation's) placed where the support is
+    (``pose``: tilt, x, z; ``Trajectory.support_pose``): a slope or a tilting plane is drawn tilted, a moving
+    platform moved, the character on it. The geoms ``upright`` (a vertical marker) are moved but stay vertical
+    in the world."""
+    rot, shift = pose_matrix(*(float(v) for v in pose))
     for i in range(scene.ngeom):
         g = scene.geoms[i]
         g.pos[:] = rot @ g.pos + shift
@@ -131,20 +136,22 @@ def _to_world(scene: mujoco.MjvScene, support: Support, t_s: float, upright: tup
             g.mat[:] = rot @ g.mat.reshape(3, 3)
 
 
-def _frame(renderer, data, camera, traj: Trajectory, k: int, support: Support | None = None) -> np.ndarray:
+def _frame(renderer, data, camera, traj: Trajectory, k: int, draft_m: float | None = None) -> np.ndarray:
+    """One picture of step ``k``; ``draft_m``: on a floating box, how deep it floats at rest (None: not one)."""
     renderer.update_scene(data, camera)
     scene = renderer.scene
     com = data.subtree_com[1]
     y = MARKER_Y_M  # markers sit between the body and the camera so they are never hidden
     # on a tilted support the ground points are along gravity: the CoM's over the CoP it balances on
-    lean = 0.0 if support is None else float(support.lean_x(float(traj.time_s[k]), com[2]))
+    pose = None if traj.support_pose is None else traj.support_pose[k]
+    lean = 0.0 if pose is None else float(lean_x(pose[0], com[2]))
     _add_geom(scene, mujoco.mjtGeom.mjGEOM_SPHERE, [0.035, 0, 0], [com[0], y, com[2]], CYAN)
     _add_geom(scene, mujoco.mjtGeom.mjGEOM_CYLINDER, [0.04, 0.003, 0], [com[0] - lean, y, 0.003], CYAN)
     ref = traj.com_ref_x_m[k]
     upright = ()
     if np.isfinite(ref):
         upright = (scene.ngeom,)
-        theta = 0.0 if support is None else float(support.tilt(float(traj.time_s[k]))[0])
+        theta = 0.0 if pose is None else float(pose[0])
         up = (-np.sin(theta), np.cos(theta))  # the world's vertical in the support's frame: the line stands on
         _add_geom(scene, mujoco.mjtGeom.mjGEOM_CAPSULE, [0.008, 0.6, 0],  # its ground point, upright in the world
                   [ref - lean + 0.6 * up[0], y, 0.6 * up[1]], GREEN)
@@ -156,9 +163,30 @@ def _frame(renderer, data, camera, traj: Trajectory, k: int, support: Support | 
         if landed_s <= traj.time_s[k]:
             _add_geom(scene, mujoco.mjtGeom.mjGEOM_BOX, FOOTPRINT_HALF_M,
                       [heel_x + FOOTPRINT_HALF_M[0], y, FOOTPRINT_HALF_M[2]], AMBER)
-    if support is not None:
-        _to_world(scene, support, float(traj.time_s[k]), upright)
+    if draft_m is not None:  # the deck is the box's top, not an endless floor
+        _floating_box(scene, renderer.model)
+    if pose is not None:
+        _to_world(scene, pose, upright)
+    if draft_m is not None:  # still water where the box floats at rest, in the world (a thin slab)
+        _add_geom(scene, mujoco.mjtGeom.mjGEOM_BOX, [6.0, 2.0, 0.002], [0.0, 0.0, -draft_m], WATER)
     return renderer.render().copy()
+
+
+def floating_draft_m(support) -> float:
+    """How deep a floating box sits at rest with the character on it (buoyancy = weight), for the picture."""
+    return min(0.9 * BOX_HEIGHT_M, (support.box_mass_kg + character().mass_kg) * GRAVITY_M_S2
+               / support.box_stiffness_n_m)
+
+
+def _floating_box(scene: mujoco.MjvScene, model: mujoco.MjModel) -> None:
+    """Hide the floor plane and draw the box under the deck, in the deck's frame (moved with it)."""
+    floor = model.geom("floor").id
+    for i in range(scene.ngeom):
+        g = scene.geoms[i]
+        if g.objtype == mujoco.mjtObj.mjOBJ_GEOM and g.objid == floor:
+            g.rgba[3] = 0.0
+    _add_geom(scene, mujoco.mjtGeom.mjGEOM_BOX, [BOX_WIDTH_M / 2, 0.5, BOX_HEIGHT_M / 2],
+              [0.0, 0.0, -BOX_HEIGHT_M / 2], WOOD)
 
 
 def verdict(score: Evaluation) -> str:
@@ -285,17 +313,18 @@ def render_frames(task: Task, traj: Trajectory, times_s: np.ndarray, height: int
     camera.lookat[:] = CAMERA_HOME_M
     camera.distance, camera.azimuth, camera.elevation = CAMERA_DISTANCE_M, CAMERA_AZIMUTH_DEG, CAMERA_ELEVATION_DEG
     half = half_view_m(m, height, width)
+    draft_m = floating_draft_m(task.support) if task.support.floating else None
     renderer = _renderer(m, height, width)
-    support = None if task.support.still_and_level else task.support  # drawn where it is in the world
     frames = []
     try:
         for t in times_s:
             k = _pose(m, data, traj, t)
             camera.lookat[0] = _aim(m, data, half)
-            if support is not None:  # the camera follows the body in the world
-                camera.lookat[0], camera.lookat[2] = support.to_world(float(traj.time_s[k]), camera.lookat[0],
-                                                                      CAMERA_HOME_M[2])
-            frames.append(_frame(renderer, data, camera, traj, k, support))
+            if traj.support_pose is not None:  # the camera follows the body in the world
+                rot, shift = pose_matrix(*(float(v) for v in traj.support_pose[k]))
+                aim = rot @ np.array([camera.lookat[0], 0.0, CAMERA_HOME_M[2]]) + shift
+                camera.lookat[0], camera.lookat[2] = aim[0], aim[2]
+            frames.append(_frame(renderer, data, camera, traj, k, draft_m))
             if progress:
                 progress.update(1)
     finally:

@@ -121,6 +121,26 @@ def test_surface_parameters_out_of_range_are_refused(key, value):
         load_task("stand").with_params(**{key: value})
 
 
+@pytest.mark.parametrize("task,params,match", [
+    ("stand", {"box_stiffness_n_m": 20000.0}, "set box_mass_kg > 0 too"),
+    ("stand", {"box_mass_kg": 200.0, "slope_deg": 5.0}, "slope_deg cannot be set with box_mass_kg"),
+    ("catch", {"box_mass_kg": 200.0}, "carries the character alone"),
+    ("stand", {"box_mass_kg": -1.0}, "box_mass_kg"),
+    ("stand", {"box_mass_kg": 200.0, "box_stiffness_n_m": 10.0}, "box_stiffness_n_m"),
+])
+def test_floating_box_parameters_that_cannot_be_simulated_are_refused(task, params, match):
+    with pytest.raises(CmrtError, match=match):
+        load_task(task).with_params(**params)
+
+
+def test_the_cli_refuses_a_floating_box_under_a_prop_in_one_line(tmp_path):
+    from tests.service_helpers import cmrt
+
+    out = cmrt("submit", "catch", "--set", "box_mass_kg=200", store=tmp_path / "s.sqlite")
+    assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr
+    assert not (tmp_path / "s.sqlite").exists()
+
+
 def test_tilt_pose_keeps_the_feet_and_stands_upright():
     """On a support tilted by theta the start pose turns by -theta above the ankles: the feet stay put."""
     task = load_task("stand")

@@ -231,7 +231,7 @@ def _scene_on(task, tilt: bool):
     mujoco.mjv_updateScene(m, data, mujoco.MjvOption(), None, mujoco.MjvCamera(), mujoco.mjtCatBit.mjCAT_ALL,
                            scene)
     if tilt:
-        rr._to_world(scene, task.support, 0.0)
+        rr._to_world(scene, np.array([float(task.support.tilt(0.0)[0]), 0.0, 0.0]))
 
     def axis(name):
         i = next(i for i in range(scene.ngeom) if scene.geoms[i].objtype == mujoco.mjtObj.mjOBJ_GEOM
@@ -251,3 +251,31 @@ def test_a_tilted_support_is_drawn_tilted_and_the_body_upright():
     def lean_deg(axis):
         return np.degrees(np.arctan(axis[0] / axis[2]))
     assert lean_deg(slope("thorax")) == pytest.approx(lean_deg(level("thorax")), abs=0.01)
+
+
+def test_a_floating_box_is_drawn_as_a_box_on_water_moving_as_it_did(tmp_path):
+    """On the floating box the endless floor is hidden, the box is drawn under the deck, tilted and moved as the
+    run left it (``Trajectory.support_pose``), and the water is level in the world."""
+    import mujoco
+
+    task = load_task("stand").with_params(box_mass_kg=200.0, clip_s=2.5, push_force_n=150.0, push_start_s=1.0)
+    traj = simulate(task)
+    k = int(np.argmax(np.abs(traj.support_pose[:, 0])))  # the largest tilt
+    assert abs(np.degrees(traj.support_pose[k, 0])) > 1.0
+    m = task.model()
+    data = mujoco.MjData(m)
+    data.qpos[:] = traj.qpos[k]
+    mujoco.mj_forward(m, data)
+    scene = mujoco.MjvScene(m, maxgeom=300)
+    mujoco.mjv_updateScene(m, data, mujoco.MjvOption(), None, mujoco.MjvCamera(), mujoco.mjtCatBit.mjCAT_ALL,
+                           scene)
+    floor = m.geom("floor").id
+    rr._floating_box(scene, m)
+    rr._to_world(scene, traj.support_pose[k])
+    geoms = [scene.geoms[i] for i in range(scene.ngeom)]
+    assert all(g.rgba[3] == 0.0 for g in geoms if g.objtype == mujoco.mjtObj.mjOBJ_GEOM and g.objid == floor)
+    box = next(g for g in geoms if np.allclose(g.rgba, rr.WOOD))
+    top_normal = box.mat.reshape(3, 3)[:, 2]
+    assert np.degrees(np.arctan2(top_normal[0], top_normal[2])) == pytest.approx(
+        np.degrees(traj.support_pose[k, 0]), abs=1e-3)
+    assert rr.floating_draft_m(task.support) == pytest.approx((200.0 + 70.0) * 9.81 / 9810.0, rel=0.01)
