@@ -267,11 +267,13 @@ class _Progress:
 
 
 # --- inputs ------------------------------------------------------------------------
-def resolve_task(name: str, speed: float | None, sets: list[str] | None, reference: str | None = None) -> Task:
-    """The task arguments (name or path, ``--speed``, ``--set``, ``--reference``) -> a validated Task."""
+def resolve_task(name: str, speed: float | None, sets: list[str] | None, reference: str | None = None,
+                 steps: str | None = None) -> Task:
+    """The task arguments (name or path, ``--speed``, ``--set``, ``--reference``, ``--steps``) -> a validated
+    Task."""
     from cmrt.motion.taskfile import resolve_task as task_variant
 
-    return task_variant(name, speed, inputs.parse_sets(sets), reference)
+    return task_variant(name, speed, inputs.parse_sets(sets), reference, steps)
 
 
 def _curve(args, spec: str, task: Task, flag: str = "--curve") -> tuple[Cmrt, str]:
@@ -326,6 +328,10 @@ def _task_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--speed", type=inputs.arg(inputs.SPEED), help="the task's speed parameter (bend: duration T in s)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a task parameter")
     _reference_arg(p)
+    p.add_argument("--steps", metavar="F:X:T[:S],...",
+                   help="footsteps to take: foot R or L, where its centre lands (m from the start stance's centre, "
+                   "+ forward), the step's duration (s) and optionally its lift-off time (s), comma-separated; "
+                   "e.g. R:+0.30:0.6,L:+0.60:0.6 (docs/stepping.md)")
 
 
 def _reference_arg(p: argparse.ArgumentParser) -> None:
@@ -382,7 +388,7 @@ def _submit_kwargs(args) -> dict:
 def _opt_task(args, speed: float | None) -> Task:
     """The task an optimization runs: with ``--robust``, scored on its ensemble. A run id as ``--init`` must
     exist before a store is created or written."""
-    task = resolve_task(args.task, speed, args.set, args.reference)
+    task = resolve_task(args.task, speed, args.set, args.reference, args.steps)
     if isinstance(args.init, int):
         with _store(args.store, readonly=True) as store:
             store.run(args.init)
@@ -439,7 +445,7 @@ class Simulate(Command):
 
         if args.trace is not None:
             _check_out(args, args.trace, "--trace", (".npz",))
-        task = resolve_task(args.task, args.speed, args.set, args.reference)
+        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None))
         curve, name = _curve(args, args.curve, task)
         return Output(simulate_report(task, curve, name, args.trace), _report_text)
 
@@ -645,7 +651,7 @@ class Best(Command):
     def run(self, args):
         from cmrt.service import query
 
-        task = resolve_task(args.task, args.speed, args.set, args.reference)
+        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None))
         with _store(args.store, readonly=True) as store:
             return Output(_result(query.best_run(store, task)), _result_text)
 
@@ -691,7 +697,7 @@ class Interpolate(Command):
             inputs.param_name(args.param, "--param")
         if args.out is not None:
             _check_out(args, args.out, "--out", (".json",))
-        task = resolve_task(args.task, args.speed, args.set, args.reference)
+        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None))
         store = _store(args.store, readonly=True) if args.source == "store" else None
         try:
             r = interpolate(task, args.param, args.source, store)
@@ -798,7 +804,7 @@ class Render(Command):
         from cmrt.viz.render import OUT_SUFFIXES, render  # OpenGL: only this verb pays for it
 
         _check_out(args, args.out, "--out", OUT_SUFFIXES)  # before anything is simulated
-        task = resolve_task(args.task, args.speed, args.set, args.reference)
+        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None))
         curve, name = _curve(args, args.curve, task)
         compare, cname = _curve(args, args.compare, task, "--compare") if args.compare else (None, "")
         r = render(task, curve, args.out, compare, (f"{name} CMRT", f"{cname} CMRT"), n_frames=args.frames,
@@ -834,7 +840,7 @@ class Bench(Command):
         if unknown:
             raise CmrtError(f"--backends must be a comma-separated subset of {', '.join(BACKENDS)}, got "
                             f"{shown(args.backends)}")
-        task = resolve_task(args.task, args.speed, args.set, args.reference)
+        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None))
         return Output(run_bench(task, args.population, args.repeat, backends, args.workers,
                                 None if args.no_optimize else _timed_optimization), self._text)
 

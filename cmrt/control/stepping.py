@@ -41,6 +41,7 @@ from cmrt.body.character import GRAVITY_M_S2
 MOMENTUM, CAPTURE_POINT = 1, 2  # the task parameter ``stepping``: 0 off, 1 momentum supervisor, 2 capture point
 RULES = {MOMENTUM: "momentum", CAPTURE_POINT: "capture point"}
 NO_SWING = -1
+SETTLE_SPLIT_M = 0.41  # the split stance the settle bend is made for (a reactive step's longest, heel to heel)
 
 
 @dataclass(frozen=True)
@@ -131,11 +132,38 @@ class StepCommand:
                            self.com_ref_vel_x_m_s[idx])
 
 
-class StepSupervisor:
-    """Per-simulation stepping state of a batch of n clips, advanced every control step by ``update``."""
+@dataclass(frozen=True)
+class StepPlan:
+    """Footsteps asked for (``cmrt.motion.footsteps``), as the supervisor takes them: per step the foot (0 right,
+    1 left), where its centre lands (m from the start stance's centre), its duration and its lift-off time (NaN:
+    ``double_support_s`` after the step before landed; the first at ``first_step_s``)."""
 
-    def __init__(self, n: int, config: StepConfig, heel_to_center_m: float, foot_length_m: float):
+    foot: np.ndarray
+    x_m: np.ndarray
+    duration_s: np.ndarray
+    start_s: np.ndarray
+    first_step_s: float
+    double_support_s: float
+
+
+class StepSupervisor:
+    """Per-simulation stepping state of a batch of n clips, advanced every control step by ``update``. With a
+    ``plan`` it takes those steps, each when it is due, and still steps on its own when the momenta ask for it
+    (a push): a reactive step goes first, the plan goes on after it."""
+
+    def __init__(self, n: int, config: StepConfig, heel_to_center_m: float, foot_length_m: float,
+                 plan: StepPlan | None = None):
         self.config = config
+        self.plan = plan
+        self.next_planned = np.zeros(n, int)  # the plan's next step
+        self.planned = np.zeros(n, bool)  # the step under way is the plan's
+        self.origin_x = np.full(n, np.nan)  # the start stance's centre (the plan's x = 0)
+        self.duration_s = np.full(n, config.step_time_s)  # of the step under way
+        self.plan_offset_m = np.zeros(n)  # added to the plan's later steps: the supervisor moved one of them
+        self.moved_steps = np.zeros(n, int)  # planned steps the supervisor sent elsewhere (a push)
+        self.amended = np.zeros(n, bool)  # the step under way is a planned one the supervisor moved
+        self.placement_error_m: list[list[tuple[float, float]]] = [[] for _ in range(n)]  # (touchdown s, landed
+        # - planned centre m) of every planned step
         self.heel_to_center_m = heel_to_center_m  # heel point to the middle of heel and toe points
         self.foot_length_m = foot_length_m  # heel point to toe point
         self.swing = np.full(n, NO_SWING)
@@ -170,7 +198,10 @@ class StepSupervisor:
         ``contact`` (k, 4) and ``point_x`` (k, 4): heel_r, toe_r, heel_l, toe_l on the floor / their x."""
         c = self.config
         swing = self.swing[ids]
-        phase = (time_s - self.t0[ids]) / c.step_time_s
+        new = np.isnan(self.origin_x[ids])
+        if new.any():  # the plan's x = 0: where the feet start
+            self.origin_x[ids[new]] = 0.5 * (point_x[new].min(axis=1) + point_x[new].max(axis=1))
+        phase = (time_s - self.t0[ids]) / self.duration_s[ids]
         # touchdown: the swing foot on the floor in the second half of its step
         rows = np.flatnonzero(swing >= 0)
         if rows.size:
@@ -179,6 +210,11 @@ class StepSupervisor:
             for r in rows[down]:
                 sim = ids[r]
                 self.footprints[sim].append((int(swing[r]), time_s, float(point_x[r, 2 * swing[r]])))
+                self.moved_steps[sim] += int(self.planned[sim] and self.amended[sim])
+                if self.planned[sim]:  # where its centre landed against where it was asked to
+                    landed = 0.5 * (point_x[r, 2 * swing[r]] + point_x[r, 2 * swing[r] + 1])
+                    self.placement_error_m[sim].append(
+                        (time_s, float(landed - (self.target_heel_x[sim] + self.heel_to_center_m))))
             self.swing[ids[rows[down]]] = NO_SWING
             self.last_touchdown_s[ids[rows[down]]] = time_s
             swing = self.swing[ids]
@@ -212,19 +248,85 @@ class StepSupervisor:
             self.pivot_x[sims] = pivot
             self.direction[sims] = direction
             self.target_heel_x[sims] = self._target_heel(start, pivot, p_place[start], direction)
+            self.duration_s[sims] = c.step_time_s
+            self.planned[sims] = False
             for s in sims:
                 self.step_times[s].append(time_s)
             swing = self.swing[ids]
-            phase = (time_s - self.t0[ids]) / c.step_time_s
+        if self.plan is not None:
+            self._start_planned(ids, time_s, com_x, point_x, swing < 0)
+            swing = self.swing[ids]
+        phase = (time_s - self.t0[ids]) / self.duration_s[ids]
 
         # retarget while the foot has hardly moved: momentum a push is still adding lengthens the step
-        early = np.flatnonzero((swing >= 0) & (phase <= c.retarget_until))
-        if early.size:
-            sims = ids[early]
+        early = (swing >= 0) & (phase <= c.retarget_until)
+        reactive = np.flatnonzero(early & ~self.planned[ids])
+        if reactive.size:
+            sims = ids[reactive]
             pivot = self.pivot_x[sims]
-            self.target_heel_x[sims] = self._target_heel(early, pivot, p_place[early], self.direction[sims])
+            self.target_heel_x[sims] = self._target_heel(reactive, pivot, p_place[reactive], self.direction[sims])
+        if self.plan is not None:
+            self._amend_planned(ids, np.flatnonzero(early & self.planned[ids]), p_test, p_place)
 
         return self._command(ids, np.clip(phase, 0.0, 1.0), phase)
+
+    def _start_planned(self, ids: np.ndarray, time_s: float, com_x: np.ndarray, point_x: np.ndarray,
+                       idle: np.ndarray) -> None:
+        """Lift off the plan's next step in rows ``ids`` where it is due and no foot swings."""
+        plan, c = self.plan, self.config
+        nxt = self.next_planned[ids]
+        left = nxt < plan.foot.size
+        after = np.where(np.isfinite(self.last_touchdown_s[ids]), self.last_touchdown_s[ids] + plan.double_support_s,
+                         plan.first_step_s)
+        when = np.where(left, plan.start_s[np.minimum(nxt, plan.foot.size - 1)], np.inf)
+        when = np.where(np.isnan(when), after, when)
+        ready = idle & left & (time_s >= when - 1e-9) & (time_s - self.last_touchdown_s[ids] >= c.min_double_support_s)
+        rows = np.flatnonzero(ready)
+        if rows.size == 0:
+            return
+        sims, j = ids[rows], nxt[rows]
+        foot = plan.foot[j]
+        centers = 0.5 * (point_x[rows][:, 0::2] + point_x[rows][:, 1::2])  # (k, 2) per foot
+        pivot = centers[np.arange(rows.size), 1 - foot]
+        target_center = self.origin_x[sims] + plan.x_m[j] + self.plan_offset_m[sims]
+        direction = np.sign(target_center - pivot)
+        direction[direction == 0] = 1.0
+        self.swing[sims] = foot
+        self.t0[sims] = time_s
+        self.start_heel_x[sims] = point_x[rows, 2 * foot]
+        self.com0_x[sims] = com_x[rows]
+        self.pivot_x[sims] = pivot
+        self.direction[sims] = direction
+        self.target_heel_x[sims] = target_center - self.heel_to_center_m
+        self.duration_s[sims] = plan.duration_s[j]
+        self.planned[sims] = True
+        self.amended[sims] = False
+        self.next_planned[sims] = j + 1
+        for sim in sims:
+            self.step_times[sim].append(time_s)
+
+    def _amend_planned(self, ids: np.ndarray, rows: np.ndarray, p_test: np.ndarray, p_place: np.ndarray) -> None:
+        """A planned step early in its swing whose landing cannot stop the body (the trigger's CoP ``p_test``
+        beyond the stance foot and the footprint it is heading for: a push) goes where a reactive step would,
+        and the rest of the plan moves with it."""
+        if rows.size == 0:
+            return
+        sims = ids[rows]
+        heel = self.target_heel_x[sims]
+        lo = np.fmin(self.pivot_x[sims] - self.heel_to_center_m, heel)
+        hi = np.fmax(self.pivot_x[sims] + self.heel_to_center_m, heel + self.foot_length_m)
+        short = (p_test[rows] < lo) | (p_test[rows] > hi)
+        if not short.any():
+            return
+        rows, sims = rows[short], sims[short]
+        pivot = self.pivot_x[sims]
+        direction = np.sign(p_test[rows] - pivot)
+        direction[direction == 0] = 1.0
+        new = self._target_heel(rows, pivot, p_place[rows], direction)
+        self.plan_offset_m[sims] += new - self.target_heel_x[sims]
+        self.target_heel_x[sims] = new
+        self.direction[sims] = direction
+        self.amended[sims] = True
 
     def _command(self, ids: np.ndarray, s: np.ndarray, phase: np.ndarray) -> StepCommand:
         c = self.config
@@ -236,7 +338,7 @@ class StepSupervisor:
         rows = np.flatnonzero(swing >= 0)
         if rows.size:
             sims = ids[rows]
-            T = c.step_time_s
+            T = self.duration_s[sims]
             sr = s[rows]
             phi, dphi, ddphi, h, dh, ddh = swing_profile(sr, c.width)
             dist = self.target_heel_x[sims] - self.start_heel_x[sims]
@@ -248,6 +350,9 @@ class StepSupervisor:
             target[rows, 4] = np.where(late, 0.0, c.lift_m * dh / T)
             target[rows, 7] = np.where(late, 0.0, c.lift_m * ddh / T**2)
             target[rows, 9] = np.where(self.direction[sims] > 0, c.knee_bend_rad, c.back_knee_bend_rad)
+            planned = self.planned[sims]  # a planned step crouches as much as its reach needs (see below)
+            reach = np.abs(self.target_heel_x[sims] + self.heel_to_center_m - self.pivot_x[sims])
+            target[rows, 9] *= np.where(planned, np.minimum(1.0, (reach / SETTLE_SPLIT_M) ** 2), 1.0)
             pivot = self.pivot_x[sims]
             mid = 0.5 * (pivot + self.target_heel_x[sims] + self.heel_to_center_m)
             b, db = bezier(sr, self.com0_x[sims], pivot, mid)
@@ -255,6 +360,13 @@ class StepSupervisor:
             com_vel[rows] = np.where(late, 0.0, db / T)
         settled = np.flatnonzero((swing < 0) & np.isfinite(self.last_touchdown_s[ids]) & (self.direction[ids] > 0))
         target[settled, 9] = c.settle_knee_bend_rad  # double support after a forward step: the front knee bends
+        planned = settled[self.planned[ids[settled]]]
+        if planned.size:  # after a planned step, as much as its split needs: the hip's drop between two straight
+            # legs grows with the split squared (1.3 cm at 0.30 m, 2.5 cm at the 0.41 m the full bend is for);
+            # feet brought together need none (one bent knee then pushes the body up at touchdown: 2.8 BW)
+            sims = ids[planned]
+            split = np.abs(self.target_heel_x[sims] + self.heel_to_center_m - self.pivot_x[sims])
+            target[planned, 9] *= np.minimum(1.0, (split / SETTLE_SPLIT_M) ** 2)
         return StepCommand(swing.astype(float), target, com_ref, com_vel)
 
     def support(self, ids: np.ndarray, point_x: np.ndarray, lo: np.ndarray, hi: np.ndarray

@@ -23,6 +23,7 @@ from cmrt.inputs import MAX_RUN_S, Range, param_range, shown
 from cmrt.modes import DEFAULT_REFERENCE_MODE, REFERENCE_MODES
 from cmrt.motion import reference as ref
 from cmrt.motion.ensemble import RobustSpec
+from cmrt.motion.footsteps import PlannedStep, check_plan
 from cmrt.motion.reference import Schedule
 
 MIN_TAIL_S = 0.5
@@ -89,6 +90,9 @@ class Task:
     # where the controller's reference CoM and CoP come from (cmrt.control.references): "center" (the support
     # centre, Macchietto; ABC) or "yu" (GRF-weighted feet and Winter's CoP, Yu eq. 3.2-3.4)
     reference_mode: str = DEFAULT_REFERENCE_MODE
+    # the footsteps asked for (cmrt.motion.footsteps; Wu-Zordan's directed steps): empty, the feet stay planted
+    # unless ``stepping`` lets the supervisor step on its own
+    steps: tuple[PlannedStep, ...] = ()
 
     # --- parameters -------------------------------------------------------------
     # Those every task has (DEFAULT_PARAMS) as typed properties; any other (a prop's, via_fraction) is read
@@ -200,6 +204,14 @@ class Task:
             return self
         return replace(self, reference_mode=reference_mode(mode, "reference"))
 
+    def with_steps(self, plan: tuple[PlannedStep, ...] | None) -> Task:
+        """A copy that takes these footsteps (None: unchanged), checked against the clip."""
+        if plan is None:
+            return self
+        task = replace(self, steps=tuple(plan))
+        task.validate()
+        return task
+
     def with_speed(self, speed: float | None) -> Task:
         """A copy at this speed (None: unchanged)."""
         if speed is None:
@@ -244,6 +256,8 @@ class Task:
             if any(k in p for k in keys) and not all(k in p for k in keys):
                 raise CmrtError(f"a second push needs all of {', '.join(keys)}")
         _check_box(p, self.prop)
+        if self.steps:
+            check_plan(self.steps, p["clip_s"])
         if p["stepping"] not in (0, 1, 2):
             raise CmrtError("stepping must be 0 (feet planted), 1 (momentum supervisor) or 2 (capture point)")
 
@@ -350,6 +364,8 @@ class Task:
             out["robust"] = self.robust.to_table()
         if self.reference_mode != DEFAULT_REFERENCE_MODE:  # absent for the default: older hashes stay valid
             out["reference"] = self.reference_mode
+        if self.steps:  # absent without a plan, likewise
+            out["steps"] = [step.to_table() for step in self.steps]
         return out
 
     def content_hash(self) -> str:

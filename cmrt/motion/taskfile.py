@@ -19,6 +19,7 @@ from cmrt.errors import CmrtError
 from cmrt.inputs import POSE_DEG, param_range, shown
 from cmrt.modes import DEFAULT_REFERENCE_MODE
 from cmrt.motion.ensemble import RobustSpec
+from cmrt.motion.footsteps import PlannedStep, parse_steps, steps_from_tables
 from cmrt.motion.task import DEFAULT_PARAMS, Task, reference_mode
 
 #: The shipped task files (package data: present in an installed cmrt, not only in a checkout).
@@ -48,15 +49,26 @@ def load_task(name_or_path: str) -> Task:
 
 #: The keys of a task file (docs/reference/task-files.md).
 TASK_KEYS = frozenset({"name", "summary", "speed_param", "balance_joint", "params", "param_ranges", "start_pose_deg",
-                       "end_pose_deg", "via_pose_deg", "timing", "prop", "robust", "reference"})
+                       "end_pose_deg", "via_pose_deg", "timing", "prop", "robust", "reference", "steps"})
 MAX_TEXT = 1000  # characters of a task's name or summary
 
 
 def resolve_task(name_or_path: str, speed: float | None = None, params: dict[str, object] | None = None,
-                 reference: str | None = None) -> Task:
+                 reference: str | None = None, steps: str | tuple[PlannedStep, ...] | None = None) -> Task:
     """A task by name or path with its reference mode, parameter overrides (``Task.with_params``: values as
-    numbers or their text) and speed applied in that order, each validated: what the CLI's task arguments
-    and the tools build."""
+    numbers or their text), speed and footsteps (``--steps`` text or a plan) applied in that order, each
+    validated: what the CLI's task arguments and the tools build."""
+    task = _resolve(name_or_path, speed, params, reference)
+    if steps is None:
+        return task
+    try:
+        return task.with_steps(parse_steps(steps) if isinstance(steps, str) else steps)
+    except CmrtError as exc:
+        raise CmrtError(str(exc) if str(exc).startswith("--steps") else f"--steps: {exc}") from None
+
+
+def _resolve(name_or_path: str, speed: float | None, params: dict[str, object] | None,
+             reference: str | None) -> Task:
     task = load_task(name_or_path).with_reference(reference)
     if speed is not None and params and task.speed_param in params:  # one would silently override the other
         raise CmrtError(f"--speed sets {task.speed_param}: give --speed or --set {task.speed_param}=..., not both")
@@ -167,6 +179,7 @@ def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task"
         source=source,
         robust=RobustSpec.from_table(robust_table, where) if robust_table is not None else RobustSpec(),
         reference_mode=reference_mode(raw.get("reference", DEFAULT_REFERENCE_MODE), f"{where}: reference"),
+        steps=steps_from_tables(raw["steps"], where) if "steps" in raw else (),
     )
     try:
         task.validate()

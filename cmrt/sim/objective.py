@@ -47,6 +47,7 @@ MIN_FOOT_FORCE_FRACTION = 0.05
 IMPACT_WINDOW_S = 0.1  # peak ground force is reported outside this window after the first hand-prop contact
 AIRBORNE_FORCE_FRACTION = 0.01  # total foot normal force below this fraction of body weight: airborne
 FINAL_POSE_TOLERANCE_RAD = 0.1
+FOOTSTEP_TOLERANCE_M = 0.03  # a planned step lands this close to its target, or the plan is not performed
 SETTLED_COM_SPEED_M_S = 0.05
 FALL_PENALTY = 10.0
 DIVERGED_PENALTY = 100.0
@@ -123,6 +124,10 @@ class Evaluation:
     # each lifted off
     steps: int = 0
     step_times_s: tuple[float, ...] = ()
+    # a footstep plan (Task.steps): how many of its steps landed before any fall, and the farthest one landed from
+    # where it was asked to (m; None without a plan). All landed within FOOTSTEP_TOLERANCE_M: the plan performed
+    footsteps_landed: int | None = None
+    max_footstep_error_m: float | None = None
     # diagnostics (docs/controller.md, *Diagnostics*); none enters the objective or the verdict
     max_plan_cop_error_m: float | None = None  # planned vs executed CoP (recorded runs)
     max_foot_slip_m: float | None = None  # how far a heel/toe point slid along the support while touching it
@@ -196,14 +201,20 @@ def _performed(task: Task, traj: Trajectory, tracking: float | None, final_err: 
     tracking bound and the timing-lag bound it was judged against (None when not used)."""
     if traj.task_success is not None:
         return traj.task_success, None, None
+    steps_ok = None
+    if task.steps:  # a footstep plan: every step landed, each where it was asked to
+        errors = np.abs(np.asarray(traj.footstep_errors_m, float))
+        steps_ok = bool(len(errors) == len(task.steps) and np.all(errors <= FOOTSTEP_TOLERANCE_M))
     if task.end_pose_deg is None:
-        return None, None, None
+        return steps_ok, None, None
     start, stop = task.task_window_s()
     bound = task.tracking_bound_rad(np.arange(start, stop + 1e-9, task.cop_sample_step_s))
     lag_bound = timing_lag_bound_s(task)
     performed = bool(final_err < FINAL_POSE_TOLERANCE_RAD and tracking is not None and tracking <= bound)
     if ENFORCE_TIMING:
         performed = performed and lag is not None and lag <= lag_bound
+    if steps_ok is not None:
+        performed = performed and steps_ok
     return performed, bound, lag_bound
 
 
@@ -286,6 +297,9 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
         ball_held_s=traj.prop_extras.get("ball_held_s"),
         steps=len(traj.step_times_s),
         step_times_s=tuple(round(float(t), 4) for t in traj.step_times_s),
+        footsteps_landed=len(traj.footstep_errors_m) if task.steps else None,
+        max_footstep_error_m=(float(np.max(np.abs(traj.footstep_errors_m))) if task.steps and traj.footstep_errors_m
+                              else None),
         max_plan_cop_error_m=plan_cop_error_m(traj, contact["first_contact_s"]),
         max_foot_slip_m=foot_slip_m(traj),
         timing_lag_s=lag,

@@ -46,9 +46,10 @@ from cmrt.control import ControllerConfig, MomentumBalanceController
 from cmrt.control.controller import read_only
 from cmrt.control.planar import PlanarKinematics
 from cmrt.control.references import MotionCom, Targets, YuReference, motion_com
-from cmrt.control.stepping import StepCommand, StepConfig, StepSupervisor
+from cmrt.control.stepping import MOMENTUM, StepCommand, StepConfig, StepPlan, StepSupervisor
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.ensemble import NOMINAL, Perturbation
+from cmrt.motion.footsteps import DOUBLE_SUPPORT_S, FIRST_STEP_S
 from cmrt.motion.task import Task
 from cmrt.sim.balance import REASONS, BalanceLimits, FallReason, capture_point_x
 from cmrt.sim.monitor import FallMonitor, ProtectiveMode
@@ -114,6 +115,8 @@ class Trajectory:
     prop_extras: dict[str, float] = field(default_factory=dict)  # e.g. grip_s, ball_sag_m for a ball
     fall_capture_point_x_m: float | None = None  # at the fall (the direction of a fall not played out)
     fall_com_vel_x_m_s: float | None = None
+    footstep_errors_m: tuple[float, ...] = ()  # landed - planned centre of each planned step that landed before
+    # any fall (a footstep plan: Task.steps)
     support_pose: np.ndarray | None = None  # (n, 3): the support frame's world tilt (rad), x, z (m); None: a
     # still level floor (a floating box's pose is known only from its run: pictures take it from here)
 
@@ -136,6 +139,7 @@ class Trajectory:
         out.update({k: np.array(v) for k, v in self.prop_extras.items()})
         out["step_times_s"] = np.array(self.step_times_s, float)
         out["footprints"] = np.array(self.footprints, float).reshape(-1, 3)
+        out["footstep_errors_m"] = np.array(self.footstep_errors_m, float)
         return out
 
 
@@ -301,8 +305,9 @@ def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass, 
         for i in range(com_ref.size):
             fi = {name: f[name][i : i + 1] for name in CONTROL_FIELDS}
             one = None if warm is None else warm[ids[i : i + 1]]
+            refs_i = tuple(r[i : i + 1] if r.ndim == 2 else r for r in refs)
             try:
-                out = controller.torques(fi, *refs, com_ref[i : i + 1], com_ref_vel[i : i + 1],
+                out = controller.torques(fi, *refs_i, com_ref[i : i + 1], com_ref_vel[i : i + 1],
                                          cop_ref[i : i + 1], contact[i : i + 1], mass[i : i + 1],
                                          **swing(slice(i, i + 1)), warm=one,
                                          load=None if load is None else (load[0][i : i + 1], load[1][i : i + 1],
@@ -1151,13 +1156,22 @@ def _finish(g: _Group, s: _LoopState) -> list[Trajectory]:
 
 
 def _stepper(task: Task, n: int) -> StepSupervisor | None:
-    """The stepping supervisor a task asks for (``stepping`` parameter; None: feet stay planted)."""
+    """The stepping supervisor a task asks for (``stepping`` parameter, or a footstep plan: the momentum
+    supervisor then watches it; None: feet stay planted)."""
     config = StepConfig.from_task(task.params)
-    if config is None:
+    if config is None and not task.steps:
         return None
+    if config is None:
+        config = StepConfig.from_task({**task.params, "stepping": float(MOMENTUM)})
+    plan = None
+    if task.steps:
+        plan = StepPlan(foot=np.array([s.foot for s in task.steps]), x_m=np.array([s.x_m for s in task.steps]),
+                        duration_s=np.array([s.duration_s for s in task.steps]),
+                        start_s=np.array([np.nan if s.start_s is None else s.start_s for s in task.steps]),
+                        first_step_s=FIRST_STEP_S, double_support_s=DOUBLE_SUPPORT_S)
     ch = character()
     heel, toe = (ch.model.geom_pos[g, 0] for g in ch.foot_point_geoms[:2])
-    return StepSupervisor(n, config, heel_to_center_m=0.5 * (toe - heel), foot_length_m=toe - heel)
+    return StepSupervisor(n, config, heel_to_center_m=0.5 * (toe - heel), foot_length_m=toe - heel, plan=plan)
 
 
 def _step_command(stepper: StepSupervisor, kin: PlanarKinematics, b: dict, sel, ids: np.ndarray, time_s: float,
@@ -1202,6 +1216,8 @@ def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarra
                                                           if not code or t <= times[falls.step[i]]),
             footprints=() if stepper is None else tuple(f for f in stepper.footprints[i]
                                                         if not code or f[1] <= times[falls.step[i]]),
+            footstep_errors_m=() if stepper is None else tuple(e for t, e in stepper.placement_error_m[i]
+                                                               if not code or t <= times[falls.step[i]]),
             support_pose=None if poses is None else poses[min(i, poses.shape[0] - 1), : last[i]].copy(),
         ))
     return out

@@ -30,6 +30,7 @@ from cmrt.body.floating_box import BOX_HEIGHT_M, BOX_WIDTH_M
 from cmrt.body.surface import lean_x, pose_matrix
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
+from cmrt.motion.footsteps import timeline
 from cmrt.motion.task import Task
 from cmrt.sim.objective import Evaluation, evaluate
 from cmrt.sim.simulate import Trajectory, simulate
@@ -204,14 +205,18 @@ def task_label(task: Task) -> str:
 
 
 def motion_window(task: Task) -> tuple[float, float]:
-    """When the task happens: [P, P + T] for a pose change; else from the first push to ``PUSH_REACTION_S``
-    after the last; else (nothing happens) the whole clip."""
+    """When the task happens: [P, P + T] for a pose change; else from the first push (or planned step) to
+    ``PUSH_REACTION_S`` after the last push (the last planned landing); else (nothing happens) the whole clip."""
     if task.duration_s > 0:
         return task.task_window_s()
     t = np.arange(0.0, task.clip_s, 0.005)
     pushed = t[task.pushes_n(t) != 0]
-    if pushed.size:
-        return float(pushed[0]), min(float(pushed[-1]) + PUSH_REACTION_S, task.clip_s)
+    spans = [(float(pushed[0]), float(pushed[-1]))] if pushed.size else []
+    if task.steps:  # the steps as planned (they may land a little later)
+        steps = timeline(task.steps)
+        spans.append((steps[0][0], steps[-1][1]))
+    if spans:
+        return min(a for a, _ in spans), min(max(b for _, b in spans) + PUSH_REACTION_S, task.clip_s)
     return 0.0, task.clip_s
 
 
