@@ -586,3 +586,29 @@ def test_compare_surfaces_optimizes_a_cmrt_where_the_zero_one_fails():
     assert (zero["curve"], zero["success"]) == ("zero", False)
     assert cmrt_row["curve"] == "cmrt" and cmrt_row["success"] and cmrt_row["evaluations"] <= 10
     assert cmrt_row["objective"] < zero["objective"]
+
+
+# --- tools/stepping_table.py --------------------------------------------------------------------
+
+def test_stepping_table_measures_plans_and_pushes():
+    """Two steps of 0.3 m and a three-step plan land where asked, within the plausibility limits; a 100 N push
+    during the three-step plan is one row with its outcome and its steps."""
+    out = run_tool("stepping_table.py", "--lengths", "0.3", "--durations", "0.6", "--steps", "3", "--pushes", "100",
+                   "--push-times", "1.0", "--json")
+    assert out.returncode == 0, out.stderr
+    result = json.loads(out.stdout)
+    assert [r["plan"] for r in result["plans"]] == ["R:+0.3:0.6,L:+0.6:0.6", "R:+0.3:0.6,L:+0.6:0.6,R:+0.6:0.6"]
+    for r in result["plans"]:
+        assert r["success"] and r["footsteps_landed"] == r["planned_steps"]
+        assert r["max_footstep_error_m"] < 0.02 and r["peak_touchdown_force_bw"] <= 2.5
+        assert 0.0 <= r["max_timing_error_s"] < 0.3
+    (push,) = result["pushes"]
+    assert (push["push_n"], push["push_start_s"]) == (100.0, 1.0)
+    assert push["outcome"] in ("success", "survived", "fell") and push["steps"] >= 1
+
+
+@pytest.mark.parametrize("args", [["--lengths", "0.9"], ["--durations", "x"], ["--steps", "1"],
+                                  ["--lengths", "-0.2"]])
+def test_stepping_table_bad_input_is_one_line_and_exit_2(args):
+    out = run_tool("stepping_table.py", *args)
+    assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr

@@ -1,0 +1,141 @@
+"""Directed steps measured (docs/stepping.md): footstep plans of a grid of step lengths and durations, a longer
+plan, and thorax pushes during it.
+
+    python tools/stepping_table.py [--json] [--lengths 0.2,0.3,0.4] [--durations 0.4,0.6] [--steps 7]
+                                   [--pushes 100,150,-50] [--push-times 1.5,2.0,2.5]
+
+* **Plans**: for every step length L and duration T of the grid, two steps forward from standing (``R:+L:T,
+  L:+2L:T``), and one plan of ``--steps`` steps of the first length and the longest duration, the last bringing
+  the trailing foot beside the leading one. Per plan: success, whether it was performed (every step within
+  ``FOOTSTEP_TOLERANCE_M`` of its target), the largest placement error, the peak ground force in the 0.1 s after
+  any touchdown (body weights), how late the latest touchdown came after its planned duration, and how far the
+  thorax pitched forward (degrees; a person keeps it within a few).
+* **Pushes**: the long plan with a 0.1 s thorax push of each force at each start time: success, survived (no
+  fall, the plan not carried out) or fell, and how many steps were taken (more than planned: the supervisor
+  stepped on its own).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+
+import numpy as np
+
+from cmrt import CmrtError, evaluate, resolve_task
+from cmrt.body.character import GRAVITY_M_S2, character
+from cmrt.motion.footsteps import PlannedStep, plan_text
+from cmrt.sim.simulate import simulate
+
+TOUCHDOWN_WINDOW_S = 0.1  # the ground force after a touchdown is read over this long
+SETTLE_S = 1.5  # the clip lasts this long after the plan's last step is due to land
+
+
+def two_steps(length_m: float, duration_s: float) -> tuple[PlannedStep, ...]:
+    return PlannedStep(0, length_m, duration_s), PlannedStep(1, 2.0 * length_m, duration_s)
+
+
+def long_plan(n_steps: int, length_m: float, duration_s: float) -> tuple[PlannedStep, ...]:
+    """``n_steps`` - 1 alternating steps of ``length_m``, then the trailing foot beside the leading one."""
+    walk = [PlannedStep(i % 2, (i + 1) * length_m, duration_s) for i in range(n_steps - 1)]
+    return (*walk, PlannedStep((n_steps - 1) % 2, (n_steps - 1) * length_m, duration_s))
+
+
+def _clip_s(plan: tuple[PlannedStep, ...]) -> float:
+    return 0.5 + sum(s.duration_s + 0.15 for s in plan) + SETTLE_S
+
+
+def run_plan(plan: tuple[PlannedStep, ...], push_n: float = 0.0, push_start_s: float = 0.0) -> dict:
+    """One clip of ``stand`` with this plan (and push): its verdict and figures."""
+    params = {"clip_s": round(_clip_s(plan), 2), "push_force_n": push_n, "push_start_s": push_start_s,
+              "push_duration_s": 0.1}
+    task = resolve_task("stand", params=params, steps=plan)
+    traj = simulate(task)
+    e = evaluate(task, traj)
+    weight = character().mass_kg * GRAVITY_M_S2
+    peaks, late = [], []
+    for (_, landed_s, _), lift_s in zip(traj.footprints, traj.step_times_s, strict=False):
+        window = (traj.time_s >= landed_s) & (traj.time_s < landed_s + TOUCHDOWN_WINDOW_S)
+        peaks.append(float(np.nanmax(traj.normal_force_n[window])) / weight if window.any() else float("nan"))
+        late.append(landed_s - lift_s)
+    durations = [s.duration_s for s in plan]
+    before = slice(None) if traj.fall_time_s is None else traj.time_s < traj.fall_time_s
+    thorax = np.degrees(traj.qpos[before, 2] + traj.qpos[before, character().dof("lumbar")])
+    return {
+        "plan": plan_text(plan), "push_n": push_n, "push_start_s": push_start_s,
+        "outcome": "success" if e.success else ("fell" if e.fell else "survived"),
+        "success": e.success, "performed": e.performed, "fell": e.fell, "steps": e.steps,
+        "planned_steps": len(plan), "footsteps_landed": e.footsteps_landed,
+        "max_footstep_error_m": e.max_footstep_error_m,
+        "peak_touchdown_force_bw": max(peaks) if peaks else None,
+        # without a push every step is the plan's, in order: how much longer than planned each took to land
+        "max_timing_error_s": (max(d - p for d, p in zip(late, durations, strict=False))
+                               if late and push_n == 0.0 and e.steps == len(plan) else None),
+        "thorax_most_forward_deg": float(thorax.min()) if thorax.size else None,
+        "peak_normal_force_bw": e.peak_normal_force_bw, "airborne_s": e.airborne_s,
+    }
+
+
+def _numbers(text: str, what: str, lo: float, hi: float) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise CmrtError(f"--{what} must be comma-separated numbers, got {text!r}") from None
+    if not values or not all(lo <= abs(v) <= hi for v in values):
+        raise CmrtError(f"--{what} must be numbers of size {lo:g} to {hi:g}, got {text!r}")
+    return values
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--lengths", default="0.2,0.3,0.4", help="step lengths, m")
+    ap.add_argument("--durations", default="0.4,0.6", help="step durations, s")
+    ap.add_argument("--steps", type=int, default=7, help="steps of the long plan (its last brings the feet together)")
+    ap.add_argument("--pushes", default="100,150,-50", help="thorax pushes during the long plan, N (0.1 s each)")
+    ap.add_argument("--push-times", default="1.5,2.0,2.5", help="when they start, s")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    try:
+        lengths = _numbers(args.lengths, "lengths", 0.05, 0.45)
+        durations = _numbers(args.durations, "durations", 0.3, 1.5)
+        pushes = _numbers(args.pushes, "pushes", 0.0, 1000.0) if args.pushes else []
+        times = _numbers(args.push_times, "push-times", 0.0, 30.0)
+        if not 2 <= args.steps <= 30:
+            raise CmrtError(f"--steps must be 2 to 30, got {args.steps}")
+        if any(v <= 0 for v in lengths):
+            raise CmrtError("--lengths are forward steps: positive")
+        start = time.perf_counter()
+        plans = [run_plan(two_steps(length, duration)) for length in lengths for duration in durations]
+        longest = long_plan(args.steps, lengths[0], max(durations))
+        plans.append(run_plan(longest))
+        pushed = [run_plan(longest, force, at) for force in pushes for at in times]
+    except CmrtError as exc:
+        print(f"stepping_table: error: {exc}", file=sys.stderr)
+        return 2
+    out = {"machine": platform.machine(), "python": platform.python_version(),
+           "wall_s": round(time.perf_counter() - start, 1), "plans": plans, "pushes": pushed}
+    if args.json:
+        print(json.dumps(out, indent=1, allow_nan=False, default=lambda v: None))
+        return 0
+    print("| plan | outcome | placement error (mm) | peak touchdown force (BW) | latest landing (s late) "
+          "| thorax (deg) |")
+    print("|---|---|---|---|---|---|")
+    for r in plans:
+        err = "-" if r["max_footstep_error_m"] is None else f"{r['max_footstep_error_m'] * 1000:.1f}"
+        late = "-" if r["max_timing_error_s"] is None else f"{r['max_timing_error_s']:.3f}"
+        peak = "-" if r["peak_touchdown_force_bw"] is None else f"{r['peak_touchdown_force_bw']:.2f}"
+        print(f"| `{r['plan']}` | {r['outcome']} | {err} | {peak} | {late} | {r['thorax_most_forward_deg']:.0f} |")
+    print()
+    print("| push (N) | starts (s) | outcome | steps (planned) |")
+    print("|---|---|---|---|")
+    for r in pushed:
+        print(f"| {r['push_n']:+g} | {r['push_start_s']:g} | {r['outcome']} | {r['steps']} ({r['planned_steps']}) |")
+    print(f"\n{out['wall_s']} s on {out['machine']}, Python {out['python']}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
