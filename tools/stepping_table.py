@@ -9,7 +9,7 @@ plan, and thorax pushes during it.
   the trailing foot beside the leading one. Per plan: success, whether it was performed (every step within
   ``FOOTSTEP_TOLERANCE_M`` of its target), the largest placement error, the peak ground force in the 0.1 s after
   any touchdown (body weights), how late the latest touchdown came after its planned duration, and how far the
-  thorax pitched forward (degrees; a person keeps it within a few).
+  thorax pitched (degrees in the world, negative forward; a walking person keeps it within a few).
 * **Pushes**: the long plan with a 0.1 s thorax push of each force at each start time: success, survived (no
   fall, the plan not carried out) or fell, and how many steps were taken (more than planned: the supervisor
   stepped on its own).
@@ -75,6 +75,7 @@ def run_plan(plan: tuple[PlannedStep, ...], push_n: float = 0.0, push_start_s: f
         "max_timing_error_s": (max(d - p for d, p in zip(late, durations, strict=False))
                                if late and push_n == 0.0 and e.steps == len(plan) else None),
         "thorax_most_forward_deg": float(thorax.min()) if thorax.size else None,
+        "thorax_most_backward_deg": float(thorax.max()) if thorax.size else None,
         "peak_normal_force_bw": e.peak_normal_force_bw, "airborne_s": e.airborne_s,
     }
 
@@ -122,12 +123,13 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     print("| plan | outcome | placement error (mm) | peak touchdown force (BW) | latest landing (s late) "
           "| thorax (deg) |")
-    print("|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|")  # thorax: its pitch's range, most forward to most backward
     for r in plans:
         err = "-" if r["max_footstep_error_m"] is None else f"{r['max_footstep_error_m'] * 1000:.1f}"
         late = "-" if r["max_timing_error_s"] is None else f"{r['max_timing_error_s']:.3f}"
         peak = "-" if r["peak_touchdown_force_bw"] is None else f"{r['peak_touchdown_force_bw']:.2f}"
-        print(f"| `{r['plan']}` | {r['outcome']} | {err} | {peak} | {late} | {r['thorax_most_forward_deg']:.0f} |")
+        print(f"| `{r['plan']}` | {r['outcome']} | {err} | {peak} | {late} | "
+              f"{r['thorax_most_forward_deg']:.0f} to {r['thorax_most_backward_deg']:+.0f} |")
     print()
     print("| push (N) | starts (s) | outcome | steps (planned) |")
     print("|---|---|---|---|")

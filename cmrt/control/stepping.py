@@ -120,16 +120,22 @@ class StepCommand:
     swing_target: np.ndarray  # (k, 10): heel point x, z, foot pitch; rates; accelerations; stance knee bend
     com_ref_x_m: np.ndarray  # (k,) CoM target on the Bezier (NaN: not stepping, the task's own target)
     com_ref_vel_x_m_s: np.ndarray  # (k,)
+    cop_x_m: np.ndarray | None = None  # (k,) the CoP a footstep plan asks for (NaN: the task's own)
 
     def com_targets(self, com_ref: np.ndarray, com_ref_vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The task's CoM target where no foot swings, the step's Bezier where one does."""
-        stepping = self.swing_foot >= 0
+        """The task's CoM target where no foot swings, the step's Bezier where one does (a footstep plan's
+        target wherever it gives one)."""
+        stepping = (self.swing_foot >= 0) | np.isfinite(self.com_ref_x_m)
         return np.where(stepping, self.com_ref_x_m, com_ref), np.where(stepping, self.com_ref_vel_x_m_s, com_ref_vel)
+
+    def cop_target(self, cop_ref: np.ndarray) -> np.ndarray:
+        """The task's CoP target, or a footstep plan's where it gives one."""
+        return cop_ref if self.cop_x_m is None else np.where(np.isfinite(self.cop_x_m), self.cop_x_m, cop_ref)
 
     def rows(self, idx: np.ndarray) -> StepCommand:
         """The command of a subset of its rows."""
         return StepCommand(self.swing_foot[idx], self.swing_target[idx], self.com_ref_x_m[idx],
-                           self.com_ref_vel_x_m_s[idx])
+                           self.com_ref_vel_x_m_s[idx], None if self.cop_x_m is None else self.cop_x_m[idx])
 
 
 @dataclass(frozen=True)
@@ -144,6 +150,14 @@ class StepPlan:
     start_s: np.ndarray
     first_step_s: float
     double_support_s: float
+    com_stiffness: float = 10.0  # 1/s^2: the controller's k_l (the CoM target carries the acceleration / k_l)
+
+
+DCM_GAIN = 2.0  # the CoP moves (1 + DCM_GAIN) times the capture point's error beyond the plan's anchor (1, 4
+# and 6 measured: no better)
+PLANNED_TOUCHDOWN_AFTER = 0.85  # a planned swing foot touching the floor counts as landed after this fraction of
+# its step (a reactive one after ``touchdown_after``): at 0.5 the second step of a 0.3 m plan grazed the floor at
+# mid-swing and "landed" 35 cm short
 
 
 class StepSupervisor:
@@ -160,7 +174,6 @@ class StepSupervisor:
         self.origin_x = np.full(n, np.nan)  # the start stance's centre (the plan's x = 0)
         self.duration_s = np.full(n, config.step_time_s)  # of the step under way
         self.plan_offset_m = np.zeros(n)  # added to the plan's later steps: the supervisor moved one of them
-        self.moved_steps = np.zeros(n, int)  # planned steps the supervisor sent elsewhere (a push)
         self.amended = np.zeros(n, bool)  # the step under way is a planned one the supervisor moved
         self.placement_error_m: list[list[tuple[float, float]]] = [[] for _ in range(n)]  # (touchdown s, landed
         # - planned centre m) of every planned step
@@ -201,23 +214,8 @@ class StepSupervisor:
         new = np.isnan(self.origin_x[ids])
         if new.any():  # the plan's x = 0: where the feet start
             self.origin_x[ids[new]] = 0.5 * (point_x[new].min(axis=1) + point_x[new].max(axis=1))
-        phase = (time_s - self.t0[ids]) / self.duration_s[ids]
-        # touchdown: the swing foot on the floor in the second half of its step
-        rows = np.flatnonzero(swing >= 0)
-        if rows.size:
-            foot = swing[rows]
-            down = (contact[rows, 2 * foot] | contact[rows, 2 * foot + 1]) & (phase[rows] >= c.touchdown_after)
-            for r in rows[down]:
-                sim = ids[r]
-                self.footprints[sim].append((int(swing[r]), time_s, float(point_x[r, 2 * swing[r]])))
-                self.moved_steps[sim] += int(self.planned[sim] and self.amended[sim])
-                if self.planned[sim]:  # where its centre landed against where it was asked to
-                    landed = 0.5 * (point_x[r, 2 * swing[r]] + point_x[r, 2 * swing[r] + 1])
-                    self.placement_error_m[sim].append(
-                        (time_s, float(landed - (self.target_heel_x[sim] + self.heel_to_center_m))))
-            self.swing[ids[rows[down]]] = NO_SWING
-            self.last_touchdown_s[ids[rows[down]]] = time_s
-            swing = self.swing[ids]
+        self._touchdowns(ids, time_s, contact, point_x)
+        swing = self.swing[ids]
 
         d_l, d_h = self._gains(com_z, place=False)
         p_test = desired_cop_x(com_x, com_z, momentum_x, ang_momentum_y, mass_kg, d_l, d_h)
@@ -229,6 +227,10 @@ class StepSupervisor:
             lo = np.where(on, point_x, np.inf).min(axis=1)
             hi = np.where(on, point_x, -np.inf).max(axis=1)
             outside = foot_down.all(axis=1) & ((p_test < lo) | (p_test > hi))
+        if self.plan is not None:  # a plan under way leaves the momenta to its capture-point plan: the trigger
+            # fires at brisk touchdowns, and reactive steps then replaced the plan's for good (measured; also when
+            # let in only with the plan's CoP 5 or 10 cm beyond the feet); after the plan it watches again
+            outside &= self.next_planned[ids] >= self.plan.foot.size
         ready = (swing < 0) & (time_s - self.last_touchdown_s[ids] >= c.min_double_support_s)
         start = np.flatnonzero(outside & ready)
         if start.size:
@@ -268,7 +270,31 @@ class StepSupervisor:
         if self.plan is not None:
             self._amend_planned(ids, np.flatnonzero(early & self.planned[ids]), p_test, p_place)
 
-        return self._command(ids, np.clip(phase, 0.0, 1.0), phase)
+        command = self._command(ids, np.clip(phase, 0.0, 1.0), phase)
+        if self.plan is not None:
+            self._walk_targets(command, ids, time_s, com_x, com_z, momentum_x / mass_kg, point_x, contact)
+        return command
+
+    def _touchdowns(self, ids: np.ndarray, time_s: float, contact: np.ndarray, point_x: np.ndarray) -> None:
+        """End the steps of rows ``ids`` whose swing foot is on the floor late enough in its step, recording the
+        footprint (and, for a planned step, where it landed against its target)."""
+        swing = self.swing[ids]
+        rows = np.flatnonzero(swing >= 0)
+        if rows.size == 0:
+            return
+        phase = (time_s - self.t0[ids[rows]]) / self.duration_s[ids[rows]]
+        foot = swing[rows]
+        after = np.where(self.planned[ids[rows]], PLANNED_TOUCHDOWN_AFTER, self.config.touchdown_after)
+        down = (contact[rows, 2 * foot] | contact[rows, 2 * foot + 1]) & (phase >= after)
+        for r in rows[down]:
+            sim = ids[r]
+            self.footprints[sim].append((int(swing[r]), time_s, float(point_x[r, 2 * swing[r]])))
+            if self.planned[sim]:  # where its centre landed against where it was asked to
+                landed = 0.5 * (point_x[r, 2 * swing[r]] + point_x[r, 2 * swing[r] + 1])
+                self.placement_error_m[sim].append(
+                    (time_s, float(landed - (self.target_heel_x[sim] + self.heel_to_center_m))))
+        self.swing[ids[rows[down]]] = NO_SWING
+        self.last_touchdown_s[ids[rows[down]]] = time_s
 
     def _start_planned(self, ids: np.ndarray, time_s: float, com_x: np.ndarray, point_x: np.ndarray,
                        idle: np.ndarray) -> None:
@@ -328,6 +354,60 @@ class StepSupervisor:
         self.direction[sims] = direction
         self.amended[sims] = True
 
+    def _walk_targets(self, command: StepCommand, ids: np.ndarray, time_s: float, com_x: np.ndarray,
+                      com_z: np.ndarray, vel_x: np.ndarray, point_x: np.ndarray, contact: np.ndarray) -> None:
+        """The CoM and CoP targets of rows that follow a footstep plan, in place, from its capture point (DCM)
+        plan: each remaining step's stance foot is the anchor of a segment (the double support before its lift-off
+        and its swing); the capture point must come to rest over the feet after the last. Backward from there,
+        xi_start = a + (xi_end - a) exp(-omega L) per segment gives where the capture point should be now; the
+        CoP is the anchor plus (1 + DCM_GAIN) times the error, within the support; the CoM target asks for the
+        pendulum's acceleration omega^2 (c - p) through the controller's stiffness. With the CoP the plan's, the
+        angular-momentum objective asks for nothing: the trunk has no reason to pitch."""
+        plan = self.plan
+        n_plan = plan.foot.size
+        for r, sim in enumerate(ids):
+            j = self.next_planned[sim]
+            swinging = self.swing[sim] >= 0
+            if not self.planned[sim] and swinging:
+                continue  # a reactive step: its Bezier
+            centers = 0.5 * (point_x[r, 0::2] + point_x[r, 1::2])  # the feet now
+            feet = centers.copy()
+            segments = []  # (anchor, length s) from now on
+            if swinging:  # the planned step j - 1 under way: its stance foot is the anchor
+                left_s = max(self.duration_s[sim] - (time_s - self.t0[sim]), 0.0)
+                segments.append((self.pivot_x[sim], left_s))
+                feet[self.swing[sim]] = self.target_heel_x[sim] + self.heel_to_center_m
+            for k in range(j, n_plan):
+                stance = feet[1 - plan.foot[k]]
+                if k == j and not swinging:  # waiting for this lift-off now
+                    last = self.last_touchdown_s[sim]
+                    due = plan.start_s[k] if np.isfinite(plan.start_s[k]) else (
+                        last + plan.double_support_s if np.isfinite(last) else plan.first_step_s)
+                    wait = max(due - time_s, 0.0)
+                else:
+                    wait = plan.double_support_s if not np.isfinite(plan.start_s[k]) else 0.0
+                segments.append((stance, wait + plan.duration_s[k]))
+                feet[plan.foot[k]] = self.origin_x[sim] + plan.x_m[k] + self.plan_offset_m[sim]
+            if not segments:
+                continue  # the plan is done: the task's own targets bring the body to rest
+            omega = math.sqrt(GRAVITY_M_S2 / max(float(com_z[r]), 0.5))
+            xi_end = 0.5 * (feet[0] + feet[1])  # at rest over the feet after the last step
+            for anchor, length in reversed(segments[1:]):
+                xi_end = anchor + (xi_end - anchor) * math.exp(-omega * length)
+            anchor, length = segments[0]
+            xi_ref = anchor + (xi_end - anchor) * math.exp(-omega * length)
+            xi = com_x[r] + vel_x[r] / omega
+            down = (contact[r, 0::2] | contact[r, 1::2]) & ~(np.arange(2) == self.swing[sim])
+            if not down.any():
+                continue
+            lo = min(point_x[r, 2 * f] for f in range(2) if down[f])
+            hi = max(point_x[r, 2 * f + 1] for f in range(2) if down[f])
+            cop = float(np.clip(anchor + (1.0 + DCM_GAIN) * (xi - xi_ref), lo, hi))
+            accel = omega * omega * (com_x[r] - cop)
+            command.com_ref_x_m[r] = com_x[r] + accel / plan.com_stiffness
+            command.com_ref_vel_x_m_s[r] = vel_x[r]
+            command.cop_x_m[r] = cop
+
     def _command(self, ids: np.ndarray, s: np.ndarray, phase: np.ndarray) -> StepCommand:
         c = self.config
         k = ids.size
@@ -367,7 +447,8 @@ class StepSupervisor:
             sims = ids[planned]
             split = np.abs(self.target_heel_x[sims] + self.heel_to_center_m - self.pivot_x[sims])
             target[planned, 9] *= np.minimum(1.0, (split / SETTLE_SPLIT_M) ** 2)
-        return StepCommand(swing.astype(float), target, com_ref, com_vel)
+        return StepCommand(swing.astype(float), target, com_ref, com_vel,
+                           None if self.plan is None else np.full(k, np.nan))
 
     def support(self, ids: np.ndarray, point_x: np.ndarray, lo: np.ndarray, hi: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray]:

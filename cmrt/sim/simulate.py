@@ -286,6 +286,7 @@ def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass, 
     its own, as the compiled tick does)."""
     if step is not None:
         com_ref, com_ref_vel = step.com_targets(com_ref, com_ref_vel)
+        cop_ref = step.cop_target(cop_ref)
 
     def swing(rows):
         return {} if step is None else {"swing_foot": step.swing_foot[rows], "swing_target": step.swing_target[rows]}
@@ -828,7 +829,7 @@ def _set_up(task: Task, curves: list[Cmrt | None], config: ControllerConfig, rec
     settled_z = b["geom_xpos"][0, geo.points, 2].copy()
 
     rec = _Recorder(n, n_steps, m.nq, m.nv, m.nu)
-    stepper = _stepper(task, n)
+    stepper = _stepper(task, n, config.k_l)
     control_dt = config.control_every * dt
     falls = FallMonitor(n, act.size, nq, run_steps, limits, dt, control_dt)
     has_contact_force = prop.contact_force(b, slice(None)) is not None
@@ -1155,7 +1156,7 @@ def _finish(g: _Group, s: _LoopState) -> list[Trajectory]:
                          final_speed, g.stepper, None if g.field is None else g.field.poses(g.times))
 
 
-def _stepper(task: Task, n: int) -> StepSupervisor | None:
+def _stepper(task: Task, n: int, com_stiffness: float = ControllerConfig.k_l) -> StepSupervisor | None:
     """The stepping supervisor a task asks for (``stepping`` parameter, or a footstep plan: the momentum
     supervisor then watches it; None: feet stay planted)."""
     config = StepConfig.from_task(task.params)
@@ -1168,7 +1169,7 @@ def _stepper(task: Task, n: int) -> StepSupervisor | None:
         plan = StepPlan(foot=np.array([s.foot for s in task.steps]), x_m=np.array([s.x_m for s in task.steps]),
                         duration_s=np.array([s.duration_s for s in task.steps]),
                         start_s=np.array([np.nan if s.start_s is None else s.start_s for s in task.steps]),
-                        first_step_s=FIRST_STEP_S, double_support_s=DOUBLE_SUPPORT_S)
+                        first_step_s=FIRST_STEP_S, double_support_s=DOUBLE_SUPPORT_S, com_stiffness=com_stiffness)
     ch = character()
     heel, toe = (ch.model.geom_pos[g, 0] for g in ch.foot_point_geoms[:2])
     return StepSupervisor(n, config, heel_to_center_m=0.5 * (toe - heel), foot_length_m=toe - heel, plan=plan)

@@ -250,7 +250,7 @@ def phase(task: Task, t: float, fall_s: float | None) -> str:
     lo, hi = motion_window(task)
     if (lo, hi) == (0.0, task.clip_s):
         return ""
-    name = "motion" if task.duration_s > 0 else "push"
+    name = "motion" if task.duration_s > 0 else "steps" if task.steps else "push"
     return f"before the {name}" if t < lo else name if t <= hi else f"after the {name}"
 
 
