@@ -209,11 +209,12 @@ class StepSupervisor:
         return pivot_center + direction * reach - self.heel_to_center_m
 
     def update(self, ids: np.ndarray, time_s: float, com_x: np.ndarray, com_z: np.ndarray, momentum_x: np.ndarray,
-               ang_momentum_y: np.ndarray, mass_kg: np.ndarray, contact: np.ndarray, point_x: np.ndarray
-               ) -> StepCommand:
+               ang_momentum_y: np.ndarray, mass_kg: np.ndarray, contact: np.ndarray, point_x: np.ndarray,
+               cmrt: tuple[np.ndarray, np.ndarray] | None = None) -> StepCommand:
         """Advance simulations ``ids`` to ``time_s`` (a control step) and return what the controller should do.
 
-        ``contact`` (k, 4) and ``point_x`` (k, 4): heel_r, toe_r, heel_l, toe_l on the floor / their x."""
+        ``contact`` (k, 4) and ``point_x`` (k, 4): heel_r, toe_r, heel_l, toe_l on the floor / their x.
+        ``cmrt``: the CMRT's displacement and rate of each row (a footstep plan's capture point moves with them)."""
         c = self.config
         swing = self.swing[ids]
         new = np.isnan(self.origin_x[ids])
@@ -277,7 +278,7 @@ class StepSupervisor:
 
         command = self._command(ids, np.clip(phase, 0.0, 1.0), phase)
         if self.plan is not None:
-            self._walk_targets(command, ids, time_s, com_x, com_z, momentum_x / mass_kg, point_x, contact)
+            self._walk_targets(command, ids, time_s, com_x, com_z, momentum_x / mass_kg, point_x, contact, cmrt)
         return command
 
     def _touchdowns(self, ids: np.ndarray, time_s: float, contact: np.ndarray, point_x: np.ndarray) -> None:
@@ -360,7 +361,8 @@ class StepSupervisor:
         self.amended[sims] = True
 
     def _walk_targets(self, command: StepCommand, ids: np.ndarray, time_s: float, com_x: np.ndarray,
-                      com_z: np.ndarray, vel_x: np.ndarray, point_x: np.ndarray, contact: np.ndarray) -> None:
+                      com_z: np.ndarray, vel_x: np.ndarray, point_x: np.ndarray, contact: np.ndarray,
+                      cmrt: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         """The CoM and CoP targets of rows that follow a footstep plan, in place, from its capture point (DCM)
         plan: each remaining step's stance foot is the anchor of a segment (the double support before its lift-off
         and its swing); the capture point must come to rest over the feet after the last. Backward from there,
@@ -401,6 +403,8 @@ class StepSupervisor:
                 xi_end = anchor + (xi_end - anchor) * math.exp(-omega * length)
             anchor, length = segments[0]
             xi_ref = anchor + (xi_end - anchor) * math.exp(-omega * length)
+            if cmrt is not None:  # anticipation: the CMRT displaces the plan's capture point (its d + d' / omega)
+                xi_ref += float(cmrt[0][r]) + float(cmrt[1][r]) / omega
             xi = com_x[r] + vel_x[r] / omega
             down = (contact[r, 0::2] | contact[r, 1::2]) & ~(np.arange(2) == self.swing[sim])
             if not down.any():

@@ -1015,7 +1015,7 @@ def _read(g: _Group, s: _LoopState, k: int, control: bool) -> _Reading:
     if g.stepper is not None:  # the support of the moment: the stance foot while the other swings
         if control:
             s.step = _step_command(g.stepper, g.kin, b, sel, ids, g.times[k], g.ch.mass_kg + g.prop.carried_kg[ids],
-                                   r.contact, r.point_x)
+                                   r.contact, r.point_x, (g.drive.disp_m[sel, k], g.drive.disp_vel_m_s[sel, k]))
         r.lo, r.hi = g.stepper.support(ids, r.point_x, r.lo, r.hi)
     r.center = 0.5 * (r.lo + r.hi)
     rec["sc"][sel, k], rec["lo"][sel, k], rec["hi"][sel, k] = r.center, r.lo, r.hi
@@ -1176,13 +1176,14 @@ def _stepper(task: Task, n: int, com_stiffness: float = ControllerConfig.k_l) ->
 
 
 def _step_command(stepper: StepSupervisor, kin: PlanarKinematics, b: dict, sel, ids: np.ndarray, time_s: float,
-                  mass: np.ndarray, contact: np.ndarray, point_x: np.ndarray) -> StepCommand:
-    """Advance the supervisor of simulations ``ids`` by one control step from their bound state."""
+                  mass: np.ndarray, contact: np.ndarray, point_x: np.ndarray, cmrt: tuple | None = None) -> StepCommand:
+    """Advance the supervisor of simulations ``ids`` by one control step from their bound state; ``cmrt``: their
+    CMRT displacement and its rate now (a footstep plan's capture point is displaced by it)."""
     nb = kin.model.nbody
     momentum = kin.momentum(b["cinert"][sel, :nb], b["cvel"][sel, :nb])  # (k, 3): H_y, L_x, L_z
     com = b["subtree_com"][sel, 1]
     return stepper.update(ids, time_s, com[:, 0], com[:, 2], momentum[:, 1], momentum[:, 0], mass, contact,
-                          point_x)
+                          point_x, cmrt)
 
 
 def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarray, falls: FallMonitor, disp: np.ndarray,

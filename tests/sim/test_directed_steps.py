@@ -110,3 +110,23 @@ def test_a_plan_is_deterministic_and_independent_of_its_batch():
     for traj in simulate_batch(task, [None, None]):
         assert np.array_equal(one.qpos, traj.qpos, equal_nan=True)
         assert traj.footprints == one.footprints and traj.footstep_errors_m == one.footstep_errors_m
+
+
+def test_a_fast_directed_step_plan_needs_anticipation_and_cma_es_finds_it(tmp_path):
+    """Two 0.3 m steps of 0.4 s each: without a CMRT the body falls; the CMRT displaces the plan's capture point
+    (anticipation for steps) and ``cmrt optimize`` finds one that makes the plan a success, stored and replayed."""
+    import json
+
+    from tests.service_helpers import cmrt
+
+    args = ["stand", "--set", "clip_s=3", "--steps", "R:+0.3:0.4,L:+0.6:0.4"]
+    store = tmp_path / "s.sqlite"
+    out = cmrt("optimize", *args, "--seed", "1", "--max-evals", "20", "--json", store=store)
+    assert out.returncode == 0, out.stderr
+    run = json.loads(out.stdout)
+    assert run["baseline_success"] is False and run["success"] is True
+    replay = cmrt("simulate", *args, "--curve", str(run["run_id"]), "--json", store=store)
+    assert replay.returncode == 0, replay.stderr
+    result = json.loads(replay.stdout)
+    assert result["success"] and result["footsteps_landed"] == 2
+    assert result["objective"] == pytest.approx(run["best_objective"], rel=1e-9)
