@@ -27,7 +27,7 @@ import numpy as np
 
 from cmrt import CmrtError, evaluate, resolve_task
 from cmrt.body.character import GRAVITY_M_S2, character
-from cmrt.motion.footsteps import PlannedStep, plan_text
+from cmrt.motion.footsteps import PlannedStep, plan_text, timeline
 from cmrt.sim.simulate import simulate
 
 TOUCHDOWN_WINDOW_S = 0.1  # the ground force after a touchdown is read over this long
@@ -45,7 +45,7 @@ def long_plan(n_steps: int, length_m: float, duration_s: float) -> tuple[Planned
 
 
 def _clip_s(plan: tuple[PlannedStep, ...]) -> float:
-    return 0.5 + sum(s.duration_s + 0.15 for s in plan) + SETTLE_S
+    return timeline(plan)[-1][1] + SETTLE_S
 
 
 def run_plan(plan: tuple[PlannedStep, ...], push_n: float = 0.0, push_start_s: float = 0.0) -> dict:

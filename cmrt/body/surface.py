@@ -152,7 +152,7 @@ class Support:
         theta (the ground's force along gravity's line through the CoM). A body upright in the world is there.
         The platform's own acceleration is left out: it changes too fast for a CoM to follow (a 5 cm sway at
         1 Hz would swing this target by 20 cm), and the balance feedback answers it. 0 on a level floor."""
-        return -com_z_m * np.tan(self.tilt(t_s)[0])
+        return lean_x(self.tilt(t_s)[0], com_z_m)
 
     def lean_rate(self, t_s: float, com_z_m, com_vel_z_m_s):
         """d/dt of ``lean_x`` (m/s): a body upright in the world moves over a tilting support at this speed."""
@@ -172,11 +172,6 @@ class Support:
         o = self.origin(t_s)[0]
         return pose_matrix(float(self.tilt(t_s)[0]), float(o[0]), float(o[1]))
 
-    def to_world(self, t_s: float, x_m: float, z_m: float) -> tuple[float, float]:
-        """A support-frame point's world (x, z): for pictures."""
-        rot, origin = self.pose(t_s)
-        w = rot @ np.array([x_m, 0.0, z_m]) + origin
-        return float(w[0]), float(w[2])
 
 
 def frame_field(omega, alpha, ux, uz, pos: np.ndarray, vel: np.ndarray, mass_kg: np.ndarray,

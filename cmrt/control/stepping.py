@@ -179,7 +179,6 @@ class StepSupervisor:
         self.origin_x = np.full(n, np.nan)  # the start stance's centre (the plan's x = 0)
         self.duration_s = np.full(n, config.step_time_s)  # of the step under way
         self.plan_offset_m = np.zeros(n)  # added to the plan's later steps: the supervisor moved one of them
-        self.amended = np.zeros(n, bool)  # the step under way is a planned one the supervisor moved
         self.placement_error_m: list[list[tuple[float, float]]] = [[] for _ in range(n)]  # (touchdown s, landed
         # - planned centre m) of every planned step
         self.heel_to_center_m = heel_to_center_m  # heel point to the middle of heel and toe points
@@ -308,10 +307,7 @@ class StepSupervisor:
         plan, c = self.plan, self.config
         nxt = self.next_planned[ids]
         left = nxt < plan.foot.size
-        after = np.where(np.isfinite(self.last_touchdown_s[ids]), self.last_touchdown_s[ids] + plan.double_support_s,
-                         plan.first_step_s)
-        when = np.where(left, plan.start_s[np.minimum(nxt, plan.foot.size - 1)], np.inf)
-        when = np.where(np.isnan(when), after, when)
+        when = np.where(left, self._due_s(ids), np.inf)
         ready = idle & left & (time_s >= when - 1e-9) & (time_s - self.last_touchdown_s[ids] >= c.min_double_support_s)
         rows = np.flatnonzero(ready)
         if rows.size == 0:
@@ -332,10 +328,24 @@ class StepSupervisor:
         self.target_heel_x[sims] = target_center - self.heel_to_center_m
         self.duration_s[sims] = plan.duration_s[j]
         self.planned[sims] = True
-        self.amended[sims] = False
         self.next_planned[sims] = j + 1
         for sim in sims:
             self.step_times[sim].append(time_s)
+
+    def _due_s(self, ids: np.ndarray) -> np.ndarray:
+        """When the plan's next step of rows ``ids`` lifts off: its own start time, else ``double_support_s``
+        after the last touchdown, else (no step yet) ``first_step_s``."""
+        plan = self.plan
+        after = np.where(np.isfinite(self.last_touchdown_s[ids]), self.last_touchdown_s[ids] + plan.double_support_s,
+                         plan.first_step_s)
+        start = plan.start_s[np.minimum(self.next_planned[ids], plan.foot.size - 1)]
+        return np.where(np.isnan(start), after, start)
+
+    def _crouch_scale(self, sims: np.ndarray) -> np.ndarray:
+        """How much of a step's knee bend a planned step of simulations ``sims`` needs: (reach / 0.41 m)^2, at
+        most 1 (the hip's drop between two straight legs grows with their split squared)."""
+        reach = np.abs(self.target_heel_x[sims] + self.heel_to_center_m - self.pivot_x[sims])
+        return np.minimum(1.0, (reach / SETTLE_SPLIT_M) ** 2)
 
     def _amend_planned(self, ids: np.ndarray, rows: np.ndarray, p_test: np.ndarray, p_place: np.ndarray) -> None:
         """A planned step early in its swing whose landing cannot stop the body (the trigger's CoP ``p_test``
@@ -358,7 +368,6 @@ class StepSupervisor:
         self.plan_offset_m[sims] += new - self.target_heel_x[sims]
         self.target_heel_x[sims] = new
         self.direction[sims] = direction
-        self.amended[sims] = True
 
     def _walk_targets(self, command: StepCommand, ids: np.ndarray, time_s: float, com_x: np.ndarray,
                       com_z: np.ndarray, vel_x: np.ndarray, point_x: np.ndarray, contact: np.ndarray,
@@ -387,10 +396,7 @@ class StepSupervisor:
             for k in range(j, n_plan):
                 stance = feet[1 - plan.foot[k]]
                 if k == j and not swinging:  # waiting for this lift-off now
-                    last = self.last_touchdown_s[sim]
-                    due = plan.start_s[k] if np.isfinite(plan.start_s[k]) else (
-                        last + plan.double_support_s if np.isfinite(last) else plan.first_step_s)
-                    wait = max(due - time_s, 0.0)
+                    wait = max(float(self._due_s(np.array([sim]))[0]) - time_s, 0.0)
                 else:
                     wait = plan.double_support_s if not np.isfinite(plan.start_s[k]) else 0.0
                 segments.append((stance, wait + plan.duration_s[k]))
@@ -449,9 +455,9 @@ class StepSupervisor:
             target[rows, 4] = np.where(late, 0.0, c.lift_m * dh / T)
             target[rows, 7] = np.where(late, 0.0, c.lift_m * ddh / T**2)
             target[rows, 9] = np.where(self.direction[sims] > 0, c.knee_bend_rad, c.back_knee_bend_rad)
-            planned = self.planned[sims]  # a planned step crouches as much as its reach needs (see below)
-            reach = np.abs(self.target_heel_x[sims] + self.heel_to_center_m - self.pivot_x[sims])
-            target[rows, 9] *= np.where(planned, np.minimum(1.0, (reach / SETTLE_SPLIT_M) ** 2), 1.0)
+            # a planned step crouches as much as its reach needs (feet brought together need none: the full bend
+            # pushed the body up at their touchdown, 2.75 BW)
+            target[rows, 9] *= np.where(self.planned[sims], self._crouch_scale(sims), 1.0)
             pivot = self.pivot_x[sims]
             mid = 0.5 * (pivot + self.target_heel_x[sims] + self.heel_to_center_m)
             b, db = bezier(sr, self.com0_x[sims], pivot, mid)
@@ -460,12 +466,9 @@ class StepSupervisor:
         settled = np.flatnonzero((swing < 0) & np.isfinite(self.last_touchdown_s[ids]) & (self.direction[ids] > 0))
         target[settled, 9] = c.settle_knee_bend_rad  # double support after a forward step: the front knee bends
         planned = settled[self.planned[ids[settled]]]
-        if planned.size:  # after a planned step, as much as its split needs: the hip's drop between two straight
-            # legs grows with the split squared (1.3 cm at 0.30 m, 2.5 cm at the 0.41 m the full bend is for);
-            # feet brought together need none (one bent knee then pushes the body up at touchdown: 2.8 BW)
-            sims = ids[planned]
-            split = np.abs(self.target_heel_x[sims] + self.heel_to_center_m - self.pivot_x[sims])
-            target[planned, 9] *= np.minimum(1.0, (split / SETTLE_SPLIT_M) ** 2)
+        if planned.size:  # after a planned step, as much as its split needs (1.3 cm of hip drop at 0.30 m, 2.5 cm
+            # at the 0.41 m the full bend is for)
+            target[planned, 9] *= self._crouch_scale(ids[planned])
         return StepCommand(swing.astype(float), target, com_ref, com_vel,
                            None if self.plan is None else np.full(k, np.nan))
 
