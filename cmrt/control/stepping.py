@@ -117,7 +117,8 @@ class StepCommand:
     """What the supervisor asks of the controller this control step, for the rows it was given."""
 
     swing_foot: np.ndarray  # (k,) float: -1, 0 (right) or 1 (left)
-    swing_target: np.ndarray  # (k, 10): heel point x, z, foot pitch; rates; accelerations; stance knee bend
+    swing_target: np.ndarray  # (k, 11): heel point x, z, foot pitch; rates; accelerations; stance knee bend;
+    # swing knee bend
     com_ref_x_m: np.ndarray  # (k,) CoM target on the Bezier (NaN: not stepping, the task's own target)
     com_ref_vel_x_m_s: np.ndarray  # (k,)
     cop_x_m: np.ndarray | None = None  # (k,) the CoP a footstep plan asks for (NaN: the task's own)
@@ -160,6 +161,17 @@ STEP_ADJUST_DEAD_M = 0.05  # errors smaller than this move no step: without the 
 # plans of 0.3 m / 0.6 s and 0.4 m / 0.6 s fell (every small error moved a landing)
 DCM_GAIN = 2.0  # the CoP moves (1 + DCM_GAIN) times the capture point's error beyond the plan's anchor (1, 4
 # and 6 measured: no better)
+SWING_KNEE_BEND_RAD = 1.0  # added to the swing knee of a plan's step at mid-swing (a bell, with the lift): a
+# person's swing knee flexes ~1 rad. Measured in the walk: without it the knee stayed straight (0.03 rad) at
+# mid-swing and the heel scuffed 12 cm along the floor; 0.4 and 0.7 rad left 5.4 and 3.2 cm, 1.0 only the 2.3 cm
+# the first step's heel slides before it lifts
+SWING_KNEE_UNTIL = 0.8  # that bend comes and goes within this fraction of the step: the foot is down to the floor
+# before touchdown, not pulled down at it (over the whole step, two 0.3 m steps touched down at 0.33 m/s; 0.8: 0.28;
+# 0.7: 0.24, but the closing step of three 0.3 m steps then landed at 2.64 body weights, 2.35 at 0.8)
+TAKEOVER_ERROR_M = 0.06  # in double support, the momentum rule's call for a step (p_test beyond the feet) hands
+# a plan to the reactive rule when the capture point is also this far off the plan's: a push. Measured without a
+# push, while p_test was beyond the feet: at most 0.035 m in the walk, 0.053 m in two 0.4 m steps of 0.6 s; with
+# +200 N at 2.0 s in the walk it passed 0.06 m 0.04 s before the capture point left the feet
 PLANNED_TOUCHDOWN_AFTER = 0.85  # a planned swing foot touching the floor counts as landed after this fraction of
 # its step (a reactive one after ``touchdown_after``): at 0.5 the second step of a 0.3 m plan grazed the floor at
 # mid-swing and "landed" 35 cm short
@@ -179,6 +191,10 @@ class StepSupervisor:
         self.origin_x = np.full(n, np.nan)  # the start stance's centre (the plan's x = 0)
         self.duration_s = np.full(n, config.step_time_s)  # of the step under way
         self.plan_offset_m = np.zeros(n)  # added to the plan's later steps: the supervisor moved one of them
+        self.dcm_error_m = np.zeros(n)  # the capture point's lead on the plan's (xi - xi_ref) at the last control step
+        self.mirrored = np.zeros(n, int)  # 1: the plan's later steps are taken by the other foot (after reactive
+        # steps, the plan goes on with the trailing foot)
+        self.recovering = np.zeros(n, bool)  # since then: reactive steps until at rest again, then the plan goes on
         self.placement_error_m: list[list[tuple[float, float]]] = [[] for _ in range(n)]  # (touchdown s, landed
         # - planned centre m) of every planned step
         self.heel_to_center_m = heel_to_center_m  # heel point to the middle of heel and toe points
@@ -232,10 +248,11 @@ class StepSupervisor:
             lo = np.where(on, point_x, np.inf).min(axis=1)
             hi = np.where(on, point_x, -np.inf).max(axis=1)
             outside = foot_down.all(axis=1) & ((p_test < lo) | (p_test > hi))
-        if self.plan is not None:  # a plan under way leaves the momenta to its capture-point plan: the trigger
-            # fires at brisk touchdowns, and reactive steps then replaced the plan's for good (measured; also when
-            # let in only with the plan's CoP 5 or 10 cm beyond the feet); after the plan it watches again
-            outside &= self.next_planned[ids] >= self.plan.foot.size
+        if self.plan is not None:  # a plan under way leaves the momenta to its capture-point plan (the trigger
+            # fires at brisk touchdowns, and reactive steps then replaced the plan's for good: measured; also when
+            # let in only with the plan's CoP 5 or 10 cm beyond the feet) unless a push overwhelmed it; after the
+            # plan it watches again
+            outside = self._take_over(ids, time_s, outside, foot_down, point_x)
         ready = (swing < 0) & (time_s - self.last_touchdown_s[ids] >= c.min_double_support_s)
         start = np.flatnonzero(outside & ready)
         if start.size:
@@ -256,6 +273,10 @@ class StepSupervisor:
             self.direction[sims] = direction
             self.target_heel_x[sims] = self._target_heel(start, pivot, p_place[start], direction)
             self.duration_s[sims] = c.step_time_s
+            if self.plan is not None:  # taking over from a plan: as long as its next step (0.4 s reactive steps
+                # from a walk's split stance had 0.65 m to swing: the foot dragged on the floor)
+                nxt = self.plan.duration_s[np.minimum(self.next_planned[sims], self.plan.foot.size - 1)]
+                self.duration_s[sims] = np.where(self.recovering[sims], nxt, c.step_time_s)
             self.planned[sims] = False
             for s in sims:
                 self.step_times[s].append(time_s)
@@ -272,8 +293,6 @@ class StepSupervisor:
             sims = ids[reactive]
             pivot = self.pivot_x[sims]
             self.target_heel_x[sims] = self._target_heel(reactive, pivot, p_place[reactive], self.direction[sims])
-        if self.plan is not None:
-            self._amend_planned(ids, np.flatnonzero(early & self.planned[ids]), p_test, p_place)
 
         command = self._command(ids, np.clip(phase, 0.0, 1.0), phase)
         if self.plan is not None:
@@ -289,7 +308,8 @@ class StepSupervisor:
             return
         phase = (time_s - self.t0[ids[rows]]) / self.duration_s[ids[rows]]
         foot = swing[rows]
-        after = np.where(self.planned[ids[rows]], PLANNED_TOUCHDOWN_AFTER, self.config.touchdown_after)
+        after = np.where(self.planned[ids[rows]] | self.recovering[ids[rows]], PLANNED_TOUCHDOWN_AFTER,
+                         self.config.touchdown_after)
         down = (contact[rows, 2 * foot] | contact[rows, 2 * foot + 1]) & (phase >= after)
         for r in rows[down]:
             sim = ids[r]
@@ -308,12 +328,13 @@ class StepSupervisor:
         nxt = self.next_planned[ids]
         left = nxt < plan.foot.size
         when = np.where(left, self._due_s(ids), np.inf)
-        ready = idle & left & (time_s >= when - 1e-9) & (time_s - self.last_touchdown_s[ids] >= c.min_double_support_s)
+        ready = (idle & left & ~self.recovering[ids] & (time_s >= when - 1e-9)
+                 & (time_s - self.last_touchdown_s[ids] >= c.min_double_support_s))
         rows = np.flatnonzero(ready)
         if rows.size == 0:
             return
         sims, j = ids[rows], nxt[rows]
-        foot = plan.foot[j]
+        foot = plan.foot[j] ^ self.mirrored[sims]
         centers = 0.5 * (point_x[rows][:, 0::2] + point_x[rows][:, 1::2])  # (k, 2) per foot
         pivot = centers[np.arange(rows.size), 1 - foot]
         target_center = self.origin_x[sims] + plan.x_m[j] + self.plan_offset_m[sims]
@@ -347,27 +368,29 @@ class StepSupervisor:
         reach = np.abs(self.target_heel_x[sims] + self.heel_to_center_m - self.pivot_x[sims])
         return np.minimum(1.0, (reach / SETTLE_SPLIT_M) ** 2)
 
-    def _amend_planned(self, ids: np.ndarray, rows: np.ndarray, p_test: np.ndarray, p_place: np.ndarray) -> None:
-        """A planned step early in its swing whose landing cannot stop the body (the trigger's CoP ``p_test``
-        beyond the stance foot and the footprint it is heading for: a push) goes where a reactive step would,
-        and the rest of the plan moves with it."""
-        if rows.size == 0:
-            return
-        sims = ids[rows]
-        heel = self.target_heel_x[sims]
-        lo = np.fmin(self.pivot_x[sims] - self.heel_to_center_m, heel)
-        hi = np.fmax(self.pivot_x[sims] + self.heel_to_center_m, heel + self.foot_length_m)
-        short = (p_test[rows] < lo) | (p_test[rows] > hi)
-        if not short.any():
-            return
-        rows, sims = rows[short], sims[short]
-        pivot = self.pivot_x[sims]
-        direction = np.sign(p_test[rows] - pivot)
-        direction[direction == 0] = 1.0
-        new = self._target_heel(rows, pivot, p_place[rows], direction)
-        self.plan_offset_m[sims] += new - self.target_heel_x[sims]
-        self.target_heel_x[sims] = new
-        self.direction[sims] = direction
+    def _take_over(self, ids: np.ndarray, time_s: float, outside: np.ndarray, foot_down: np.ndarray,
+                   point_x: np.ndarray) -> np.ndarray:
+        """The reactive trigger of rows ``ids`` following a plan: ``outside`` (the momentum rule's call for a step)
+        where the plan is done, or where a push overwhelmed it. A push overwhelms a plan in double support when the
+        rule calls for a step and the capture point is more than ``TAKEOVER_ERROR_M`` off the plan's: reactive
+        steps (each as long as the plan's next) follow while the momenta ask for them. Back at rest, the plan goes
+        on from the feet where they are, with the trailing foot, its next step as long as planned."""
+        plan = self.plan
+        pushed = outside & (np.abs(self.dcm_error_m[ids]) > TAKEOVER_ERROR_M) & ~self.recovering[ids]
+        self.recovering[ids[pushed]] = True
+        rested = np.flatnonzero(self.recovering[ids] & (self.swing[ids] < 0) & foot_down.all(axis=1) & ~outside
+                                & (time_s - self.last_touchdown_s[ids] >= plan.double_support_s))
+        for r in rested:
+            sim = ids[r]
+            self.recovering[sim] = False
+            j = self.next_planned[sim]
+            if j >= plan.foot.size:
+                continue
+            self.mirrored[sim] = plan.foot[j] ^ (1 - self.footprints[sim][-1][0])  # the trailing foot steps next
+            stance = 1 - (plan.foot[j] ^ self.mirrored[sim])
+            center = 0.5 * (point_x[r, 2 * stance] + point_x[r, 2 * stance + 1])
+            self.plan_offset_m[sim] = center - self.origin_x[sim] - (plan.x_m[j - 1] if j else 0.0)
+        return outside & ((self.next_planned[ids] >= plan.foot.size) | self.recovering[ids])
 
     def _walk_targets(self, command: StepCommand, ids: np.ndarray, time_s: float, com_x: np.ndarray,
                       com_z: np.ndarray, vel_x: np.ndarray, point_x: np.ndarray, contact: np.ndarray,
@@ -384,8 +407,9 @@ class StepSupervisor:
         for r, sim in enumerate(ids):
             j = self.next_planned[sim]
             swinging = self.swing[sim] >= 0
-            if not self.planned[sim] and swinging:
-                continue  # a reactive step: its Bezier
+            recovering = self.recovering[sim]
+            if (recovering and not swinging) or (not self.planned[sim] and swinging and not recovering):
+                continue  # a reactive step of no push on a plan (its Bezier), or between reactive steps (the task's)
             centers = 0.5 * (point_x[r, 0::2] + point_x[r, 1::2])  # the feet now
             feet = centers.copy()
             segments = []  # (anchor, length s) from now on
@@ -393,14 +417,14 @@ class StepSupervisor:
                 left_s = max(self.duration_s[sim] - (time_s - self.t0[sim]), 0.0)
                 segments.append((self.pivot_x[sim], left_s))
                 feet[self.swing[sim]] = self.target_heel_x[sim] + self.heel_to_center_m
-            for k in range(j, n_plan):
-                stance = feet[1 - plan.foot[k]]
+            for k in range(j, n_plan if not recovering else j):  # a reactive step: the capture point to rest
+                stance = feet[1 - (plan.foot[k] ^ self.mirrored[sim])]
                 if k == j and not swinging:  # waiting for this lift-off now
                     wait = max(float(self._due_s(np.array([sim]))[0]) - time_s, 0.0)
                 else:
                     wait = plan.double_support_s if not np.isfinite(plan.start_s[k]) else 0.0
                 segments.append((stance, wait + plan.duration_s[k]))
-                feet[plan.foot[k]] = self.origin_x[sim] + plan.x_m[k] + self.plan_offset_m[sim]
+                feet[plan.foot[k] ^ self.mirrored[sim]] = self.origin_x[sim] + plan.x_m[k] + self.plan_offset_m[sim]
             if not segments:
                 continue  # the plan is done: the task's own targets bring the body to rest
             omega = math.sqrt(GRAVITY_M_S2 / max(float(com_z[r]), 0.5))
@@ -412,12 +436,21 @@ class StepSupervisor:
             if cmrt is not None:  # anticipation: the CMRT displaces the plan's capture point (its d + d' / omega)
                 xi_ref += float(cmrt[0][r]) + float(cmrt[1][r]) / omega
             xi = com_x[r] + vel_x[r] / omega
+            self.dcm_error_m[sim] = xi - xi_ref
             down = (contact[r, 0::2] | contact[r, 1::2]) & ~(np.arange(2) == self.swing[sim])
             if not down.any():
                 continue
             lo = min(point_x[r, 2 * f] for f in range(2) if down[f])
             hi = max(point_x[r, 2 * f + 1] for f in range(2) if down[f])
             cop = float(np.clip(anchor + (1.0 + DCM_GAIN) * (xi - xi_ref), lo, hi))
+            # can the next landing still hold the capture point? With the CoP at the support's edge (the most the
+            # stance can do) xi reaches edge + (xi - edge) exp(omega T) at touchdown; the foot lands at most a
+            # leg's reach from its stance foot (the anchor), and holds xi up to its toe (heel)
+            if recovering:
+                command.com_ref_x_m[r] = com_x[r] + omega * omega * (com_x[r] - cop) / plan.com_stiffness
+                command.com_ref_vel_x_m_s[r] = vel_x[r]
+                command.cop_x_m[r] = cop
+                continue
             if swinging and time_s - self.t0[sim] <= 0.5 * self.duration_s[sim]:
                 # a push: the capture point's error, grown to touchdown, moves this step's landing (the plan's
                 # later steps are where they were: the capture-point plan reaches them from the new footprint)
@@ -437,7 +470,7 @@ class StepSupervisor:
         c = self.config
         k = ids.size
         swing = self.swing[ids]
-        target = np.zeros((k, 10))
+        target = np.zeros((k, 11))
         com_ref = np.full(k, np.nan)
         com_vel = np.full(k, np.nan)
         rows = np.flatnonzero(swing >= 0)
@@ -457,7 +490,12 @@ class StepSupervisor:
             target[rows, 9] = np.where(self.direction[sims] > 0, c.knee_bend_rad, c.back_knee_bend_rad)
             # a planned step crouches as much as its reach needs (feet brought together need none: the full bend
             # pushed the body up at their touchdown, 2.75 BW)
-            target[rows, 9] *= np.where(self.planned[sims], self._crouch_scale(sims), 1.0)
+            target[rows, 9] *= np.where(self.planned[sims] | self.recovering[sims], self._crouch_scale(sims), 1.0)
+            if self.plan is not None:  # a plan's forward swing knee bends (backward, it rolled the stance foot over
+                # its toe at lift-off: a step back from standing fell)
+                knee = swing_profile(np.minimum(sr / SWING_KNEE_UNTIL, 1.0), c.width)[3]
+                target[rows, 10] = np.where((self.planned[sims] | self.recovering[sims]) & (self.direction[sims] > 0),
+                                            SWING_KNEE_BEND_RAD * np.where(late, 0.0, knee), 0.0)
             pivot = self.pivot_x[sims]
             mid = 0.5 * (pivot + self.target_heel_x[sims] + self.heel_to_center_m)
             b, db = bezier(sr, self.com0_x[sims], pivot, mid)
@@ -465,7 +503,7 @@ class StepSupervisor:
             com_vel[rows] = np.where(late, 0.0, db / T)
         settled = np.flatnonzero((swing < 0) & np.isfinite(self.last_touchdown_s[ids]) & (self.direction[ids] > 0))
         target[settled, 9] = c.settle_knee_bend_rad  # double support after a forward step: the front knee bends
-        planned = settled[self.planned[ids[settled]]]
+        planned = settled[self.planned[ids[settled]] | self.recovering[ids[settled]]]
         if planned.size:  # after a planned step, as much as its split needs (1.3 cm of hip drop at 0.30 m, 2.5 cm
             # at the 0.41 m the full bend is for)
             target[planned, 9] *= self._crouch_scale(ids[planned])
