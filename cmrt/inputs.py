@@ -241,6 +241,7 @@ TASK_PARAMS: dict[str, Range] = {
     "push3_duration_s": Range(0.0, MAX_RUN_S, unit="s"),
     "step_time_s": Range(0.2, 1.0, unit="s"),
     "step_height_m": Range(0.01, 0.15, unit="m"),
+    "planned_step_s": Range(0.0, 1.5, unit="s"),
     # the ground (cmrt.body.surface): Yu's slippery floor is 0.08, his slope 15 deg, his shaking plane +-20 deg
     "floor_friction": Range(0.01, 2.0),
     "slope_deg": Range(-25.0, 25.0, unit="deg"),

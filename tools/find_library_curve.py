@@ -22,6 +22,7 @@ from pathlib import Path
 
 from cmrt import Evaluator, evaluate, load_task, open_store, optimize_now, run_curve, simulate
 from cmrt.modes import REFERENCE_MODES
+from cmrt.motion.footsteps import plan_text
 from cmrt.motion.library import save_entry
 
 
@@ -82,6 +83,8 @@ def record(task, run, curve, args, wall_s: float) -> None:
     }
     if task.reference_mode != "center":  # entries without the key are the center mode's
         entry["reference"] = task.reference_mode
+    if task.steps:  # a footstep plan's CMRT belongs to that plan (entries without the key: no plan)
+        entry["steps"] = plan_text(task.steps)
     print(json.dumps(entry, indent=2))
     if not args.no_save:
         save_entry(entry)

@@ -17,6 +17,7 @@ from pathlib import Path
 from cmrt.errors import CmrtError
 from cmrt.modes import DEFAULT_REFERENCE_MODE
 from cmrt.motion.curve import Cmrt
+from cmrt.motion.footsteps import parse_steps
 from cmrt.motion.task import Task, active_params
 from cmrt.motion.taskfile import load_task
 
@@ -38,6 +39,7 @@ class KnownCmrt:
     success: bool
     source: str  # "library" or "run 12"
     speed: float | None = None  # the task's speed parameter's value (None: the task has none)
+    steps: tuple = ()  # the footstep plan it was optimized for (cmrt.motion.footsteps; () without one)
 
     @property
     def clip_s(self) -> float:
@@ -62,12 +64,13 @@ def library_cmrts(path: Path = LIBRARY_PATH) -> list[KnownCmrt]:
         out.append(KnownCmrt(task=e["task"], params=params, reference=e.get("reference", DEFAULT_REFERENCE_MODE),
                              robust=e.get("robust", False), curve=curve,
                              cma_params=tuple(map(float, curve.to_params())), objective=e["objective"],
-                             success=bool(e.get("success")), source="library", speed=e["speed"]))
+                             success=bool(e.get("success")), source="library", speed=e["speed"],
+                             steps=parse_steps(e["steps"]) if e.get("steps") else ()))
     return out
 
 
-def _physics(params: dict) -> dict:
-    return {k: v for k, v in active_params(params).items() if k != "stop_threshold"}
+def _physics(params: dict, planned: bool = False) -> dict:
+    return {k: v for k, v in active_params(params, planned).items() if k != "stop_threshold"}
 
 
 def library_curve(task: Task, path: Path = LIBRARY_PATH, robust: bool = False) -> Cmrt:
@@ -81,7 +84,8 @@ def library_curve(task: Task, path: Path = LIBRARY_PATH, robust: bool = False) -
     parameters all match wins, else the one for the task file's defaults.
     """
     entries = [e for e in library_cmrts(path) if e.robust == robust
-               and e.reference == task.reference_mode]  # a CMRT belongs to its reference mode
+               and e.reference == task.reference_mode  # a CMRT belongs to its reference mode
+               and e.steps == task.steps]  # and to its footstep plan
     try:
         return _lookup(entries, task)
     except CmrtError as exc:
@@ -95,13 +99,15 @@ def library_curve(task: Task, path: Path = LIBRARY_PATH, robust: bool = False) -
 def _lookup(entries: list[KnownCmrt], task: Task) -> Cmrt:
     same_speed = [e for e in entries if e.task == task.name
                   and (task.speed is None or abs(e.speed - task.speed) <= SPEED_TOLERANCE)]
+    planned = bool(task.steps)  # the entries are this plan's (library_curve)
     for entry in same_speed:
-        if _physics(entry.params) == _physics(task.params):
+        if _physics(entry.params, planned) == _physics(task.params, planned):
             return entry.curve
     if same_speed:  # parameters differ: the entry for the task file's own defaults at this speed
-        defaults = _physics(load_task(task.name).with_speed(task.speed).params) if task.speed is not None else None
+        defaults = (_physics(load_task(task.name).with_speed(task.speed).params, planned) if task.speed is not None
+                    else None)
         for entry in same_speed:
-            if _physics(entry.params) == defaults:
+            if _physics(entry.params, planned) == defaults:
                 return entry.curve
         return same_speed[0].curve
     speeds = sorted({e.speed for e in entries if e.task == task.name})
@@ -114,8 +120,8 @@ def save_entry(entry: dict, path: Path = LIBRARY_PATH) -> None:
 
     def key(e: dict):
         params = e.get("params") or load_task(e["task"]).with_speed(e["speed"]).params  # older entries: defaults
-        return (e["task"], e["speed"], json.dumps(_physics(params), sort_keys=True), e.get("robust", False),
-                e.get("reference", DEFAULT_REFERENCE_MODE))
+        return (e["task"], e["speed"], json.dumps(_physics(params, bool(e.get("steps"))), sort_keys=True),
+                e.get("robust", False), e.get("reference", DEFAULT_REFERENCE_MODE), e.get("steps", ""))
 
     entries = [e for e in load_entries(path) if key(e) != key(entry)]
     entries.append(entry)

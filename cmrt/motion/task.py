@@ -47,6 +47,9 @@ DEFAULT_PARAMS: dict[str, float] = {
     "stepping": 0.0,
     "step_time_s": 0.4,  # lift-off to touchdown
     "step_height_m": 0.05,  # how high the swing foot's heel rises
+    # a footstep plan (Task.steps): > 0, every planned step takes this long (s): a plan's speed, as duration_s is a
+    # pose change's (its CMRTs interpolate across it); 0: each as the plan says
+    "planned_step_s": 0.0,
     # the ground (cmrt.body.surface, docs/surfaces.md): friction, slope, a tilting or moving platform
     **SURFACE_PARAMS,
 }
@@ -55,12 +58,14 @@ DEFAULT_PARAMS: dict[str, float] = {
 STEPPING_PARAMS = ("stepping", "step_time_s", "step_height_m")
 
 
-def active_params(params: dict) -> dict:
+def active_params(params: dict, planned: bool = False) -> dict:
     """``params`` without those that change nothing - the stepping ones while ``stepping`` is 0 (or absent, as
-    in runs and library entries made before stepping existed), and the surface's at the still level floor's
-    values: what hashes and matches compare (so tasks, runs and library entries of before keep theirs)."""
-    out = {k: v for k, v in params.items() if not (k in SURFACE_PARAMS and v == SURFACE_PARAMS[k])}
-    if params.get("stepping"):
+    in runs and library entries made before stepping existed) and no footstep plan is ``planned``, and the
+    surface's at the still level floor's values: what hashes and matches compare (so tasks, runs and library
+    entries of before keep theirs)."""
+    out = {k: v for k, v in params.items() if not (k in SURFACE_PARAMS and v == SURFACE_PARAMS[k])
+           and not (k == "planned_step_s" and v == 0.0)}
+    if params.get("stepping") or planned:  # a plan is carried out by the stepping supervisor
         return out
     return {k: v for k, v in out.items() if k not in STEPPING_PARAMS}
 
@@ -163,6 +168,18 @@ class Task:
         return self.params["step_height_m"]
 
     @property
+    def planned_step_s(self) -> float:
+        """Every planned step's duration (s; 0: each as its plan says)."""
+        return self.params["planned_step_s"]
+
+    @property
+    def plan(self) -> tuple[PlannedStep, ...]:
+        """The footsteps as carried out: ``steps`` with every duration ``planned_step_s`` when that is > 0."""
+        if self.planned_step_s <= 0.0:
+            return self.steps
+        return tuple(replace(step, duration_s=self.planned_step_s) for step in self.steps)
+
+    @property
     def support(self) -> Support:
         """The ground it is done on (``cmrt.body.surface``): its surface parameters as one typed record."""
         return Support.from_params(self.params)
@@ -257,7 +274,10 @@ class Task:
                 raise CmrtError(f"a second push needs all of {', '.join(keys)}")
         _check_box(p, self.prop)
         if self.steps:
-            check_plan(self.steps, p["clip_s"])
+            check_plan(self.plan, p["clip_s"])
+        elif p.get("planned_step_s", 0.0) > 0.0:
+            raise CmrtError("planned_step_s sets the duration of a footstep plan's steps: give the task steps too "
+                            "(--steps)")
         if p["stepping"] not in (0, 1, 2):
             raise CmrtError("stepping must be 0 (feet planted), 1 (momentum supervisor) or 2 (capture point)")
 
@@ -373,7 +393,7 @@ class Task:
         ensemble only when robust scoring is on: a robust objective is another problem's)."""
         skip = ("name", "summary") if self.robust.enabled else ("name", "summary", "robust")
         body = {k: v for k, v in self.to_dict().items() if k not in skip}
-        body["params"] = active_params(body["params"])
+        body["params"] = active_params(body["params"], planned=bool(self.steps))
         return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()[:16]
 
     def task_window_s(self) -> tuple[float, float]:

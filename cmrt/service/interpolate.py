@@ -62,8 +62,8 @@ def _valid_knots(t: np.ndarray, clip_s: float) -> np.ndarray:
     return t
 
 
-def _physics(params: dict, skip: str) -> dict:
-    return {k: v for k, v in active_params(params).items() if k != skip and k not in IGNORED_PARAMS}
+def _physics(params: dict, skip: str, planned: bool = False) -> dict:
+    return {k: v for k, v in active_params(params, planned).items() if k != skip and k not in IGNORED_PARAMS}
 
 
 def candidates(task: Task, param: str, source: str, store: Store | None = None) -> list[tuple[float, Cmrt, str]]:
@@ -74,10 +74,10 @@ def candidates(task: Task, param: str, source: str, store: Store | None = None) 
         raise CmrtError(f"--from must be store or library, got '{source}'")
     if source == "store" and store is None:
         raise CmrtError("interpolating from the store needs a store")
-    want = _physics(task.params, param)
+    want = _physics(task.params, param, bool(task.steps))
     best: dict[float, KnownCmrt] = {}
     for known in known_cmrts(task, store, sources=(source,), robust=task.robust.enabled, same_clip=False):
-        if _physics(known.params, param) != want:
+        if known.steps != task.steps or _physics(known.params, param, bool(known.steps)) != want:  # its plan's
             continue
         v = known.params[param]
         if source == "library" or v not in best or known.objective < best[v].objective:

@@ -17,6 +17,7 @@ from cmrt import inputs
 from cmrt.errors import CmrtError
 from cmrt.inputs import shown
 from cmrt.motion.curve import Cmrt
+from cmrt.motion.footsteps import steps_from_tables
 from cmrt.motion.library import KnownCmrt, library_cmrts, library_curve
 from cmrt.motion.task import Task
 from cmrt.service.query import run_curve
@@ -34,7 +35,7 @@ def run_cmrt(run: Run) -> KnownCmrt:
     return KnownCmrt(task=run.task, params=run.params, reference=run.reference, robust=run.robust is not None,
                      curve=curve, cma_params=tuple(run.best_params),
                      objective=run.best_objective, success=bool(run.best_success), source=f"run {run.id}",
-                     speed=run.speed)
+                     speed=run.speed, steps=steps_from_tables(run.task_definition.get("steps") or [], f"run {run.id}"))
 
 
 def known_cmrts(task: Task, store: Store | None = None, sources: tuple[str, ...] = SOURCES,

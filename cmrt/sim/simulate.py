@@ -1166,9 +1166,10 @@ def _stepper(task: Task, n: int, com_stiffness: float = ControllerConfig.k_l) ->
         config = StepConfig.from_task({**task.params, "stepping": float(MOMENTUM)})
     plan = None
     if task.steps:
-        plan = StepPlan(foot=np.array([s.foot for s in task.steps]), x_m=np.array([s.x_m for s in task.steps]),
-                        duration_s=np.array([s.duration_s for s in task.steps]),
-                        start_s=np.array([np.nan if s.start_s is None else s.start_s for s in task.steps]),
+        steps = task.plan
+        plan = StepPlan(foot=np.array([s.foot for s in steps]), x_m=np.array([s.x_m for s in steps]),
+                        duration_s=np.array([s.duration_s for s in steps]),
+                        start_s=np.array([np.nan if s.start_s is None else s.start_s for s in steps]),
                         first_step_s=FIRST_STEP_S, double_support_s=DOUBLE_SUPPORT_S, com_stiffness=com_stiffness)
     ch = character()
     heel, toe = (ch.model.geom_pos[g, 0] for g in ch.foot_point_geoms[:2])

@@ -213,7 +213,7 @@ def motion_window(task: Task) -> tuple[float, float]:
     pushed = t[task.pushes_n(t) != 0]
     spans = [(float(pushed[0]), float(pushed[-1]))] if pushed.size else []
     if task.steps:  # the steps as planned (they may land a little later)
-        steps = timeline(task.steps)
+        steps = timeline(task.plan)
         spans.append((steps[0][0], steps[-1][1]))
     if spans:
         return min(a for a, _ in spans), min(max(b for _, b in spans) + PUSH_REACTION_S, task.clip_s)

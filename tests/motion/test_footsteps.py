@@ -80,3 +80,40 @@ def test_the_cli_takes_steps_and_refuses_a_bad_plan_before_the_store(tmp_path):
     out = cmrt("submit", "stand", "--steps", "R:+0.90:0.6", store=store)
     assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr
     assert "a leg reaches" in out.stderr and not store.exists()
+
+
+def test_planned_step_s_is_a_plans_speed():
+    """``planned_step_s`` > 0 gives every planned step that duration (the stride task's speed), checked as a plan
+    is; the steps as written are kept (and compared when CMRTs are matched); at 0 nothing changes, hash included."""
+    stride = load_task("stride")
+    assert stride.speed_param == "planned_step_s"
+    fast, slow = stride.with_speed(0.35), stride.with_speed(0.6)
+    assert [s.duration_s for s in fast.plan] == [0.35, 0.35] and [s.duration_s for s in slow.plan] == [0.6, 0.6]
+    assert fast.steps == slow.steps and fast.content_hash() != slow.content_hash()
+    assert [s.x_m for s in slow.plan] == [s.x_m for s in slow.steps]
+    plain = resolve_task("stand", params={"clip_s": 3.0}, steps="R:+0.3:0.6")
+    assert plain.plan == plain.steps
+    assert plain.with_params(planned_step_s=0.0).content_hash() == plain.content_hash()
+    assert [s.duration_s for s in plain.with_params(planned_step_s=0.5).plan] == [0.5]
+    with pytest.raises(CmrtError, match="a step takes 0.3-1.5 s, got 0.2"):
+        plain.with_params(planned_step_s=0.2)
+    with pytest.raises(CmrtError, match="planned_step_s sets the duration of a footstep plan"):
+        load_task("stand").with_params(planned_step_s=0.5)
+
+
+def test_the_cli_refuses_planned_step_s_without_a_plan(tmp_path):
+    from tests.service_helpers import cmrt
+
+    store = tmp_path / "s.sqlite"
+    out = cmrt("submit", "stand", "--set", "planned_step_s=0.5", store=store)
+    assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr
+    assert "planned_step_s" in out.stderr and not store.exists()
+
+
+def test_the_stepping_parameters_are_in_a_plans_hash():
+    """A plan is carried out by the stepping supervisor, so its step height changes the physics (and the hash)
+    even with ``stepping`` 0; without a plan and with ``stepping`` 0 it changes neither."""
+    walk = load_task("walk")
+    assert walk.with_params(step_height_m=0.08).content_hash() != walk.content_hash()
+    stand = load_task("stand")
+    assert stand.with_params(step_height_m=0.08).content_hash() == stand.content_hash()

@@ -20,7 +20,7 @@ TASKS = available_tasks()
 #:   so it scores better (no shipped task since the punch strikes a heavy bag, issue 25);
 #: - "standing": no motion and no speed, so no library CMRT; quiet standing (and a moderate push) succeeds.
 OUTCOME = {"bend": "anticipation", "rise": "anticipation", "catch": "anticipation", "push": "anticipation",
-           "punch": "anticipation", "stand": "standing"}
+           "punch": "anticipation", "stand": "standing", "stride": "anticipation"}
 #: Parameters the per-task tests run a task with (stand: 3 s with a 120 N push instead of 10 s of quiet standing).
 VARIANT = {"stand": {"clip_s": 3.0, "push_force_n": 120.0}}
 
@@ -92,7 +92,7 @@ def test_zero_and_library_cmrt(name):
         assert lib.success and not lib.fell
         assert lib.task_success in (True, None) and (lib.task_success is True) == task.has_goal
         assert lib.objective <= 0.5 * zero.objective
-        if not task.has_goal:
+        if not task.has_goal and not task.steps:  # a plan ends in its footprints' stance, not the start pose
             assert lib.final_pose_error_rad < 0.1
     elif kind == "reactive":
         assert zero.success and lib.success and lib.objective < zero.objective

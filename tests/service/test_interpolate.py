@@ -6,6 +6,7 @@ import pytest
 from cmrt import Cmrt, evaluate, load_task, simulate
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import MIN_GAP_S
+from cmrt.motion.footsteps import parse_steps
 from cmrt.motion.library import load_entries
 from cmrt.motion.sequence import Motion, SequenceTask, load_sequence
 from cmrt.service.interpolate import blend, interpolate, superpose
@@ -102,3 +103,19 @@ def test_cli_interpolate_and_sequence(tmp_path):
     seq = json.loads(cmrt("sequence", "four-poses", "--json", check=True).stdout)
     assert {"objective", "fell"} <= set(seq)
     assert cmrt("sequence", "nope").returncode == 2
+
+
+def test_interpolating_a_step_family_across_step_durations():
+    """The stride task's speed is its steps' duration: the library's CMRTs at 0.35 and 0.4 s blend into one for
+    0.375 s, where the reactive controller alone falls before the first lift-off and the blend succeeds with both
+    steps where asked. A CMRT belongs to its plan: another plan has no family to interpolate."""
+    task = load_task("stride").with_speed(0.375)
+    r = interpolate(task)
+    assert [v for v, _ in r.sources] == [0.35, 0.4] and r.weight == pytest.approx(0.5) and not r.extrapolated
+    zero = evaluate(task, simulate(task, record=False))
+    assert zero.fell and not zero.success
+    blended = evaluate(task, simulate(task, r.curve, record=False))
+    assert blended.success and blended.footsteps_landed == 2 and blended.max_footstep_error_m < 0.03
+    other = task.with_steps(parse_steps("R:+0.4:0.4,L:+0.8:0.4"))
+    with pytest.raises(CmrtError, match="need two library results"):
+        interpolate(other)
