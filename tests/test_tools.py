@@ -601,6 +601,7 @@ def test_stepping_table_measures_plans_and_pushes():
     for r in result["plans"]:
         assert r["success"] and r["footsteps_landed"] == r["planned_steps"]
         assert r["max_footstep_error_m"] < 0.02 and r["peak_touchdown_force_bw"] <= 2.5
+        assert 0.0 < r["max_touchdown_speed_m_s"] < 0.3  # heel-first or flat, gently (docs/stepping.md)
         assert 0.0 <= r["max_timing_error_s"] < 0.3
     (push,) = result["pushes"]
     assert (push["push_n"], push["push_start_s"]) == (100.0, 1.0)

@@ -8,8 +8,9 @@ plan, and thorax pushes during it.
   L:+2L:T``), and one plan of ``--steps`` steps of the first length and the longest duration, the last bringing
   the trailing foot beside the leading one. Per plan: success, whether it was performed (every step within
   ``FOOTSTEP_TOLERANCE_M`` of its target), the largest placement error, the peak ground force in the 0.1 s after
-  any touchdown (body weights), how late the latest touchdown came after its planned duration, and how far the
-  thorax pitched (degrees in the world, negative forward; a walking person keeps it within a few).
+  any touchdown (body weights), the fastest a landing foot's heel or toe came down just before it landed (m/s),
+  how late the latest touchdown came after its planned duration, and how far the thorax pitched (degrees in the
+  world, negative forward; a walking person keeps it within a few).
 * **Pushes**: the long plan with a 0.1 s thorax push of each force at each start time: success, survived (no
   fall, the plan not carried out) or fell, and how many steps were taken (more than planned: the supervisor
   stepped on its own).
@@ -31,6 +32,7 @@ from cmrt.motion.footsteps import PlannedStep, plan_text, timeline
 from cmrt.sim.simulate import simulate
 
 TOUCHDOWN_WINDOW_S = 0.1  # the ground force after a touchdown is read over this long
+TOUCHDOWN_SAMPLES = 5  # the landing foot's descent speed is read over this many recorded steps before it
 SETTLE_S = 1.5  # the clip lasts this long after the plan's last step is due to land
 
 
@@ -56,11 +58,15 @@ def run_plan(plan: tuple[PlannedStep, ...], push_n: float = 0.0, push_start_s: f
     traj = simulate(task)
     e = evaluate(task, traj)
     weight = character().mass_kg * GRAVITY_M_S2
-    peaks, late = [], []
-    for (_, landed_s, _), lift_s in zip(traj.footprints, traj.step_times_s, strict=False):
+    peaks, late, speeds = [], [], []
+    for (foot, landed_s, _), lift_s in zip(traj.footprints, traj.step_times_s, strict=False):
         window = (traj.time_s >= landed_s) & (traj.time_s < landed_s + TOUCHDOWN_WINDOW_S)
         peaks.append(float(np.nanmax(traj.normal_force_n[window])) / weight if window.any() else float("nan"))
         late.append(landed_s - lift_s)
+        k = int(np.searchsorted(traj.time_s, landed_s))  # the landing foot's heel and toe coming down before it
+        lift = traj.point_lift_m[max(k - TOUCHDOWN_SAMPLES, 0) : k, 2 * foot : 2 * foot + 2]
+        if len(lift) > 1:
+            speeds.append(float(np.max(-np.diff(lift, axis=0))) / float(traj.time_s[1] - traj.time_s[0]))
     durations = [s.duration_s for s in plan]
     before = slice(None) if traj.fall_time_s is None else traj.time_s < traj.fall_time_s
     thorax = np.degrees(traj.qpos[before, 2] + traj.qpos[before, character().dof("lumbar")])
@@ -71,6 +77,7 @@ def run_plan(plan: tuple[PlannedStep, ...], push_n: float = 0.0, push_start_s: f
         "planned_steps": len(plan), "footsteps_landed": e.footsteps_landed,
         "max_footstep_error_m": e.max_footstep_error_m,
         "peak_touchdown_force_bw": max(peaks) if peaks else None,
+        "max_touchdown_speed_m_s": max(speeds) if speeds else None,
         # without a push every step is the plan's, in order: how much longer than planned each took to land
         "max_timing_error_s": (max(d - p for d, p in zip(late, durations, strict=False))
                                if late and push_n == 0.0 and e.steps == len(plan) else None),
@@ -121,14 +128,15 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         print(json.dumps(out, indent=1, allow_nan=False, default=lambda v: None))
         return 0
-    print("| plan | outcome | placement error (mm) | peak touchdown force (BW) | latest landing (s late) "
-          "| thorax (deg) |")
-    print("|---|---|---|---|---|---|")  # thorax: its pitch's range, most forward to most backward
+    print("| plan | outcome | placement error (mm) | peak touchdown force (BW) | touchdown speed (m/s) "
+          "| latest landing (s late) | thorax (deg) |")
+    print("|---|---|---|---|---|---|---|")  # thorax: its pitch's range, most forward to most backward
     for r in plans:
         err = "-" if r["max_footstep_error_m"] is None else f"{r['max_footstep_error_m'] * 1000:.1f}"
         late = "-" if r["max_timing_error_s"] is None else f"{r['max_timing_error_s']:.3f}"
         peak = "-" if r["peak_touchdown_force_bw"] is None else f"{r['peak_touchdown_force_bw']:.2f}"
-        print(f"| `{r['plan']}` | {r['outcome']} | {err} | {peak} | {late} | "
+        speed = "-" if r["max_touchdown_speed_m_s"] is None else f"{r['max_touchdown_speed_m_s']:.2f}"
+        print(f"| `{r['plan']}` | {r['outcome']} | {err} | {peak} | {speed} | {late} | "
               f"{r['thorax_most_forward_deg']:.0f} to {r['thorax_most_backward_deg']:+.0f} |")
     print()
     print("| push (N) | starts (s) | outcome | steps (planned) |")

@@ -179,8 +179,9 @@ PLANNED_TOUCHDOWN_AFTER = 0.85  # a planned swing foot touching the floor counts
 
 class StepSupervisor:
     """Per-simulation stepping state of a batch of n clips, advanced every control step by ``update``. With a
-    ``plan`` it takes those steps, each when it is due, and still steps on its own when the momenta ask for it
-    (a push): a reactive step goes first, the plan goes on after it."""
+    ``plan`` it takes those steps, each when it is due, moving a pushed step's landing; a push the plan cannot
+    absorb hands the body to reactive steps until it is at rest, and the plan goes on after them
+    (``_take_over``)."""
 
     def __init__(self, n: int, config: StepConfig, heel_to_center_m: float, foot_length_m: float,
                  plan: StepPlan | None = None):

@@ -9,8 +9,9 @@ first one at ``FIRST_STEP_S``). On the command line (``--steps``) a plan is
     R:+0.30:0.6,L:+0.60:0.6          foot : x_m : duration_s [: start_s], comma-separated
 
 and in a task file a list of tables, ``steps = [{foot = "R", x_m = 0.30, duration_s = 0.6}, ...]``. The stepping
-supervisor (``cmrt.control.stepping``) carries the steps out with the swing path, CoM Bezier and QP of its
-reactive steps, and still steps on its own when a push asks for more.
+supervisor (``cmrt.control.stepping``) carries the steps out with the swing path and QP of its reactive steps
+and a capture-point plan of the CoM and CoP, and steps on its own when a push is more than the plan can absorb.
+A task's ``planned_step_s`` (> 0) gives every step that duration: a plan's speed (``Task.plan``).
 
 ``check_plan`` refuses, in one line each, a plan no leg can do: a step reaching farther from the stance foot than
 the swing leg reaches (``MAX_FORWARD_M``, ``MAX_BACKWARD_M``; the reactive steps' limits), a step shorter than
