@@ -98,10 +98,9 @@ def test_library_ships_plain_and_robust_cmrts_and_keeps_them_apart():
     from cmrt.service.interpolate import candidates
 
     entries = [e for e in load_entries() if e.get("reference", "center") == "center"]  # yu: plain CMRTs only
-    plain = {(e["task"], e["speed"], e["params"].get("ball_mass_kg")) for e in entries if not e.get("robust")
-             and not e.get("steps")}  # a footstep plan's family (stride) ships plain CMRTs only
+    plain = {(e["task"], e["speed"], e["params"].get("ball_mass_kg")) for e in entries if not e.get("robust")}
     robust = {(e["task"], e["speed"], e["params"].get("ball_mass_kg")) for e in entries if e.get("robust")}
-    assert plain == robust  # every shipped pose-change CMRT has a robust twin
+    assert plain == robust  # every shipped CMRT has a robust twin
     assert all(e["success"] and e["robustness"]["validation_total"] == 20 for e in entries if e.get("robust"))
     assert library_curve(BEND) != library_curve(BEND, robust=True)
     family = candidates(BEND, "duration_s", "library")  # the speed family: one kind only
