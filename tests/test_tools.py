@@ -348,6 +348,15 @@ def test_find_library_curve_tool_no_save_leaves_the_library_alone():
         assert e["task"] == "bend" and e["seed"] == 1 and e["evaluations"] <= 10
         assert {"cmrt", "objective", "success", "zero_cmrt_objective", "params", "robust"} <= set(e)
         assert "reference" not in e  # the center mode's entries carry no key
+        assert "steps" not in e  # nor do those without a footstep plan
+
+
+def test_find_library_curve_tool_writes_a_plans_steps_into_its_entry():
+    """A footstep plan's CMRT belongs to that plan: its entry carries the plan (interpolation matches on it)."""
+    r = _ok(run_tool("find_library_curve.py", "stride", "--speed", "0.5", "--max-evals", "10", "--no-save"))
+    entry = json.loads(r.stdout[r.stdout.index("{"):])
+    assert entry["task"] == "stride" and entry["steps"] == "R:+0.45:0.4,L:+0.9:0.4"
+    assert entry["params"]["planned_step_s"] == 0.5
 
 
 def test_interpolation_table_tool():
