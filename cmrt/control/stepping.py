@@ -309,8 +309,7 @@ class StepSupervisor:
             return
         phase = (time_s - self.t0[ids[rows]]) / self.duration_s[ids[rows]]
         foot = swing[rows]
-        after = np.where(self.planned[ids[rows]] | self.recovering[ids[rows]], PLANNED_TOUCHDOWN_AFTER,
-                         self.config.touchdown_after)
+        after = np.where(self._plan_shaped(ids[rows]), PLANNED_TOUCHDOWN_AFTER, self.config.touchdown_after)
         down = (contact[rows, 2 * foot] | contact[rows, 2 * foot + 1]) & (phase >= after)
         for r in rows[down]:
             sim = ids[r]
@@ -362,6 +361,11 @@ class StepSupervisor:
                          plan.first_step_s)
         start = plan.start_s[np.minimum(self.next_planned[ids], plan.foot.size - 1)]
         return np.where(np.isnan(start), after, start)
+
+    def _plan_shaped(self, sims: np.ndarray) -> np.ndarray:
+        """Which simulations' step is shaped as a plan's (its crouch, knee bend and touchdown rule): a planned
+        step, or a reactive one taking over a pushed plan."""
+        return self.planned[sims] | self.recovering[sims]
 
     def _crouch_scale(self, sims: np.ndarray) -> np.ndarray:
         """How much of a step's knee bend a planned step of simulations ``sims`` needs: (reach / 0.41 m)^2, at
@@ -444,15 +448,7 @@ class StepSupervisor:
             lo = min(point_x[r, 2 * f] for f in range(2) if down[f])
             hi = max(point_x[r, 2 * f + 1] for f in range(2) if down[f])
             cop = float(np.clip(anchor + (1.0 + DCM_GAIN) * (xi - xi_ref), lo, hi))
-            # can the next landing still hold the capture point? With the CoP at the support's edge (the most the
-            # stance can do) xi reaches edge + (xi - edge) exp(omega T) at touchdown; the foot lands at most a
-            # leg's reach from its stance foot (the anchor), and holds xi up to its toe (heel)
-            if recovering:
-                command.com_ref_x_m[r] = com_x[r] + omega * omega * (com_x[r] - cop) / plan.com_stiffness
-                command.com_ref_vel_x_m_s[r] = vel_x[r]
-                command.cop_x_m[r] = cop
-                continue
-            if swinging and time_s - self.t0[sim] <= 0.5 * self.duration_s[sim]:
+            if swinging and not recovering and time_s - self.t0[sim] <= 0.5 * self.duration_s[sim]:
                 # a push: the capture point's error, grown to touchdown, moves this step's landing (the plan's
                 # later steps are where they were: the capture-point plan reaches them from the new footprint)
                 error_td = (xi - xi_ref) * math.exp(omega * length)
@@ -491,11 +487,11 @@ class StepSupervisor:
             target[rows, 9] = np.where(self.direction[sims] > 0, c.knee_bend_rad, c.back_knee_bend_rad)
             # a planned step crouches as much as its reach needs (feet brought together need none: the full bend
             # pushed the body up at their touchdown, 2.75 BW)
-            target[rows, 9] *= np.where(self.planned[sims] | self.recovering[sims], self._crouch_scale(sims), 1.0)
+            target[rows, 9] *= np.where(self._plan_shaped(sims), self._crouch_scale(sims), 1.0)
             if self.plan is not None:  # a plan's forward swing knee bends (backward, it rolled the stance foot over
                 # its toe at lift-off: a step back from standing fell)
                 knee = swing_profile(np.minimum(sr / SWING_KNEE_UNTIL, 1.0), c.width)[3]
-                target[rows, 10] = np.where((self.planned[sims] | self.recovering[sims]) & (self.direction[sims] > 0),
+                target[rows, 10] = np.where(self._plan_shaped(sims) & (self.direction[sims] > 0),
                                             SWING_KNEE_BEND_RAD * np.where(late, 0.0, knee), 0.0)
             pivot = self.pivot_x[sims]
             mid = 0.5 * (pivot + self.target_heel_x[sims] + self.heel_to_center_m)
@@ -504,7 +500,7 @@ class StepSupervisor:
             com_vel[rows] = np.where(late, 0.0, db / T)
         settled = np.flatnonzero((swing < 0) & np.isfinite(self.last_touchdown_s[ids]) & (self.direction[ids] > 0))
         target[settled, 9] = c.settle_knee_bend_rad  # double support after a forward step: the front knee bends
-        planned = settled[self.planned[ids[settled]] | self.recovering[ids[settled]]]
+        planned = settled[self._plan_shaped(ids[settled])]
         if planned.size:  # after a planned step, as much as its split needs (1.3 cm of hip drop at 0.30 m, 2.5 cm
             # at the 0.41 m the full bend is for)
             target[planned, 9] *= self._crouch_scale(ids[planned])
