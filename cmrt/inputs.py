@@ -242,6 +242,14 @@ TASK_PARAMS: dict[str, Range] = {
     "step_time_s": Range(0.2, 1.0, unit="s"),
     "step_height_m": Range(0.01, 0.15, unit="m"),
     "planned_step_s": Range(0.0, 1.5, unit="s"),
+    # a keyed gait (cmrt.motion.gait): a task has one when gait_steps > 0
+    "gait_steps": Range(0.0, 20.0),  # whole (checked by the task)
+    "gait_step_length_m": Range(0.05, 0.4, unit="m"),
+    "gait_swing_s": Range(0.3, 1.5, unit="s"),
+    "gait_double_support_s": Range(0.05, 1.0, unit="s"),
+    "gait_first_step_s": Range(0.3, 5.0, unit="s"),
+    "gait_lift_m": Range(0.0, 0.15, unit="m"),
+    "gait_crouch_m": Range(0.0, 0.1, unit="m"),
     # the ground (cmrt.body.surface): Yu's slippery floor is 0.08, his slope 15 deg, his shaking plane +-20 deg
     "floor_friction": Range(0.01, 2.0),
     "slope_deg": Range(-25.0, 25.0, unit="deg"),

@@ -14,6 +14,9 @@ plan, and thorax pushes during it.
 * **Pushes**: the long plan with a 0.1 s thorax push of each force at each start time: success, survived (no
   fall, the plan not carried out) or fell, and how many steps were taken (more than planned: the supervisor
   stepped on its own).
+* **Yu's tracked walk** (``yu-walk``): its keyed gait re-keyed with every step length and swing time of the grid
+  (a length the legs cannot reach at its crouch is reported refused, with why), and its own gait pushed as the
+  long plan is. The same figures; the gait has no supervisor, so a push it cannot absorb is a fall.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from cmrt.sim.simulate import simulate
 
 TOUCHDOWN_WINDOW_S = 0.1  # the ground force after a touchdown is read over this long
 TOUCHDOWN_SAMPLES = 5  # the landing foot's descent speed is read over this many recorded steps before it
+GAIT_PUSHED = (0.2, 0.6)  # the step length (m) and swing (s) of the Yu walk that is pushed (yu-walk's own)
 SETTLE_S = 1.5  # the clip lasts this long after the plan's last step is due to land
 
 
@@ -55,6 +59,30 @@ def run_plan(plan: tuple[PlannedStep, ...], push_n: float = 0.0, push_start_s: f
     params = {"clip_s": round(_clip_s(plan), 2), "push_force_n": push_n, "push_start_s": push_start_s,
               "push_duration_s": 0.1}
     task = resolve_task("stand", params=params, steps=plan)
+    return {"plan": plan_text(plan), **_figures(task, [s.duration_s for s in plan], push_n, push_start_s)}
+
+
+def run_gait(length_m: float, swing_s: float, push_n: float = 0.0, push_start_s: float = 0.0) -> dict:
+    """One clip of Yu's tracked walk (``yu-walk``) keyed with this step length and swing time (and push)."""
+    task = resolve_task("yu-walk", params={"gait_step_length_m": length_m, "gait_swing_s": swing_s})
+    params = {"clip_s": round(task.gait.end_s + SETTLE_S, 2), "push_force_n": push_n, "push_start_s": push_start_s,
+              "push_duration_s": 0.1}
+    task = task.with_params(**params)
+    gait = f"{task.gait.steps} x {length_m:g} m, {swing_s:g} s swings"
+    return {"gait": gait, **_figures(task, [swing_s] * task.gait.n_steps, push_n, push_start_s)}
+
+
+def _refused_or(run, length_m: float, swing_s: float, *push) -> dict:
+    """``run``'s row, or a row saying why the gait was refused (a step the legs cannot reach)."""
+    try:
+        return run(length_m, swing_s, *push)
+    except CmrtError as exc:
+        gait = f"{length_m:g} m, {swing_s:g} s swings"
+        return {"gait": gait, "outcome": "refused", "reason": str(exc).removeprefix("--set: gait: ")}
+
+
+def _figures(task, durations: list[float], push_n: float, push_start_s: float) -> dict:
+    """The verdict and figures of one clip of ``task`` whose steps are planned to take ``durations``."""
     traj = simulate(task)
     e = evaluate(task, traj)
     weight = character().mass_kg * GRAVITY_M_S2
@@ -67,20 +95,19 @@ def run_plan(plan: tuple[PlannedStep, ...], push_n: float = 0.0, push_start_s: f
         lift = traj.point_lift_m[max(k - TOUCHDOWN_SAMPLES, 0) : k, 2 * foot : 2 * foot + 2]
         if len(lift) > 1:
             speeds.append(float(np.max(-np.diff(lift, axis=0))) / float(traj.time_s[1] - traj.time_s[0]))
-    durations = [s.duration_s for s in plan]
     before = slice(None) if traj.fall_time_s is None else traj.time_s < traj.fall_time_s
     thorax = np.degrees(traj.qpos[before, 2] + traj.qpos[before, character().dof("lumbar")])
     return {
-        "plan": plan_text(plan), "push_n": push_n, "push_start_s": push_start_s,
+        "push_n": push_n, "push_start_s": push_start_s,
         "outcome": "success" if e.success else ("fell" if e.fell else "survived"),
         "success": e.success, "performed": e.performed, "fell": e.fell, "steps": e.steps,
-        "planned_steps": len(plan), "footsteps_landed": e.footsteps_landed,
+        "planned_steps": len(durations), "footsteps_landed": e.footsteps_landed,
         "max_footstep_error_m": e.max_footstep_error_m,
         "peak_touchdown_force_bw": max(peaks) if peaks else None,
         "max_touchdown_speed_m_s": max(speeds) if speeds else None,
         # without a push every step is the plan's, in order: how much longer than planned each took to land
         "max_timing_error_s": (max(d - p for d, p in zip(late, durations, strict=False))
-                               if late and push_n == 0.0 and e.steps == len(plan) else None),
+                               if late and push_n == 0.0 and e.steps == len(durations) else None),
         "thorax_most_forward_deg": float(thorax.min()) if thorax.size else None,
         "thorax_most_backward_deg": float(thorax.max()) if thorax.size else None,
         "peak_normal_force_bw": e.peak_normal_force_bw, "airborne_s": e.airborne_s,
@@ -120,11 +147,15 @@ def main(argv: list[str] | None = None) -> int:
         longest = long_plan(args.steps, lengths[0], max(durations))
         plans.append(run_plan(longest))
         pushed = [run_plan(longest, force, at) for force in pushes for at in times]
+        gaits = [_refused_or(run_gait, length, duration) for length in lengths for duration in durations]
+        gait_pushes = [_refused_or(run_gait, GAIT_PUSHED[0], GAIT_PUSHED[1], force, at)
+                       for force in pushes for at in times]
     except CmrtError as exc:
         print(f"stepping_table: error: {exc}", file=sys.stderr)
         return 2
     out = {"machine": platform.machine(), "python": platform.python_version(),
-           "wall_s": round(time.perf_counter() - start, 1), "plans": plans, "pushes": pushed}
+           "wall_s": round(time.perf_counter() - start, 1), "plans": plans, "pushes": pushed, "gaits": gaits,
+           "gait_pushes": gait_pushes}
     if args.json:
         print(json.dumps(out, indent=1, allow_nan=False, default=lambda v: None))
         return 0
@@ -143,6 +174,25 @@ def main(argv: list[str] | None = None) -> int:
     print("|---|---|---|---|")
     for r in pushed:
         print(f"| {r['push_n']:+g} | {r['push_start_s']:g} | {r['outcome']} | {r['steps']} ({r['planned_steps']}) |")
+    print()
+    print("| Yu's tracked walk | outcome | placement error (mm) | peak touchdown force (BW) | touchdown speed (m/s) "
+          "| thorax (deg) |")
+    print("|---|---|---|---|---|---|")
+    for r in gaits:
+        if r["outcome"] == "refused":
+            print(f"| {r['gait']} | refused: {r['reason']} | - | - | - | - |")
+            continue
+        err = "-" if r["max_footstep_error_m"] is None else f"{r['max_footstep_error_m'] * 1000:.1f}"
+        peak = "-" if r["peak_touchdown_force_bw"] is None else f"{r['peak_touchdown_force_bw']:.2f}"
+        speed = "-" if r["max_touchdown_speed_m_s"] is None else f"{r['max_touchdown_speed_m_s']:.2f}"
+        print(f"| {r['gait']} | {r['outcome']} | {err} | {peak} | {speed} | "
+              f"{r['thorax_most_forward_deg']:.0f} to {r['thorax_most_backward_deg']:+.0f} |")
+    print()
+    print("| push on Yu's walk (N) | starts (s) | outcome | steps (keyed) |")
+    print("|---|---|---|---|")
+    for r in gait_pushes:
+        print(f"| {r['push_n']:+g} | {r['push_start_s']:g} | {r['outcome']} | {r.get('steps')} "
+              f"({r.get('planned_steps')}) |")
     print(f"\n{out['wall_s']} s on {out['machine']}, Python {out['python']}")
     return 0
 

@@ -34,9 +34,11 @@ N_PARAMS = 25
 # The swing foot's task-space target (cmrt.control.stepping): heel point x, z, foot pitch; their rates
 # and accelerations; then the bend added to the stance knee's reference while the foot swings (rad).
 # ``swing_foot`` per simulation: -1 (both feet support), 0 (right swings), 1 (left).
-N_SWING = 11
+N_SWING = 12
 S_CROUCH = 9
 S_SWING_KNEE = 10  # the bend added to the swing knee's reference (rad; a straight knee cannot lift its foot)
+S_SWING_TRACKED = 11  # nonzero: the swing leg tracks the reference motion's own swing at full weight (a keyed
+# gait, cmrt.control.gait: its knee bends in the reference) instead of leaving the leg to the foot's target
 N_INFO = 6  # planned F_x, F_z, CoP x, right foot state, left foot state, torque saturated
 N_INEQ = 5  # F_z >= n f_min, two friction rows, two CoP rows
 
@@ -241,7 +243,9 @@ def _objective(A, a, qd, q, com, mass, mg, params, w2, leg_dofs, pts, swing, i, 
         qr = q_ref[i, j]
         if swing >= 0:
             if j == leg_dofs[swing, 0] or j == leg_dofs[swing, 1] or j == leg_dofs[swing, 2]:
-                if j == leg_dofs[swing, 1] and swing_target[i, S_SWING_KNEE] != 0.0:  # at full extension the
+                if swing_target[i, S_SWING_TRACKED] != 0.0:
+                    pass
+                elif j == leg_dofs[swing, 1] and swing_target[i, S_SWING_KNEE] != 0.0:  # at full extension the
                     qr += swing_target[i, S_SWING_KNEE]  # knee moves the heel along the leg, not up: a bent
                 else:  # reference, tracked, lets the foot rise (a walk)
                     wj *= params[P_SWT]  # the swing leg follows its foot's target, not the standing pose

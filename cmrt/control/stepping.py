@@ -37,6 +37,7 @@ import numpy as np
 from scipy.special import erf
 
 from cmrt.body.character import GRAVITY_M_S2
+from cmrt.control import kernel
 
 MOMENTUM, CAPTURE_POINT = 1, 2  # the task parameter ``stepping``: 0 off, 1 momentum supervisor, 2 capture point
 RULES = {MOMENTUM: "momentum", CAPTURE_POINT: "capture point"}
@@ -117,8 +118,8 @@ class StepCommand:
     """What the supervisor asks of the controller this control step, for the rows it was given."""
 
     swing_foot: np.ndarray  # (k,) float: -1, 0 (right) or 1 (left)
-    swing_target: np.ndarray  # (k, 11): heel point x, z, foot pitch; rates; accelerations; stance knee bend;
-    # swing knee bend
+    swing_target: np.ndarray  # (k, kernel.N_SWING): heel point x, z, foot pitch; rates; accelerations; stance knee
+    # bend; swing knee bend; whether the swing leg tracks the reference motion
     com_ref_x_m: np.ndarray  # (k,) CoM target on the Bezier (NaN: not stepping, the task's own target)
     com_ref_vel_x_m_s: np.ndarray  # (k,)
     cop_x_m: np.ndarray | None = None  # (k,) the CoP a footstep plan asks for (NaN: the task's own)
@@ -126,7 +127,7 @@ class StepCommand:
     def com_targets(self, com_ref: np.ndarray, com_ref_vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The task's CoM target where no foot swings, the step's Bezier where one does (a footstep plan's
         target wherever it gives one)."""
-        stepping = (self.swing_foot >= 0) | np.isfinite(self.com_ref_x_m)
+        stepping = np.isfinite(self.com_ref_x_m)  # (a tracked gait's swing gives none: the task's own target)
         return np.where(stepping, self.com_ref_x_m, com_ref), np.where(stepping, self.com_ref_vel_x_m_s, com_ref_vel)
 
     def cop_target(self, cop_ref: np.ndarray) -> np.ndarray:
@@ -467,7 +468,7 @@ class StepSupervisor:
         c = self.config
         k = ids.size
         swing = self.swing[ids]
-        target = np.zeros((k, 11))
+        target = np.zeros((k, kernel.N_SWING))
         com_ref = np.full(k, np.nan)
         com_vel = np.full(k, np.nan)
         rows = np.flatnonzero(swing >= 0)

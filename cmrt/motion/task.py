@@ -24,6 +24,7 @@ from cmrt.modes import DEFAULT_REFERENCE_MODE, REFERENCE_MODES
 from cmrt.motion import reference as ref
 from cmrt.motion.ensemble import RobustSpec
 from cmrt.motion.footsteps import PlannedStep, check_plan
+from cmrt.motion.gait import Gait, check_gait
 from cmrt.motion.reference import Schedule
 
 MIN_TAIL_S = 0.5
@@ -180,6 +181,17 @@ class Task:
         return tuple(replace(step, duration_s=self.planned_step_s) for step in self.steps)
 
     @property
+    def gait(self) -> Gait | None:
+        """The keyed gait the task tracks (``gait_*`` parameters, ``cmrt.motion.gait``; Yu's walking), or None."""
+        return Gait.from_params(self.params)
+
+    @property
+    def footsteps_planned(self) -> int:
+        """How many steps the task asks for: its plan's, or its gait's (the closing step included)."""
+        gait = self.gait
+        return len(self.steps) if gait is None else gait.n_steps
+
+    @property
     def support(self) -> Support:
         """The ground it is done on (``cmrt.body.surface``): its surface parameters as one typed record."""
         return Support.from_params(self.params)
@@ -278,6 +290,14 @@ class Task:
         elif p.get("planned_step_s", 0.0) > 0.0:
             raise CmrtError("planned_step_s sets the duration of a footstep plan's steps: give the task steps too "
                             "(--steps)")
+        if p.get("gait_steps", 0.0) != round(p.get("gait_steps", 0.0)):
+            raise CmrtError(f"gait_steps must be a whole number, got {p['gait_steps']:g}")
+        gait = self.gait
+        if gait is not None:
+            if self.steps or self.end_pose_deg is not None or p["stepping"]:
+                raise CmrtError("a gait (gait_steps > 0) is the whole motion: no footstep plan, end pose or stepping "
+                                "with it")
+            check_gait(gait, self.start_qpos(), p["clip_s"])
         if p["stepping"] not in (0, 1, 2):
             raise CmrtError("stepping must be 0 (feet planted), 1 (momentum supervisor) or 2 (capture point)")
 
@@ -310,7 +330,7 @@ class Task:
         via = None if self.via_pose_deg is None else self.via_qpos()
         return Schedule(key=self.content_hash(), start_qpos=self.start_qpos(), end_qpos=end, via_qpos=via,
                         via_fraction=None if via is None else self.params["via_fraction"], timing=dict(self.timing),
-                        preparation_s=self.preparation_s, duration_s=self.duration_s)
+                        preparation_s=self.preparation_s, duration_s=self.duration_s, gait=self.gait)
 
     def keyframes(self) -> list[tuple[float, np.ndarray]]:
         """(fraction of T, qpos) of the poses the motion passes: start, [via], end."""

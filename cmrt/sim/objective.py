@@ -202,9 +202,9 @@ def _performed(task: Task, traj: Trajectory, tracking: float | None, final_err: 
     if traj.task_success is not None:
         return traj.task_success, None, None
     steps_ok = None
-    if task.steps:  # a footstep plan: every step landed, each where it was asked to
+    if task.footsteps_planned:  # a footstep plan or a gait: every step landed, each where it was asked to
         errors = np.abs(np.asarray(traj.footstep_errors_m, float))
-        steps_ok = bool(len(errors) == len(task.steps) and np.all(errors <= FOOTSTEP_TOLERANCE_M))
+        steps_ok = bool(len(errors) == task.footsteps_planned and np.all(errors <= FOOTSTEP_TOLERANCE_M))
     if task.end_pose_deg is None:
         return steps_ok, None, None
     start, stop = task.task_window_s()
@@ -297,9 +297,9 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
         ball_held_s=traj.prop_extras.get("ball_held_s"),
         steps=len(traj.step_times_s),
         step_times_s=tuple(round(float(t), 4) for t in traj.step_times_s),
-        footsteps_landed=len(traj.footstep_errors_m) if task.steps else None,
-        max_footstep_error_m=(float(np.max(np.abs(traj.footstep_errors_m))) if task.steps and traj.footstep_errors_m
-                              else None),
+        footsteps_landed=len(traj.footstep_errors_m) if task.footsteps_planned else None,
+        max_footstep_error_m=(float(np.max(np.abs(traj.footstep_errors_m)))
+                              if task.footsteps_planned and traj.footstep_errors_m else None),
         max_plan_cop_error_m=plan_cop_error_m(traj, contact["first_contact_s"]),
         max_foot_slip_m=foot_slip_m(traj),
         timing_lag_s=lag,

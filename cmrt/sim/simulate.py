@@ -44,6 +44,7 @@ from cmrt.body.props import CONTACT_FORCE_N, model_values, prop_class
 from cmrt.body.surface import Support, body_inertia_yy, frame_field, lean_rate, lean_x, tilt_pose, uniform_field
 from cmrt.control import ControllerConfig, MomentumBalanceController
 from cmrt.control.controller import read_only
+from cmrt.control.gait import GaitTracker
 from cmrt.control.planar import PlanarKinematics
 from cmrt.control.references import MotionCom, Targets, YuReference, motion_com
 from cmrt.control.stepping import MOMENTUM, StepCommand, StepConfig, StepPlan, StepSupervisor
@@ -754,7 +755,7 @@ class _Group:
     settled_z: np.ndarray
     rec: _Recorder
     limp: ProtectiveMode
-    stepper: StepSupervisor | None
+    stepper: StepSupervisor | GaitTracker | None
     falls: FallMonitor
     goal: np.ndarray  # the prop's goal: 1/0 (NaN: a pose change), judged at the end or at the fall
     extras: dict
@@ -1156,9 +1157,18 @@ def _finish(g: _Group, s: _LoopState) -> list[Trajectory]:
                          final_speed, g.stepper, None if g.field is None else g.field.poses(g.times))
 
 
-def _stepper(task: Task, n: int, com_stiffness: float = ControllerConfig.k_l) -> StepSupervisor | None:
+def _stepper(task: Task, n: int, com_stiffness: float = ControllerConfig.k_l) -> StepSupervisor | GaitTracker | None:
     """The stepping supervisor a task asks for (``stepping`` parameter, or a footstep plan: the momentum
-    supervisor then watches it; None: feet stay planted)."""
+    supervisor then watches it), the tracker of its keyed gait, or None: feet stay planted."""
+    ch = character()
+    heel, toe = (ch.model.geom_pos[g, 0] for g in ch.foot_point_geoms[:2])
+    if task.gait is not None:
+        heel_z = ch.model.geom_pos[ch.foot_point_geoms[0], 2]
+        d = mujoco.MjData(ch.model)
+        d.qpos[:] = task.start_qpos()
+        mujoco.mj_kinematics(ch.model, d)
+        return GaitTracker(n, task.gait, heel_to_ankle_m=(heel, heel_z), foot_length_m=toe - heel,
+                           ankle_z0_m=float(d.xpos[ch.foot_bodies[0], 2]))
     config = StepConfig.from_task(task.params)
     if config is None and not task.steps:
         return None
@@ -1171,13 +1181,12 @@ def _stepper(task: Task, n: int, com_stiffness: float = ControllerConfig.k_l) ->
                         duration_s=np.array([s.duration_s for s in steps]),
                         start_s=np.array([np.nan if s.start_s is None else s.start_s for s in steps]),
                         first_step_s=FIRST_STEP_S, double_support_s=DOUBLE_SUPPORT_S, com_stiffness=com_stiffness)
-    ch = character()
-    heel, toe = (ch.model.geom_pos[g, 0] for g in ch.foot_point_geoms[:2])
     return StepSupervisor(n, config, heel_to_center_m=0.5 * (toe - heel), foot_length_m=toe - heel, plan=plan)
 
 
-def _step_command(stepper: StepSupervisor, kin: PlanarKinematics, b: dict, sel, ids: np.ndarray, time_s: float,
-                  mass: np.ndarray, contact: np.ndarray, point_x: np.ndarray, cmrt: tuple | None = None) -> StepCommand:
+def _step_command(stepper: StepSupervisor | GaitTracker, kin: PlanarKinematics, b: dict, sel, ids: np.ndarray,
+                  time_s: float, mass: np.ndarray, contact: np.ndarray, point_x: np.ndarray,
+                  cmrt: tuple | None = None) -> StepCommand:
     """Advance the supervisor of simulations ``ids`` by one control step from their bound state; ``cmrt``: their
     CMRT displacement and its rate now (a footstep plan's capture point is displaced by it)."""
     nb = kin.model.nbody
@@ -1189,7 +1198,7 @@ def _step_command(stepper: StepSupervisor, kin: PlanarKinematics, b: dict, sel, 
 
 def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarray, falls: FallMonitor, disp: np.ndarray,
                   extras: dict[str, np.ndarray], goal: np.ndarray, final_qpos: np.ndarray,
-                  final_speed: np.ndarray, stepper: StepSupervisor | None = None,
+                  final_speed: np.ndarray, stepper: StepSupervisor | GaitTracker | None = None,
                   poses: np.ndarray | None = None) -> list[Trajectory]:
     """One Trajectory per simulation, cut where it stopped."""
     out = []

@@ -1,0 +1,141 @@
+"""Yu's tracked walking: the keyed gait's contact schedule and swing, for the controller (``cmrt.motion.gait``).
+
+The gait says when each foot swings; while one does, it has no support rows (the stance foot carries the body)
+and its leg tracks the gait's own joint angles at full weight (``kernel.S_SWING_TRACKED``: the keyed knee bends,
+so the foot can rise). Its heel is also steered, as a task-space objective, along the gait's swing path placed
+on the actual stance heel: the reference's swing-heel-to-stance-heel vector at the same instant, as eq. 3.2 places
+the reference's foot-to-CoM vector on the actual feet. The CoM and CoP targets stay Yu's (eq. 3.2-3.4,
+``cmrt.control.references``): the command gives none.
+
+The swing ends when the foot touches the floor late enough in its swing (``TOUCHDOWN_AFTER``); one that has not
+by the end of its swing keeps being lowered, gently, until it does. The next step lifts off at its keyed time,
+never before the step before it has landed.
+
+Exposes the stepping supervisor's interface (``update``, ``support``, ``landing_span``, ``swinging`` and its
+records), so ``cmrt.sim.simulate`` runs either.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cmrt.control import kernel
+from cmrt.control.stepping import NO_SWING, StepCommand
+from cmrt.motion.gait import Gait, feet_paths
+from cmrt.motion.reference import smoothstep5
+
+TOUCHDOWN_AFTER = 0.85  # the swing foot on the floor counts as landed after this fraction of its swing (as a
+# footstep plan's, cmrt.control.stepping.PLANNED_TOUCHDOWN_AFTER)
+LATE_DEPTH_M = 0.02  # a swing foot still up after its swing is aimed this far into the floor; it is lowered to
+SET_DOWN_FROM = 0.7  # that depth from this fraction of the swing on. Measured in yu-walk: aimed at the floor
+# itself, the first and the closing step hovered 5 mm up (the swing leg's keyed angles, tracked too, hold the foot
+# where the keyed pelvis height puts it) and landed 0.15 s late
+
+
+class GaitTracker:
+    """Per-simulation swing state of a batch of n clips following one keyed gait."""
+
+    def __init__(self, n: int, gait: Gait, heel_to_ankle_m: tuple[float, float], foot_length_m: float,
+                 ankle_z0_m: float):
+        self.gait = gait
+        self.heel_to_ankle_m = heel_to_ankle_m  # the heel point's centre from the ankle (x, z), foot flat
+        self.foot_length_m = foot_length_m  # heel point to toe point
+        self.ankle_z0_m = ankle_z0_m  # the ankle's height standing
+        self.heel_to_center_m = 0.5 * foot_length_m
+        self.swing = np.full(n, NO_SWING)
+        self.next_step = np.zeros(n, int)
+        self.t0 = np.zeros(n)
+        self.target_heel_x = np.zeros(n)  # where the swing heel lands
+        self.origin_x = np.full(n, np.nan)
+        self.step_times: list[list[float]] = [[] for _ in range(n)]  # lift-off times
+        self.footprints: list[list[tuple[int, float, float]]] = [[] for _ in range(n)]  # (foot, time, heel x)
+        self.placement_error_m: list[list[tuple[float, float]]] = [[] for _ in range(n)]  # (touchdown s, landed
+        # - targeted heel m): the step's length against the gait's, from where the stance foot stood
+
+    def _relative(self, j: int, s: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The gait's swing ankle relative to its stance ankle along step j at progress ``s`` (k,): x, z and their
+        rates and accelerations (the stance ankle is still: its path's derivatives are zero)."""
+        g = self.gait
+        t = g.lift_off_s(j) + np.clip(s, 0.0, 1.0) * g.swing_s
+        x, z, vx, vz, ax, az = feet_paths(g, t, self.ankle_z0_m)
+        f = g.foot(j)
+        return x[:, f] - x[:, 1 - f], z[:, f], vx[:, f], vz[:, f], ax[:, f], az[:, f]
+
+    def update(self, ids: np.ndarray, time_s: float, com_x: np.ndarray, com_z: np.ndarray, momentum_x: np.ndarray,
+               ang_momentum_y: np.ndarray, mass_kg: np.ndarray, contact: np.ndarray, point_x: np.ndarray,
+               cmrt: tuple[np.ndarray, np.ndarray] | None = None) -> StepCommand:
+        """Advance simulations ``ids`` to ``time_s`` (a control step): touchdowns, lift-offs, and the swing's
+        command. ``contact`` (k, 4) and ``point_x`` (k, 4): heel_r, toe_r, heel_l, toe_l on the floor / their x.
+        The momenta and the CMRT are not used (the stepping supervisor's signature)."""
+        g = self.gait
+        new = np.isnan(self.origin_x[ids])
+        if new.any():
+            self.origin_x[ids[new]] = 0.5 * (point_x[new].min(axis=1) + point_x[new].max(axis=1))
+        self._touchdowns(ids, time_s, contact, point_x)
+        idle = np.flatnonzero(self.swing[ids] < 0)
+        for r in idle:
+            sim, j = ids[r], self.next_step[ids[r]]
+            if j < g.n_steps and time_s >= g.lift_off_s(j) - 1e-9:
+                self.swing[sim] = g.foot(j)
+                self.t0[sim] = time_s
+                self.next_step[sim] = j + 1
+                self.step_times[sim].append(time_s)
+        return self._command(ids, time_s, point_x)
+
+    def _touchdowns(self, ids: np.ndarray, time_s: float, contact: np.ndarray, point_x: np.ndarray) -> None:
+        for r in np.flatnonzero(self.swing[ids] >= 0):
+            sim = ids[r]
+            foot = self.swing[sim]
+            late_enough = time_s - self.t0[sim] >= TOUCHDOWN_AFTER * self.gait.swing_s
+            if late_enough and (contact[r, 2 * foot] or contact[r, 2 * foot + 1]):
+                heel = float(point_x[r, 2 * foot])
+                self.footprints[sim].append((int(foot), time_s, heel))
+                self.placement_error_m[sim].append((time_s, heel - float(self.target_heel_x[sim])))
+                self.swing[sim] = NO_SWING
+
+    def _command(self, ids: np.ndarray, time_s: float, point_x: np.ndarray) -> StepCommand:
+        k = ids.size
+        swing = self.swing[ids]
+        target = np.zeros((k, kernel.N_SWING))
+        for r in np.flatnonzero(swing >= 0):
+            sim = ids[r]
+            foot, j = swing[r], self.next_step[sim] - 1
+            s = np.array([(time_s - self.t0[sim]) / self.gait.swing_s])
+            dx, z, vx, vz, ax, az = (float(v[0]) for v in self._relative(j, s))
+            stance_heel = point_x[r, 2 * (1 - foot)]
+            target[r, 0] = stance_heel + dx  # heel point x: heels sit alike on flat feet
+            target[r, 3], target[r, 6] = vx, ax
+            late = s[0] > 1.0
+            span = (1.0 - SET_DOWN_FROM) * self.gait.swing_s
+            down, ddown, dddown = smoothstep5(np.array([(s[0] - SET_DOWN_FROM) / (1.0 - SET_DOWN_FROM)]))
+            target[r, 1] = -LATE_DEPTH_M if late else z + self.heel_to_ankle_m[1] - LATE_DEPTH_M * float(down[0])
+            target[r, 4] = 0.0 if late else vz - LATE_DEPTH_M * float(ddown[0]) / span
+            target[r, 7] = 0.0 if late else az - LATE_DEPTH_M * float(dddown[0]) / span**2
+            target[r, kernel.S_SWING_TRACKED] = 1.0
+            self.target_heel_x[sim] = stance_heel + float(self._relative(j, np.ones(1))[0][0])
+        nan = np.full(k, np.nan)
+        return StepCommand(swing.astype(float), target, nan, nan.copy(), nan.copy())
+
+    def support(self, ids: np.ndarray, point_x: np.ndarray, lo: np.ndarray, hi: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """The stance foot's [heel, toe] while the other swings (``lo``/``hi`` elsewhere)."""
+        swing = self.swing[ids]
+        rows = np.flatnonzero(swing >= 0)
+        lo, hi = lo.copy(), hi.copy()
+        if rows.size:
+            stance = 1 - swing[rows]
+            lo[rows] = point_x[rows, 2 * stance]
+            hi[rows] = point_x[rows, 2 * stance + 1]
+        return lo, hi
+
+    def landing_span(self, ids: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For the balance monitor: the support with the footprint the swing foot is heading for."""
+        swinging = self.swing[ids] >= 0
+        heel = self.target_heel_x[ids]
+        return (np.where(swinging, np.fmin(lo, heel), lo),
+                np.where(swinging, np.fmax(hi, heel + self.foot_length_m), hi))
+
+    def swinging(self, ids: np.ndarray) -> np.ndarray:
+        """(k, 2) bool: which foot of each simulation swings now."""
+        swing = self.swing[ids]
+        return np.stack([swing == 0, swing == 1], axis=1)

@@ -1,0 +1,255 @@
+"""A keyed walking gait: the reference motion Yu's thesis tracks (its figure 4.8), made from a gait's keys.
+
+Yu tracks motion-capture walking with the ``yu`` references (eq. 3.2-3.5). We have no capture data, so the motion
+is made from the events a gait is keyed by:
+
+* footprints: ``steps`` forward steps of ``step_length_m`` (the first from feet together, the right foot first),
+  then the trailing foot brought beside the leading one - the footprints of the ``walk`` task's plan;
+* timing: the first lift-off at ``first_step_s``, each swing ``swing_s`` long, ``double_support_s`` between a
+  touchdown and the next lift-off;
+* the swing foot: flat, its ankle eased from footprint to footprint (quintic in x) and lifted on a bell
+  ``lift_m`` high;
+* the pelvis: over the stance foot at every mid-swing as it is over the feet standing (the stand pose's offset),
+  and monotone in between (PCHIP through those keys), ``crouch_m`` lower while walking than standing, the trunk at
+  the stand pose's pitch.
+
+Every frame's leg angles then follow from two-link leg inverse kinematics (hip, knee) with the foot flat (ankle):
+the reference's stance foot stays exactly where it was put. Arms, lumbar and neck hold the stand pose.
+
+What the controller takes from it (``cmrt.control.gait``): the joint angles to track, the CoM relative to each
+foot (eq. 3.2's r_f(u), through ``cmrt.control.references.motion_com``), and when each foot swings with its heel's
+path relative to the stance heel's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+from scipy.interpolate import PchipInterpolator
+
+from cmrt.body.character import Character, character
+from cmrt.errors import CmrtError
+from cmrt.motion.reference import smoothstep5
+
+CHECK_STEP_S = 0.01  # check_gait's grid
+SETTLE_S = 0.6  # after the last touchdown the pelvis eases back over the feet and up to standing height
+CROUCH_IN_S = 0.4  # before the first lift-off the pelvis eases down to walking height over this long
+GAIT_PARAMS: dict[str, float] = {  # the task parameters a gait is keyed by (a task has a gait when gait_steps > 0)
+    "gait_steps": 0.0,  # forward steps before the closing one (0: no gait)
+    "gait_step_length_m": 0.2,  # footprint to footprint
+    "gait_swing_s": 0.6,  # lift-off to touchdown
+    "gait_double_support_s": 0.2,  # touchdown to the next lift-off
+    "gait_first_step_s": 0.5,  # the first lift-off
+    "gait_lift_m": 0.05,  # the swing heel's highest point above the floor
+    "gait_crouch_m": 0.03,  # the pelvis this much lower while walking (straight legs cannot reach a split stance)
+}
+
+
+@dataclass(frozen=True)
+class Gait:
+    """A gait's keys (``GAIT_PARAMS``)."""
+
+    steps: int
+    step_length_m: float
+    swing_s: float
+    double_support_s: float
+    first_step_s: float
+    lift_m: float
+    crouch_m: float
+
+    @staticmethod
+    def from_params(params: dict[str, float]) -> Gait | None:
+        if params.get("gait_steps", 0.0) <= 0:
+            return None
+        p = {**GAIT_PARAMS, **params}
+        return Gait(steps=int(round(p["gait_steps"])), step_length_m=p["gait_step_length_m"],
+                    swing_s=p["gait_swing_s"], double_support_s=p["gait_double_support_s"],
+                    first_step_s=p["gait_first_step_s"], lift_m=p["gait_lift_m"], crouch_m=p["gait_crouch_m"])
+
+    @property
+    def n_steps(self) -> int:
+        """Every step, the closing one included."""
+        return self.steps + 1
+
+    def foot(self, j: int) -> int:
+        """The foot of step j: 0 right (first), 1 left."""
+        if j == self.steps:  # the closing step: the trailing foot
+            return 1 - (self.steps - 1) % 2
+        return j % 2
+
+    def lift_off_s(self, j: int) -> float:
+        return self.first_step_s + j * (self.swing_s + self.double_support_s)
+
+    def touchdown_s(self, j: int) -> float:
+        return self.lift_off_s(j) + self.swing_s
+
+    @property
+    def end_s(self) -> float:
+        """When the reference is back at the stand pose."""
+        return self.touchdown_s(self.steps) + SETTLE_S
+
+    def footprints_m(self) -> np.ndarray:
+        """(n_steps + 1, 2): each foot's ankle x (from its start) after step j - 1 (row 0: the start)."""
+        feet = np.zeros((self.n_steps + 1, 2))
+        for j in range(self.n_steps):
+            feet[j + 1] = feet[j]
+            feet[j + 1, self.foot(j)] = self.step_length_m * (min(j, self.steps - 1) + 1)
+        return feet
+
+
+@dataclass(frozen=True)
+class GaitMotion:
+    """The keyed gait at given times: the humanoid's q, qd, qdd (n, nv) and the feet (ankle x, z per foot,
+    (n, 2) each, and their x, z rates), in the frame where the feet start at x = 0."""
+
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    ankle_x_m: np.ndarray
+    ankle_z_m: np.ndarray
+    ankle_vel_x_m_s: np.ndarray
+    ankle_vel_z_m_s: np.ndarray
+    ankle_acc_x_m_s2: np.ndarray
+    ankle_acc_z_m_s2: np.ndarray
+
+
+def _swing(s: np.ndarray) -> tuple[np.ndarray, ...]:
+    """A swing's progress along x (quintic) and its lift (a bell 64 s^3 (1 - s)^3, 1 at mid-swing), with their
+    first and second derivatives in s; both start and end at rest."""
+    s = np.clip(s, 0.0, 1.0)
+    x, dx, ddx = smoothstep5(s)
+    lift = 64.0 * s**3 * (1 - s) ** 3
+    dlift = 192.0 * s**2 * (1 - s) ** 2 * (1 - 2 * s)
+    ddlift = 384.0 * s * (1 - s) * (1 - 5 * s + 5 * s**2)
+    return x, dx, ddx, lift, dlift, ddlift
+
+
+def feet_paths(gait: Gait, t_s: np.ndarray, ankle_z0_m: float) -> tuple[np.ndarray, ...]:
+    """Ankle x, z per foot (n, 2) and their first and second time derivatives, at times ``t_s``."""
+    t = np.asarray(t_s, float)
+    n = t.size
+    x, z = np.zeros((n, 2)), np.full((n, 2), ankle_z0_m)
+    vx, vz, ax, az = (np.zeros((n, 2)) for _ in range(4))
+    prints = gait.footprints_m()
+    for f in range(2):
+        x[:, f] = prints[0, f]
+    for j in range(gait.n_steps):
+        f, t0, T = gait.foot(j), gait.lift_off_s(j), gait.swing_s
+        a, b = prints[j, f], prints[j + 1, f]
+        after = t >= t0
+        s = (t - t0) / T
+        p, dp, ddp, h, dh, ddh = _swing(s)
+        x[after, f] = (a + (b - a) * p)[after]
+        during = after & (s <= 1.0)
+        vx[during, f] = ((b - a) * dp / T)[during]
+        ax[during, f] = ((b - a) * ddp / T**2)[during]
+        z[during, f] = (ankle_z0_m + gait.lift_m * h)[during]
+        vz[during, f] = (gait.lift_m * dh / T)[during]
+        az[during, f] = (gait.lift_m * ddh / T**2)[during]
+    return x, z, vx, vz, ax, az
+
+
+def pelvis_path(gait: Gait, t_s: np.ndarray, offset_x_m: float, height_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pelvis x and z at times ``t_s``: x over the stance ankle plus the stand pose's ``offset_x_m`` at every
+    mid-swing (PCHIP between), z ``crouch_m`` below ``height_m`` while walking. The crouch eases in and out as the
+    square of a quintic: standing, the knees are straight, and a knee's angle grows as the square root of the
+    hip's drop (a linear ease would start the knee at an infinite rate)."""
+    t = np.asarray(t_s, float)
+    prints = gait.footprints_m()
+    keys_t, keys_x = [0.0], [offset_x_m]
+    for j in range(gait.n_steps):
+        stance = prints[j, 1 - gait.foot(j)]
+        keys_t.append(gait.lift_off_s(j) + 0.5 * gait.swing_s)
+        keys_x.append(stance + offset_x_m)
+    keys_t.append(gait.end_s)
+    keys_x.append(prints[-1].max() + offset_x_m)
+    px = PchipInterpolator(keys_t, keys_x)(np.clip(t, 0.0, gait.end_s))
+    down = smoothstep5((t - (gait.first_step_s - CROUCH_IN_S)) / CROUCH_IN_S)[0]
+    up = smoothstep5((t - gait.touchdown_s(gait.steps)) / SETTLE_S)[0]
+    return px, height_m - gait.crouch_m * (down * (1.0 - up)) ** 2
+
+
+def leg_ik(dx: np.ndarray, dz: np.ndarray, thigh_m: float, shank_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Absolute thigh angle and knee angle (rad, MuJoCo's +y: positive swings the thigh back and bends the knee)
+    that put the ankle at (dx, dz) from the hip. Out of reach, the leg is straight toward it."""
+    dist = np.hypot(dx, dz)
+    cos_knee = (dist**2 - thigh_m**2 - shank_m**2) / (2 * thigh_m * shank_m)
+    knee = np.arccos(np.clip(cos_knee, -1.0, 1.0))
+    toward = np.arctan2(-dx, -dz)  # the hip-to-ankle direction as a leg angle
+    return toward - np.arctan2(shank_m * np.sin(knee), thigh_m + shank_m * np.cos(knee)), knee
+
+
+def gait_motion(gait: Gait, ch: Character, stand_qpos: np.ndarray, t_s: np.ndarray) -> GaitMotion:
+    """The keyed gait at times ``t_s`` (see the module docstring), from the stand pose ``stand_qpos`` (feet
+    together and flat, knees straight): the reference a ``gait`` task tracks."""
+    t = np.atleast_1d(np.asarray(t_s, float))
+    m = ch.model
+    d = mujoco.MjData(m)
+    d.qpos[:] = stand_qpos
+    mujoco.mj_kinematics(m, d)
+    pelvis, ankle = d.xpos[1].copy(), d.xpos[ch.foot_bodies[0]].copy()
+    legs = (float(-m.body_pos[ch.foot_bodies[0] - 1, 2]), float(-m.body_pos[ch.foot_bodies[0], 2]))  # thigh, shank
+    keys = (float(ankle[2]), float(pelvis[0] - ankle[0]), float(pelvis[2]))
+    q = _pose(gait, ch, stand_qpos, t, legs, keys)
+    # rates by central differences RATE_STEP_S wide, the same whatever times are asked for (the angles are smooth
+    # functions of smooth paths: measured against 0.1 ms differences, within 1e-4 of the largest rate)
+    q_ahead, q_behind = (_pose(gait, ch, stand_qpos, t + h, legs, keys) for h in (RATE_STEP_S, -RATE_STEP_S))
+    qd = (q_ahead - q_behind) / (2 * RATE_STEP_S)
+    qdd = (q_ahead - 2 * q + q_behind) / RATE_STEP_S**2
+    feet = feet_paths(gait, t, keys[0])
+    return GaitMotion(q, qd, qdd, *feet)
+
+
+RATE_STEP_S = 1e-3
+
+
+def _pose(gait: Gait, ch: Character, stand_qpos: np.ndarray, t: np.ndarray, legs: tuple[float, float],
+          keys: tuple[float, float, float]) -> np.ndarray:
+    """qpos (n, nq) of the keyed gait at times ``t``: the pelvis on its path, each leg's angles from IK with the
+    foot flat, everything else as in the stand pose."""
+    ankle_z0, offset_x, height = keys
+    ax_, az_ = feet_paths(gait, t, ankle_z0)[:2]
+    px, pz = pelvis_path(gait, t, offset_x, height)
+    pitch = float(stand_qpos[2])
+    q = np.tile(stand_qpos, (t.size, 1))
+    q[:, 0] += px - offset_x  # the stand pose's pelvis is ``offset_x`` ahead of its ankles, at x = 0
+    q[:, 1] += pz - height
+    names = ch.dof_names
+    for f, side in enumerate("rl"):
+        thigh, knee = leg_ik(ax_[:, f] - px, az_[:, f] - pz, *legs)
+        q[:, names.index(f"hip_{side}")] = thigh - pitch
+        q[:, names.index(f"knee_{side}")] = knee
+        q[:, names.index(f"ankle_{side}")] = -(thigh + knee)  # the foot flat: pitch + hip + knee + ankle = 0
+    return q
+
+
+def check_gait(gait: Gait, stand_qpos: np.ndarray, clip_s: float) -> None:
+    """CmrtError, in one line, for a gait the legs cannot do or the clip cannot hold: a keyed frame out of a leg's
+    reach or past a joint's range, or a clip ending before the body is back at rest (``SETTLE_S`` after the pose
+    is back at standing)."""
+    if gait.end_s + SETTLE_S > clip_s:
+        raise CmrtError(f"the gait ends at {gait.end_s:g} s: clip_s must be at least {gait.end_s + SETTLE_S:g} s "
+                        "(the body comes to rest)")
+    ch = character()
+    t = np.arange(0.0, gait.end_s + CHECK_STEP_S, CHECK_STEP_S)
+    m = ch.model
+    d = mujoco.MjData(m)
+    d.qpos[:] = stand_qpos
+    mujoco.mj_kinematics(m, d)
+    pelvis, ankle = d.xpos[1].copy(), d.xpos[ch.foot_bodies[0]].copy()
+    reach = float(-m.body_pos[ch.foot_bodies[0] - 1, 2] - m.body_pos[ch.foot_bodies[0], 2])
+    ax_, az_ = feet_paths(gait, t, float(ankle[2]))[:2]
+    px, pz = pelvis_path(gait, t, float(pelvis[0] - ankle[0]), float(pelvis[2]))
+    far = np.hypot(ax_ - px[:, None], az_ - pz[:, None]).max()
+    if far > reach + 1e-9:
+        raise CmrtError(f"gait: a foot {far:.3f} m from the hip is out of the leg's reach ({reach:.2f} m): shorten "
+                        "gait_step_length_m or deepen gait_crouch_m")
+    q = gait_motion(gait, ch, stand_qpos, t).q
+    lo, hi = ch.joint_range_rad()
+    dofs = list(ch.actuated_dofs)
+    outside = (q[:, dofs] < lo - 1e-9) | (q[:, dofs] > hi + 1e-9)
+    if outside.any():
+        name = ch.dof_names[dofs[int(np.flatnonzero(outside.any(axis=0))[0])]]
+        raise CmrtError(f"gait: {name} leaves its range: shorten gait_step_length_m or lower gait_lift_m")
