@@ -17,30 +17,41 @@ records), so ``cmrt.sim.simulate`` runs either.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import numpy as np
 
 from cmrt.control import kernel
-from cmrt.control.stepping import NO_SWING, StepCommand
-from cmrt.motion.gait import Gait, feet_paths
-from cmrt.motion.reference import smoothstep5
+from cmrt.control.stepping import NO_SWING, StepCommand, stance_support, swinging_feet, with_landing
 
 TOUCHDOWN_AFTER = 0.85  # the swing foot on the floor counts as landed after this fraction of its swing (as a
 # footstep plan's, cmrt.control.stepping.PLANNED_TOUCHDOWN_AFTER)
+SWING_TRACKED = 1.0  # kernel.S_SWING_TRACKED of a swing: the leg follows the gait's angles at full weight
 LATE_DEPTH_M = 0.02  # a swing foot still up after its swing is aimed this far into the floor; it is lowered to
 SET_DOWN_FROM = 0.7  # that depth from this fraction of the swing on. Measured in yu-walk: aimed at the floor
 # itself, the first and the closing step hovered 5 mm up (the swing leg's keyed angles, tracked too, hold the foot
 # where the keyed pelvis height puts it) and landed 0.15 s late
 
 
+@dataclass(frozen=True)
+class KeyedSwings:
+    """What the tracker takes of a keyed gait (``cmrt.sim.simulate`` makes it from ``cmrt.motion.gait.Gait``)."""
+
+    foot: np.ndarray  # (steps,) the foot of each step: 0 right, 1 left
+    lift_off_s: np.ndarray  # (steps,) when each lifts off
+    swing_s: float  # lift-off to touchdown
+    feet_paths: Callable[[np.ndarray], tuple[np.ndarray, ...]]  # times (k,) -> each ankle's x, z (k, 2) in the
+    # gait's frame, their rates and accelerations (cmrt.motion.gait.feet_paths)
+
+
 class GaitTracker:
     """Per-simulation swing state of a batch of n clips following one keyed gait."""
 
-    def __init__(self, n: int, gait: Gait, heel_to_ankle_m: tuple[float, float], foot_length_m: float,
-                 ankle_z0_m: float):
+    def __init__(self, n: int, gait: KeyedSwings, heel_to_ankle_m: tuple[float, float], foot_length_m: float):
         self.gait = gait
         self.heel_to_ankle_m = heel_to_ankle_m  # the heel point's centre from the ankle (x, z), foot flat
         self.foot_length_m = foot_length_m  # heel point to toe point
-        self.ankle_z0_m = ankle_z0_m  # the ankle's height standing
         self.heel_to_center_m = 0.5 * foot_length_m
         self.swing = np.full(n, NO_SWING)
         self.next_step = np.zeros(n, int)
@@ -56,9 +67,9 @@ class GaitTracker:
         """The gait's swing ankle relative to its stance ankle along step j at progress ``s`` (k,): x, z and their
         rates and accelerations (the stance ankle is still: its path's derivatives are zero)."""
         g = self.gait
-        t = g.lift_off_s(j) + np.clip(s, 0.0, 1.0) * g.swing_s
-        x, z, vx, vz, ax, az = feet_paths(g, t, self.ankle_z0_m)
-        f = g.foot(j)
+        t = g.lift_off_s[j] + np.clip(s, 0.0, 1.0) * g.swing_s
+        x, z, vx, vz, ax, az = g.feet_paths(t)
+        f = g.foot[j]
         return x[:, f] - x[:, 1 - f], z[:, f], vx[:, f], vz[:, f], ax[:, f], az[:, f]
 
     def update(self, ids: np.ndarray, time_s: float, com_x: np.ndarray, com_z: np.ndarray, momentum_x: np.ndarray,
@@ -75,8 +86,8 @@ class GaitTracker:
         idle = np.flatnonzero(self.swing[ids] < 0)
         for r in idle:
             sim, j = ids[r], self.next_step[ids[r]]
-            if j < g.n_steps and time_s >= g.lift_off_s(j) - 1e-9:
-                self.swing[sim] = g.foot(j)
+            if j < g.foot.size and time_s >= g.lift_off_s[j] - 1e-9:
+                self.swing[sim] = g.foot[j]
                 self.t0[sim] = time_s
                 self.next_step[sim] = j + 1
                 self.step_times[sim].append(time_s)
@@ -107,11 +118,12 @@ class GaitTracker:
             target[r, 3], target[r, 6] = vx, ax
             late = s[0] > 1.0
             span = (1.0 - SET_DOWN_FROM) * self.gait.swing_s
-            down, ddown, dddown = smoothstep5(np.array([(s[0] - SET_DOWN_FROM) / (1.0 - SET_DOWN_FROM)]))
-            target[r, 1] = -LATE_DEPTH_M if late else z + self.heel_to_ankle_m[1] - LATE_DEPTH_M * float(down[0])
-            target[r, 4] = 0.0 if late else vz - LATE_DEPTH_M * float(ddown[0]) / span
-            target[r, 7] = 0.0 if late else az - LATE_DEPTH_M * float(dddown[0]) / span**2
-            target[r, kernel.S_SWING_TRACKED] = 1.0
+            u = min(max((s[0] - SET_DOWN_FROM) / (1.0 - SET_DOWN_FROM), 0.0), 1.0)  # the set-down: a cubic ease
+            down, ddown, dddown = u * u * (3 - 2 * u), 6 * u * (1 - u), 6 - 12 * u if 0.0 < u < 1.0 else 0.0
+            target[r, 1] = -LATE_DEPTH_M if late else z + self.heel_to_ankle_m[1] - LATE_DEPTH_M * down
+            target[r, 4] = 0.0 if late else vz - LATE_DEPTH_M * ddown / span
+            target[r, 7] = 0.0 if late else az - LATE_DEPTH_M * dddown / span**2
+            target[r, kernel.S_SWING_TRACKED] = SWING_TRACKED
             self.target_heel_x[sim] = stance_heel + float(self._relative(j, np.ones(1))[0][0])
         nan = np.full(k, np.nan)
         return StepCommand(swing.astype(float), target, nan, nan.copy(), nan.copy())
@@ -119,23 +131,12 @@ class GaitTracker:
     def support(self, ids: np.ndarray, point_x: np.ndarray, lo: np.ndarray, hi: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray]:
         """The stance foot's [heel, toe] while the other swings (``lo``/``hi`` elsewhere)."""
-        swing = self.swing[ids]
-        rows = np.flatnonzero(swing >= 0)
-        lo, hi = lo.copy(), hi.copy()
-        if rows.size:
-            stance = 1 - swing[rows]
-            lo[rows] = point_x[rows, 2 * stance]
-            hi[rows] = point_x[rows, 2 * stance + 1]
-        return lo, hi
+        return stance_support(self.swing[ids], point_x, lo, hi)
 
     def landing_span(self, ids: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """For the balance monitor: the support with the footprint the swing foot is heading for."""
-        swinging = self.swing[ids] >= 0
-        heel = self.target_heel_x[ids]
-        return (np.where(swinging, np.fmin(lo, heel), lo),
-                np.where(swinging, np.fmax(hi, heel + self.foot_length_m), hi))
+        return with_landing(self.swing[ids], self.target_heel_x[ids], self.foot_length_m, lo, hi)
 
     def swinging(self, ids: np.ndarray) -> np.ndarray:
         """(k, 2) bool: which foot of each simulation swings now."""
-        swing = self.swing[ids]
-        return np.stack([swing == 0, swing == 1], axis=1)
+        return swinging_feet(self.swing[ids])

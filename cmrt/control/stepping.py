@@ -512,25 +512,39 @@ class StepSupervisor:
                 ) -> tuple[np.ndarray, np.ndarray]:
         """The support of the moment: the stance foot's [heel, toe] while the other swings (``lo``/``hi``
         elsewhere)."""
-        swing = self.swing[ids]
-        rows = np.flatnonzero(swing >= 0)
-        lo, hi = lo.copy(), hi.copy()
-        if rows.size:
-            stance = 1 - swing[rows]
-            lo[rows] = point_x[rows, 2 * stance]
-            hi[rows] = point_x[rows, 2 * stance + 1]
-        return lo, hi
+        return stance_support(self.swing[ids], point_x, lo, hi)
 
     def landing_span(self, ids: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """For the balance monitor: a capture point over the footprint a swing foot is heading for is not a
         fall, so the support of a stepping clip includes that footprint."""
-        swing = self.swing[ids]
-        heel = self.target_heel_x[ids]
-        stepping = swing >= 0
-        return (np.where(stepping, np.fmin(lo, heel), lo),
-                np.where(stepping, np.fmax(hi, heel + self.foot_length_m), hi))
+        return with_landing(self.swing[ids], self.target_heel_x[ids], self.foot_length_m, lo, hi)
 
     def swinging(self, ids: np.ndarray) -> np.ndarray:
         """(k, 2) bool: which foot of each simulation swings now."""
-        swing = self.swing[ids]
-        return np.stack([swing == 0, swing == 1], axis=1)
+        return swinging_feet(self.swing[ids])
+
+
+def stance_support(swing: np.ndarray, point_x: np.ndarray, lo: np.ndarray, hi: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Copies of ``lo``/``hi`` with the stance foot's [heel, toe] (from ``point_x`` (k, 4)) in the rows whose
+    ``swing`` (k,) foot is up."""
+    rows = np.flatnonzero(swing >= 0)
+    lo, hi = lo.copy(), hi.copy()
+    if rows.size:
+        stance = 1 - swing[rows]
+        lo[rows] = point_x[rows, 2 * stance]
+        hi[rows] = point_x[rows, 2 * stance + 1]
+    return lo, hi
+
+
+def with_landing(swing: np.ndarray, target_heel_x: np.ndarray, foot_length_m: float, lo: np.ndarray,
+                 hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """[lo, hi] widened, in the rows whose foot swings, to the footprint its heel is heading for."""
+    stepping = swing >= 0
+    return (np.where(stepping, np.fmin(lo, target_heel_x), lo),
+            np.where(stepping, np.fmax(hi, target_heel_x + foot_length_m), hi))
+
+
+def swinging_feet(swing: np.ndarray) -> np.ndarray:
+    """(k, 2) bool from ``swing`` (k,): which foot swings."""
+    return np.stack([swing == 0, swing == 1], axis=1)

@@ -28,7 +28,6 @@ class Schedule:
     timing: dict[str, tuple[float, float]]  # ``[timing]``: per joint, its easing window as fractions of T
     preparation_s: float  # P
     duration_s: float  # T
-    gait: object = None  # a keyed gait (cmrt.motion.gait.Gait): the whole motion, the poses above are its stance
 
     def __post_init__(self) -> None:
         for q in (self.start_qpos, self.end_qpos, self.via_qpos):
@@ -91,11 +90,6 @@ def reference_motion(schedule: Schedule, t_s: np.ndarray) -> tuple[np.ndarray, n
     they ease with the hip for completeness.
     """
     t = np.atleast_1d(np.asarray(t_s, dtype=float))
-    if schedule.gait is not None:
-        from cmrt.motion.gait import gait_motion  # (it eases with this module's smoothstep5)
-
-        motion = gait_motion(schedule.gait, character(), schedule.start_qpos, t)
-        return motion.q, motion.qd, motion.qdd
     q0, q1 = schedule.start_qpos, schedule.end_qpos
     n, nv = len(t), q0.size
     q, qd, qdd = np.tile(q0, (n, 1)), np.zeros((n, nv)), np.zeros((n, nv))

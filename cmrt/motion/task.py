@@ -24,7 +24,7 @@ from cmrt.modes import DEFAULT_REFERENCE_MODE, REFERENCE_MODES
 from cmrt.motion import reference as ref
 from cmrt.motion.ensemble import RobustSpec
 from cmrt.motion.footsteps import PlannedStep, check_plan
-from cmrt.motion.gait import Gait, check_gait
+from cmrt.motion.gait import Gait, check_gait, gait_motion
 from cmrt.motion.reference import Schedule
 
 MIN_TAIL_S = 0.5
@@ -330,7 +330,7 @@ class Task:
         via = None if self.via_pose_deg is None else self.via_qpos()
         return Schedule(key=self.content_hash(), start_qpos=self.start_qpos(), end_qpos=end, via_qpos=via,
                         via_fraction=None if via is None else self.params["via_fraction"], timing=dict(self.timing),
-                        preparation_s=self.preparation_s, duration_s=self.duration_s, gait=self.gait)
+                        preparation_s=self.preparation_s, duration_s=self.duration_s)
 
     def keyframes(self) -> list[tuple[float, np.ndarray]]:
         """(fraction of T, qpos) of the poses the motion passes: start, [via], end."""
@@ -340,7 +340,12 @@ class Task:
         """Reference q, qd, qdd at times ``t_s`` (shape (n, nv)): see ``cmrt.motion.reference.reference``. On a
         tilted support the body stays upright in the world: the trunk's pitch less the tilt, the ankles more (the
         feet stay flat on it; ``cmrt.body.surface``)."""
-        q, qd, qdd = ref.reference(self.schedule(), t_s)
+        gait = self.gait
+        if gait is not None:  # the keyed gait (16 ms for a clip's 4000 steps: not cached)
+            motion = gait_motion(gait, character(), self.start_qpos(), t_s)
+            q, qd, qdd = motion.q, motion.qd, motion.qdd
+        else:
+            q, qd, qdd = ref.reference(self.schedule(), t_s)
         theta = self.support.tilt(t_s)
         if not np.any(theta[0]) and not np.any(theta[1]):
             return q, qd, qdd

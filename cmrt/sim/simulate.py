@@ -44,13 +44,14 @@ from cmrt.body.props import CONTACT_FORCE_N, model_values, prop_class
 from cmrt.body.surface import Support, body_inertia_yy, frame_field, lean_rate, lean_x, tilt_pose, uniform_field
 from cmrt.control import ControllerConfig, MomentumBalanceController
 from cmrt.control.controller import read_only
-from cmrt.control.gait import GaitTracker
+from cmrt.control.gait import GaitTracker, KeyedSwings
 from cmrt.control.planar import PlanarKinematics
 from cmrt.control.references import MotionCom, Targets, YuReference, motion_com
 from cmrt.control.stepping import MOMENTUM, StepCommand, StepConfig, StepPlan, StepSupervisor
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.ensemble import NOMINAL, Perturbation
 from cmrt.motion.footsteps import DOUBLE_SUPPORT_S, FIRST_STEP_S
+from cmrt.motion.gait import feet_paths
 from cmrt.motion.task import Task
 from cmrt.sim.balance import REASONS, BalanceLimits, FallReason, capture_point_x
 from cmrt.sim.monitor import FallMonitor, ProtectiveMode
@@ -1167,8 +1168,11 @@ def _stepper(task: Task, n: int, com_stiffness: float = ControllerConfig.k_l) ->
         d = mujoco.MjData(ch.model)
         d.qpos[:] = task.start_qpos()
         mujoco.mj_kinematics(ch.model, d)
-        return GaitTracker(n, task.gait, heel_to_ankle_m=(heel, heel_z), foot_length_m=toe - heel,
-                           ankle_z0_m=float(d.xpos[ch.foot_bodies[0], 2]))
+        g, ankle_z0_m = task.gait, float(d.xpos[ch.foot_bodies[0], 2])
+        swings = KeyedSwings(foot=np.array([g.foot(j) for j in range(g.n_steps)]),
+                             lift_off_s=np.array([g.lift_off_s(j) for j in range(g.n_steps)]), swing_s=g.swing_s,
+                             feet_paths=functools.partial(feet_paths, g, ankle_z0_m=ankle_z0_m))
+        return GaitTracker(n, swings, heel_to_ankle_m=(heel, heel_z), foot_length_m=toe - heel)
     config = StepConfig.from_task(task.params)
     if config is None and not task.steps:
         return None
