@@ -110,3 +110,12 @@ def test_the_swing_leg_follows_the_gait(walked, monkeypatch):
     assert tracked < 0.05
     monkeypatch.setattr(gait_control, "SWING_TRACKED", 0.0)
     assert _swing_leg_error_rad(task, simulate(task)) > 1.5 * tracked
+
+
+def test_with_the_support_centre_as_reference_the_same_gait_falls():
+    """Yu's point (his figure 4.4): a reference CoM held at the support centre cannot walk. The same keyed gait,
+    tracked as well, with the center references falls within its first two steps (measured: at 1.44 s, the
+    capture point past the stance toes while the second foot swings)."""
+    task = resolve_task("yu-walk", reference="center")
+    e = evaluate(task, simulate_batch(task, [None], record=False)[0])
+    assert e.fell and e.fall_time_s < task.gait.touchdown_s(1) and e.steps <= 2, e
