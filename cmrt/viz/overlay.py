@@ -61,14 +61,17 @@ KEY = (("disc", (25, 205, 230), "CoM (sphere) and its ground point"),
        ("bar", (25, 205, 50), "reference CoM c_r = s + d(t)"),
        ("disc", (230, 25, 25), "CoP"))
 FOOTPRINT_KEY = ("box", (240, 150, 25), "footprint of a step")
+#: The reference CoM's line in Yu's mode says where that target comes from instead (cmrt.control.references).
+YU_REFERENCE_TEXT = "reference CoM c_r (Yu eq. 3.2: the feet, GRF-weighted) + d(t)"
 
 
-def key_band(width: int, footprints: bool = False) -> np.ndarray:
-    """A black band ``width`` wide naming the markers, wrapped to as many lines as it needs; its height is
-    a multiple of 8 (a video's macro block)."""
+def key_band(width: int, footprints: bool = False, reference: str = "center") -> np.ndarray:
+    """A black band ``width`` wide naming the markers (the reference CoM's as the ``reference`` mode makes it),
+    wrapped to as many lines as it needs; its height is a multiple of 8 (a video's macro block)."""
     from PIL import Image, ImageDraw
 
-    items = KEY + ((FOOTPRINT_KEY,) if footprints else ())
+    key = KEY if reference != "yu" else (KEY[0], (*KEY[1][:2], YU_REFERENCE_TEXT), KEY[2])
+    items = key + ((FOOTPRINT_KEY,) if footprints else ())
     font = _font()
     probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
     placed, x, row = [], PAD_PX, 0
@@ -93,7 +96,7 @@ def key_band(width: int, footprints: bool = False) -> np.ndarray:
     return np.asarray(band)
 
 
-def tile(rows: list[list[np.ndarray]], footprints: bool = False) -> np.ndarray:
+def tile(rows: list[list[np.ndarray]], footprints: bool = False, reference: str = "center") -> np.ndarray:
     """Captioned frames in rows (``GAP_PX`` apart, on white), the key under them."""
     h, w = rows[0][0].shape[:2]
     n_cols = max(len(r) for r in rows)
@@ -102,7 +105,7 @@ def tile(rows: list[list[np.ndarray]], footprints: bool = False) -> np.ndarray:
     for r, row in enumerate(rows):
         for c, img in enumerate(row):
             out[r * (h + GAP_PX):r * (h + GAP_PX) + h, c * (w + GAP_PX):c * (w + GAP_PX) + w] = img[..., :3]
-    return np.concatenate([out, key_band(width, footprints)], axis=0)
+    return np.concatenate([out, key_band(width, footprints, reference)], axis=0)
 
 
 def save_png(img: np.ndarray, out: Path) -> None:

@@ -1,7 +1,7 @@
 """Offscreen renders of clips with the balance markers of ABC Figs. 7-9.
 
-Markers: the CoM (cyan sphere) and its ground projection (cyan disc), the reference CoM
-c_r = s + d(t) (green vertical line) and the measured CoP (red disc). Every frame carries a caption
+Markers: the CoM (cyan sphere) and its ground projection (cyan disc), the reference CoM c_r (green
+vertical line: s + d(t), or Yu's eq. 3.2 + d(t)) and the measured CoP (red disc). Every frame carries a caption
 (``cmrt.viz.overlay``): the task, the curve, the verdict and the clock. A PNG is a filmstrip whose
 frames crowd into the motion's window and around a fall (:func:`filmstrip_times`; with ``compare``: the
 comparison clip on the top row, as in the paper's "top: without anticipation, bottom: with"); an MP4 is
@@ -215,6 +215,8 @@ def motion_window(task: Task) -> tuple[float, float]:
     if task.steps:  # the steps as planned (they may land a little later)
         steps = timeline(task.plan)
         spans.append((steps[0][0], steps[-1][1]))
+    if task.gait is not None:  # a keyed gait: from its first lift-off until it is back to standing
+        spans.append((task.gait.lift_off_s(0), task.gait.end_s))
     if spans:
         return min(a for a, _ in spans), min(max(b for _, b in spans) + PUSH_REACTION_S, task.clip_s)
     return 0.0, task.clip_s
@@ -250,7 +252,7 @@ def phase(task: Task, t: float, fall_s: float | None) -> str:
     lo, hi = motion_window(task)
     if (lo, hi) == (0.0, task.clip_s):
         return ""
-    name = "motion" if task.duration_s > 0 else "steps" if task.steps else "push"
+    name = "motion" if task.duration_s > 0 else "steps" if task.steps or task.gait is not None else "push"
     return f"before the {name}" if t < lo else name if t <= hi else f"after the {name}"
 
 
@@ -368,7 +370,7 @@ def render(
         if not video:
             rows = [_captioned(task, render_frames(task, tr, times, height, width, bar), times, lab, s)
                     for tr, (_, lab), s in zip(trajs, clips, scores, strict=True)]
-            overlay.save_png(overlay.tile(rows, footprints), tmp)
+            overlay.save_png(overlay.tile(rows, footprints, task.reference_mode), tmp)
         else:
             _video(tmp, task, trajs, [(lab, s) for (_, lab), s in zip(clips, scores, strict=True)], times, fps,
                    (height, width), bar, footprints)
@@ -384,7 +386,7 @@ def _video(out: Path, task: Task, trajs, captions, times, fps: int, size: tuple[
     frame captioned and the markers' key under them."""
     import imageio.v2 as imageio
 
-    key = overlay.key_band(size[1] * len(trajs), footprints)
+    key = overlay.key_band(size[1] * len(trajs), footprints, task.reference_mode)
     try:
         with imageio.get_writer(out, format="FFMPEG", fps=fps, codec="libx264", quality=7,
                                 macro_block_size=8) as writer:

@@ -279,3 +279,15 @@ def test_a_floating_box_is_drawn_as_a_box_on_water_moving_as_it_did(tmp_path):
     assert np.degrees(np.arctan2(top_normal[0], top_normal[2])) == pytest.approx(
         np.degrees(traj.support_pose[k, 0]), abs=1e-3)
     assert rr.floating_draft_m(task.support) == pytest.approx((200.0 + 70.0) * 9.81 / 9810.0, rel=0.01)
+
+
+def test_a_keyed_gait_is_framed_and_keyed_as_yus_walk():
+    """yu-walk: the filmstrip's window is the gait's (first lift-off to back at standing, then the reaction time),
+    its frames are "steps", and the key names Yu's reference CoM instead of the support centre's."""
+    task = load_task("yu-walk")
+    start, end = rr.motion_window(task)
+    assert start == pytest.approx(task.gait.lift_off_s(0)) and task.gait.end_s <= end <= task.clip_s
+    assert rr.phase(task, 2.0, None) == "steps"
+    yu, center = overlay.key_band(1200, True, "yu"), overlay.key_band(1200, True)
+    assert yu.shape == center.shape and not np.array_equal(yu, center)
+    assert overlay.YU_REFERENCE_TEXT.startswith("reference CoM")
