@@ -602,7 +602,7 @@ def test_compare_surfaces_optimizes_a_cmrt_where_the_zero_one_fails():
 def test_stepping_table_measures_plans_pushes_and_yus_walk():
     """Two steps of 0.2 and 0.3 m and a three-step plan land where asked, within the plausibility limits; a 100 N
     push during the three-step plan is one row with its outcome and its steps. Yu's walk re-keyed with 0.2 m steps
-    succeeds; with 0.3 m steps it is refused, with why; pushed, it is a row too."""
+    succeeds at its own crouch; 0.3 m steps need a deeper one, and with it succeed too; pushed, it is a row too."""
     out = run_tool("stepping_table.py", "--lengths", "0.2,0.3", "--durations", "0.6", "--steps", "3", "--pushes",
                    "100", "--push-times", "1.0", "--json")
     assert out.returncode == 0, out.stderr
@@ -617,13 +617,20 @@ def test_stepping_table_measures_plans_pushes_and_yus_walk():
     (push,) = result["pushes"]
     assert (push["push_n"], push["push_start_s"]) == (100.0, 1.0)
     assert push["outcome"] in ("success", "survived", "fell") and push["steps"] >= 1
-    walked, refused = result["gaits"]
+    walked, longer = result["gaits"]
     assert walked["outcome"] == "success" and walked["footsteps_landed"] == walked["planned_steps"] == 7
     assert walked["max_footstep_error_m"] < 0.02 and walked["peak_touchdown_force_bw"] <= 2.5
-    assert 0.0 < walked["max_touchdown_speed_m_s"] < 0.3
-    assert refused["outcome"] == "refused" and "reach" in refused["reason"]
+    assert 0.0 < walked["max_touchdown_speed_m_s"] < 0.3 and walked["crouch_m"] == 0.03
+    assert longer["outcome"] == "success" and longer["crouch_m"] > 0.03
     (pushed,) = result["gait_pushes"]
     assert (pushed["push_n"], pushed["push_start_s"]) == (100.0, 1.0) and pushed["outcome"] in ("success", "fell")
+
+
+def test_stepping_table_reports_a_gait_it_cannot_key_as_refused():
+    """A step length no crouch of the table's reaches (or outside the gait's range) is a row saying why."""
+    tool = load_tool("stepping_table.py")
+    row = tool._refused_or(tool.run_gait, 0.45, 0.6)
+    assert row["outcome"] == "refused" and "gait_step_length_m" in row["reason"]
 
 
 @pytest.mark.parametrize("args", [["--lengths", "0.9"], ["--durations", "x"], ["--steps", "1"],

@@ -14,9 +14,9 @@ plan, and thorax pushes during it.
 * **Pushes**: the long plan with a 0.1 s thorax push of each force at each start time: success, survived (no
   fall, the plan not carried out) or fell, and how many steps were taken (more than planned: the supervisor
   stepped on its own).
-* **Yu's tracked walk** (``yu-walk``): its keyed gait re-keyed with every step length and swing time of the grid
-  (a length the legs cannot reach at its crouch is reported refused, with why), and its own gait pushed as the
-  long plan is. The same figures; the gait has no supervisor, so a push it cannot absorb is a fall.
+* **Yu's tracked walk** (``yu-walk``): its keyed gait re-keyed with every step length and swing time of the grid,
+  at the shallowest crouch the legs reach it with (none: reported refused, with why), and its own gait pushed as
+  the long plan is. The same figures; the gait has no supervisor, so a push it cannot absorb is a fall.
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ from cmrt.sim.simulate import simulate
 
 TOUCHDOWN_WINDOW_S = 0.1  # the ground force after a touchdown is read over this long
 TOUCHDOWN_SAMPLES = 5  # the landing foot's descent speed is read over this many recorded steps before it
+GAIT_CROUCHES_M = (0.03, 0.045, 0.06, 0.08)  # the pelvis lower while walking, tried in turn (yu-walk's is 0.03)
 GAIT_PUSHED = (0.2, 0.6)  # the step length (m) and swing (s) of the Yu walk that is pushed (yu-walk's own)
 SETTLE_S = 1.5  # the clip lasts this long after the plan's last step is due to land
 
@@ -63,13 +64,22 @@ def run_plan(plan: tuple[PlannedStep, ...], push_n: float = 0.0, push_start_s: f
 
 
 def run_gait(length_m: float, swing_s: float, push_n: float = 0.0, push_start_s: float = 0.0) -> dict:
-    """One clip of Yu's tracked walk (``yu-walk``) keyed with this step length and swing time (and push)."""
-    task = resolve_task("yu-walk", params={"gait_step_length_m": length_m, "gait_swing_s": swing_s})
+    """One clip of Yu's tracked walk (``yu-walk``) keyed with this step length and swing time (and push), at the
+    shallowest of ``GAIT_CROUCHES_M`` whose keyed legs reach every footprint (longer steps need a lower pelvis)."""
+    for crouch in GAIT_CROUCHES_M:
+        try:
+            task = resolve_task("yu-walk", params={"gait_step_length_m": length_m, "gait_swing_s": swing_s,
+                                                   "gait_crouch_m": crouch})
+            break
+        except CmrtError:
+            if crouch == GAIT_CROUCHES_M[-1]:
+                raise
     params = {"clip_s": round(task.gait.end_s + SETTLE_S, 2), "push_force_n": push_n, "push_start_s": push_start_s,
               "push_duration_s": 0.1}
     task = task.with_params(**params)
-    gait = f"{task.gait.steps} x {length_m:g} m, {swing_s:g} s swings"
-    return {"gait": gait, **_figures(task, [swing_s] * task.gait.n_steps, push_n, push_start_s)}
+    gait = f"{task.gait.steps} x {length_m:g} m, {swing_s:g} s swings, {crouch * 100:g} cm crouch"
+    return {"gait": gait, "crouch_m": crouch,
+            **_figures(task, [swing_s] * task.gait.n_steps, push_n, push_start_s)}
 
 
 def _refused_or(run, length_m: float, swing_s: float, *push) -> dict:

@@ -9,9 +9,9 @@ is made from the events a gait is keyed by:
   touchdown and the next lift-off;
 * the swing foot: flat, its ankle eased from footprint to footprint (quintic in x) and lifted on a bell
   ``lift_m`` high;
-* the pelvis: over the stance foot at every mid-swing as it is over the feet standing (the stand pose's offset),
-  and monotone in between (PCHIP through those keys), ``crouch_m`` lower while walking than standing, the trunk at
-  the stand pose's pitch.
+* the pelvis: at the walking speed, over the stance foot at every mid-swing as it is over the feet standing (the
+  stand pose's offset), speeding up from rest and slowing to rest over the feet together with bounded
+  acceleration; ``crouch_m`` lower while walking than standing; the trunk at the stand pose's pitch.
 
 Every frame's leg angles then follow from two-link leg inverse kinematics (hip, knee) with the foot flat (ankle):
 the reference's stance foot stays exactly where it was put. Arms, lumbar and neck hold the stand pose.
@@ -27,15 +27,17 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
-from scipy.interpolate import PchipInterpolator
 
 from cmrt.body.character import Character, character
 from cmrt.errors import CmrtError
 from cmrt.motion.reference import smoothstep5
 
 CHECK_STEP_S = 0.01  # check_gait's grid
+STOP_DECEL_M_S2 = 0.6  # the keyed pelvis slows to a stop no faster than this: the CoP it needs is h a / g = 5.5 cm
+# ahead of the CoM. Keyed to arrive over the feet by the closing mid-swing (PCHIP through the mid-swing keys), it
+# asked 2.2 m/s^2 there with 0.4 s swings - a CoP 20 cm ahead, past the toes - and the walk fell after its stop
 SETTLE_S = 0.6  # after the last touchdown the pelvis eases back over the feet and up to standing height
-CROUCH_IN_S = 0.4  # before the first lift-off the pelvis eases down to walking height over this long
+CROUCH_IN_S = 0.4  # before the first lift-off the pelvis eases down to walking height over this long at least
 GAIT_PARAMS: dict[str, float] = {  # the task parameters a gait is keyed by (a task has a gait when gait_steps > 0)
     "gait_steps": 0.0,  # forward steps before the closing one (0: no gait)
     "gait_step_length_m": 0.2,  # footprint to footprint
@@ -86,9 +88,31 @@ class Gait:
         return self.lift_off_s(j) + self.swing_s
 
     @property
+    def speed_m_s(self) -> float:
+        """The walking speed: a step's length per step's time."""
+        return self.step_length_m / (self.swing_s + self.double_support_s)
+
+    @property
+    def speed_up_s(self) -> tuple[float, float]:
+        """When the pelvis starts to speed up from rest, and for how long: over the two steps' time before the
+        second mid-swing, so it is over the stance foot from then on (earlier than 0: ``check_gait`` refuses)."""
+        period = self.swing_s + self.double_support_s
+        return self.lift_off_s(1) + 0.5 * self.swing_s - 2 * period, 2 * period
+
+    @property
+    def stop_s(self) -> tuple[float, float]:
+        """When the pelvis starts to slow down, and for how long: a quintic ease whose largest deceleration is
+        ``STOP_DECEL_M_S2`` (1.875 v / T), ending over the feet together."""
+        v = self.speed_m_s
+        ease = 1.875 * v / STOP_DECEL_M_S2
+        last_mid = self.lift_off_s(self.steps - 1) + 0.5 * self.swing_s  # over the last forward step's stance foot
+        return last_mid + (self.step_length_m - 0.5 * v * ease) / v, ease
+
+    @property
     def end_s(self) -> float:
-        """When the reference is back at the stand pose."""
-        return self.touchdown_s(self.steps) + SETTLE_S
+        """When the reference is back at the stand pose: the pelvis at rest and the crouch gone."""
+        stop, ease = self.stop_s
+        return max(self.touchdown_s(self.steps) + SETTLE_S, stop + ease)
 
     def footprints_m(self) -> np.ndarray:
         """(n_steps + 1, 2): each foot's ankle x (from its start) after step j - 1 (row 0: the start)."""
@@ -151,22 +175,29 @@ def feet_paths(gait: Gait, t_s: np.ndarray, ankle_z0_m: float) -> tuple[np.ndarr
     return x, z, vx, vz, ax, az
 
 
+def _eased(u: np.ndarray) -> np.ndarray:
+    """The integral of ``smoothstep5`` from 0 to u (u past 1 goes on at rate 1; before 0 it is 0): the distance a
+    speed eased in over unit time has covered."""
+    v = np.clip(u, 0.0, 1.0)
+    return 2.5 * v**4 - 3.0 * v**5 + v**6 + np.maximum(u - 1.0, 0.0)
+
+
 def pelvis_path(gait: Gait, t_s: np.ndarray, offset_x_m: float, height_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Pelvis x and z at times ``t_s``: x over the stance ankle plus the stand pose's ``offset_x_m`` at every
-    mid-swing (PCHIP between), z ``crouch_m`` below ``height_m`` while walking. The crouch eases in and out as the
-    square of a quintic: standing, the knees are straight, and a knee's angle grows as the square root of the
-    hip's drop (a linear ease would start the knee at an infinite rate)."""
+    """Pelvis x and z at times ``t_s``.
+
+    x: the stand pose's ``offset_x_m`` ahead of the feet, then at the walking speed L / (swing + double support),
+    which puts it over the stance ankle (plus that offset) at every mid-swing. The speed eases in (quintic) over
+    the two steps' time before the second mid-swing - so over the first distance L - and eases out at
+    ``gait.stop_time_s`` so that the pelvis comes to rest over the feet together, its deceleration never above
+    ``STOP_DECEL_M_S2``. z: ``crouch_m`` lower while walking, eased in and out as the square of a quintic
+    (standing, the knees are straight, and a knee's angle grows as the square root of the hip's drop: a linear
+    ease would start the knee at an infinite rate)."""
     t = np.asarray(t_s, float)
-    prints = gait.footprints_m()
-    keys_t, keys_x = [0.0], [offset_x_m]
-    for j in range(gait.n_steps):
-        stance = prints[j, 1 - gait.foot(j)]
-        keys_t.append(gait.lift_off_s(j) + 0.5 * gait.swing_s)
-        keys_x.append(stance + offset_x_m)
-    keys_t.append(gait.end_s)
-    keys_x.append(prints[-1].max() + offset_x_m)
-    px = PchipInterpolator(keys_t, keys_x)(np.clip(t, 0.0, gait.end_s))
-    down = smoothstep5((t - (gait.first_step_s - CROUCH_IN_S)) / CROUCH_IN_S)[0]
+    v, (start, ease_in), (stop, ease_out) = gait.speed_m_s, gait.speed_up_s, gait.stop_s
+    px = offset_x_m + v * (ease_in * _eased((t - start) / ease_in) - ease_out * _eased((t - stop) / ease_out))
+    crouch_s = min(gait.first_step_s - CROUCH_IN_S, start)  # the knees bend before the pelvis moves: standing
+    # straight, the legs are at full reach
+    down = smoothstep5((t - crouch_s) / (gait.first_step_s - crouch_s))[0]
     up = smoothstep5((t - gait.touchdown_s(gait.steps)) / SETTLE_S)[0]
     return px, height_m - gait.crouch_m * (down * (1.0 - up)) ** 2
 
@@ -229,6 +260,10 @@ def check_gait(gait: Gait, stand_qpos: np.ndarray, clip_s: float) -> None:
     """CmrtError, in one line, for a gait the legs cannot do or the clip cannot hold: a keyed frame out of a leg's
     reach or past a joint's range, or a clip ending before the body is back at rest (``SETTLE_S`` after the pose
     is back at standing)."""
+    start, _ = gait.speed_up_s
+    if start < -1e-9:
+        raise CmrtError(f"gait: the body speeds up over two steps before the second mid-swing: gait_first_step_s "
+                        f"must be at least {gait.first_step_s - start:g} s")
     if gait.end_s + SETTLE_S > clip_s:
         raise CmrtError(f"the gait ends at {gait.end_s:g} s: clip_s must be at least {gait.end_s + SETTLE_S:g} s "
                         "(the body comes to rest)")

@@ -84,6 +84,7 @@ def test_the_com_passes_over_the_stance_foot_in_every_swing():
     ({"gait_step_length_m": 0.3}, "out of the leg's reach"),
     ({"gait_steps": 2.5}, "whole number"),
     ({"clip_s": 5.0}, "clip_s must be at least"),
+    ({"gait_first_step_s": 0.3}, "gait_first_step_s must be at least 0.5"),
     ({"stepping": 1}, "no footstep plan, end pose or stepping"),
 ])
 def test_a_gait_the_legs_or_the_clip_cannot_do_is_refused(params, match):
@@ -96,3 +97,23 @@ def test_a_task_has_a_gait_only_with_gait_steps():
     assert load_task("walk").gait is None and load_task("stand").gait is None
     assert TASK.gait == Gait.from_params(TASK.params) and TASK.footsteps_planned == TASK.gait.n_steps == 7
     assert TASK.with_params(gait_step_length_m=0.15).content_hash() != TASK.content_hash()
+
+
+def test_the_pelvis_keeps_the_walking_speed_and_stops_gently():
+    """Between the second mid-swing and the stop the pelvis moves at L / (swing + double support), over the stance
+    ankle at every mid-swing; it speeds up and slows down with no more than ``STOP_DECEL_M_S2`` (the stop) and
+    comes to rest over the feet together."""
+    from cmrt.motion.gait import STOP_DECEL_M_S2, pelvis_path
+
+    g = TASK.gait
+    t = np.arange(0.0, g.end_s + 0.5, 0.001)
+    x = pelvis_path(g, t, 0.05, 0.9)[0]
+    v, a = np.gradient(x, t), np.gradient(np.gradient(x, t), t)
+    cruising = (t > g.lift_off_s(1) + 0.5 * g.swing_s) & (t < g.stop_s[0])
+    np.testing.assert_allclose(v[cruising], g.speed_m_s, rtol=1e-6)
+    prints = g.footprints_m()
+    for j in range(1, g.steps):
+        mid = g.lift_off_s(j) + 0.5 * g.swing_s
+        assert np.interp(mid, t, x) == pytest.approx(prints[j, 1 - g.foot(j)] + 0.05, abs=1e-6)
+    assert -a[t > g.stop_s[0]].min() <= STOP_DECEL_M_S2 * 1.001
+    assert x[-1] == pytest.approx(prints[-1].max() + 0.05, abs=1e-9) and abs(v[-1]) < 1e-9
