@@ -134,6 +134,23 @@ def _numbers(text: str, what: str, lo: float, hi: float) -> list[float]:
     return values
 
 
+def _cells(r: dict) -> tuple[str, str, str, str]:
+    """A row's placement error, peak touchdown force, touchdown speed and thorax range as table cells."""
+    err = "-" if r["max_footstep_error_m"] is None else f"{r['max_footstep_error_m'] * 1000:.1f}"
+    peak = "-" if r["peak_touchdown_force_bw"] is None else f"{r['peak_touchdown_force_bw']:.2f}"
+    speed = "-" if r["max_touchdown_speed_m_s"] is None else f"{r['max_touchdown_speed_m_s']:.2f}"
+    return err, peak, speed, f"{r['thorax_most_forward_deg']:.0f} to {r['thorax_most_backward_deg']:+.0f}"
+
+
+def _push_table(title: str, steps: str, rows: list[dict]) -> None:
+    print()
+    print(f"| {title} | starts (s) | outcome | {steps} |")
+    print("|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['push_n']:+g} | {r['push_start_s']:g} | {r['outcome']} | {r.get('steps')} "
+              f"({r.get('planned_steps')}) |")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--lengths", default="0.2,0.3,0.4", help="step lengths, m")
@@ -173,17 +190,10 @@ def main(argv: list[str] | None = None) -> int:
           "| latest landing (s late) | thorax (deg) |")
     print("|---|---|---|---|---|---|---|")  # thorax: its pitch's range, most forward to most backward
     for r in plans:
-        err = "-" if r["max_footstep_error_m"] is None else f"{r['max_footstep_error_m'] * 1000:.1f}"
         late = "-" if r["max_timing_error_s"] is None else f"{r['max_timing_error_s']:.3f}"
-        peak = "-" if r["peak_touchdown_force_bw"] is None else f"{r['peak_touchdown_force_bw']:.2f}"
-        speed = "-" if r["max_touchdown_speed_m_s"] is None else f"{r['max_touchdown_speed_m_s']:.2f}"
-        print(f"| `{r['plan']}` | {r['outcome']} | {err} | {peak} | {speed} | {late} | "
-              f"{r['thorax_most_forward_deg']:.0f} to {r['thorax_most_backward_deg']:+.0f} |")
-    print()
-    print("| push (N) | starts (s) | outcome | steps (planned) |")
-    print("|---|---|---|---|")
-    for r in pushed:
-        print(f"| {r['push_n']:+g} | {r['push_start_s']:g} | {r['outcome']} | {r['steps']} ({r['planned_steps']}) |")
+        err, peak, speed, thorax = _cells(r)
+        print(f"| `{r['plan']}` | {r['outcome']} | {err} | {peak} | {speed} | {late} | {thorax} |")
+    _push_table("push (N)", "steps (planned)", pushed)
     print()
     print("| Yu's tracked walk | outcome | placement error (mm) | peak touchdown force (BW) | touchdown speed (m/s) "
           "| thorax (deg) |")
@@ -191,18 +201,9 @@ def main(argv: list[str] | None = None) -> int:
     for r in gaits:
         if r["outcome"] == "refused":
             print(f"| {r['gait']} | refused: {r['reason']} | - | - | - | - |")
-            continue
-        err = "-" if r["max_footstep_error_m"] is None else f"{r['max_footstep_error_m'] * 1000:.1f}"
-        peak = "-" if r["peak_touchdown_force_bw"] is None else f"{r['peak_touchdown_force_bw']:.2f}"
-        speed = "-" if r["max_touchdown_speed_m_s"] is None else f"{r['max_touchdown_speed_m_s']:.2f}"
-        print(f"| {r['gait']} | {r['outcome']} | {err} | {peak} | {speed} | "
-              f"{r['thorax_most_forward_deg']:.0f} to {r['thorax_most_backward_deg']:+.0f} |")
-    print()
-    print("| push on Yu's walk (N) | starts (s) | outcome | steps (keyed) |")
-    print("|---|---|---|---|")
-    for r in gait_pushes:
-        print(f"| {r['push_n']:+g} | {r['push_start_s']:g} | {r['outcome']} | {r.get('steps')} "
-              f"({r.get('planned_steps')}) |")
+        else:
+            print(f"| {r['gait']} | {r['outcome']} | {' | '.join(_cells(r))} |")
+    _push_table("push on Yu's walk (N)", "steps (keyed)", gait_pushes)
     print(f"\n{out['wall_s']} s on {out['machine']}, Python {out['python']}")
     return 0
 
