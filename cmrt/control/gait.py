@@ -30,8 +30,8 @@ TOUCHDOWN_AFTER = 0.85  # the swing foot on the floor counts as landed after thi
 SWING_TRACKED = 1.0  # kernel.S_SWING_TRACKED of a swing: the leg follows the gait's angles at full weight
 LATE_DEPTH_M = 0.02  # a swing foot still up after its swing is aimed this far into the floor; it is lowered to
 SET_DOWN_FROM = 0.7  # that depth from this fraction of the swing on. Measured in yu-walk: aimed at the floor
-# itself, the first and the closing step hovered 5 mm up (the swing leg's keyed angles, tracked too, hold the foot
-# where the keyed pelvis height puts it) and landed 0.15 s late
+# itself, the first and the closing step hovered 5 mm up for 0.15 s and landed late (the foot's objective weighs
+# little against the momentum objectives; releasing the swing leg's joint tracking did not bring it down)
 
 
 @dataclass(frozen=True)
@@ -52,12 +52,10 @@ class GaitTracker:
         self.gait = gait
         self.heel_to_ankle_m = heel_to_ankle_m  # the heel point's centre from the ankle (x, z), foot flat
         self.foot_length_m = foot_length_m  # heel point to toe point
-        self.heel_to_center_m = 0.5 * foot_length_m
         self.swing = np.full(n, NO_SWING)
         self.next_step = np.zeros(n, int)
         self.t0 = np.zeros(n)
         self.target_heel_x = np.zeros(n)  # where the swing heel lands
-        self.origin_x = np.full(n, np.nan)
         self.step_times: list[list[float]] = [[] for _ in range(n)]  # lift-off times
         self.footprints: list[list[tuple[int, float, float]]] = [[] for _ in range(n)]  # (foot, time, heel x)
         self.placement_error_m: list[list[tuple[float, float]]] = [[] for _ in range(n)]  # (touchdown s, landed
@@ -79,9 +77,6 @@ class GaitTracker:
         command. ``contact`` (k, 4) and ``point_x`` (k, 4): heel_r, toe_r, heel_l, toe_l on the floor / their x.
         The momenta and the CMRT are not used (the stepping supervisor's signature)."""
         g = self.gait
-        new = np.isnan(self.origin_x[ids])
-        if new.any():
-            self.origin_x[ids[new]] = 0.5 * (point_x[new].min(axis=1) + point_x[new].max(axis=1))
         self._touchdowns(ids, time_s, contact, point_x)
         idle = np.flatnonzero(self.swing[ids] < 0)
         for r in idle:
