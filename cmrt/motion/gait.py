@@ -212,36 +212,55 @@ def leg_ik(dx: np.ndarray, dz: np.ndarray, thigh_m: float, shank_m: float) -> tu
     return toward - np.arctan2(shank_m * np.sin(knee), thigh_m + shank_m * np.cos(knee)), knee
 
 
-def gait_motion(gait: Gait, ch: Character, stand_qpos: np.ndarray, t_s: np.ndarray) -> GaitMotion:
-    """The keyed gait at times ``t_s`` (see the module docstring), from the stand pose ``stand_qpos`` (feet
-    together and flat, knees straight): the reference a ``gait`` task tracks."""
-    t = np.atleast_1d(np.asarray(t_s, float))
+@dataclass(frozen=True)
+class StandFrame:
+    """What the keyed gait takes from the stand pose: the leg's lengths and where the ankle and pelvis stand."""
+
+    thigh_m: float
+    shank_m: float
+    ankle_z_m: float  # the ankle's height
+    offset_x_m: float  # the pelvis ahead of the ankles
+    height_m: float  # the pelvis's height
+
+    @property
+    def reach_m(self) -> float:
+        return self.thigh_m + self.shank_m
+
+
+def stand_frame(ch: Character, stand_qpos: np.ndarray) -> StandFrame:
+    """The stand pose's ``StandFrame`` (MuJoCo's forward kinematics; feet together, knees straight)."""
     m = ch.model
     d = mujoco.MjData(m)
     d.qpos[:] = stand_qpos
     mujoco.mj_kinematics(m, d)
-    pelvis, ankle = d.xpos[1].copy(), d.xpos[ch.foot_bodies[0]].copy()
-    legs = (float(-m.body_pos[ch.foot_bodies[0] - 1, 2]), float(-m.body_pos[ch.foot_bodies[0], 2]))  # thigh, shank
-    keys = (float(ankle[2]), float(pelvis[0] - ankle[0]), float(pelvis[2]))
-    q = _pose(gait, ch, stand_qpos, t, legs, keys)
+    pelvis, ankle = d.xpos[1], d.xpos[ch.foot_bodies[0]]
+    foot = ch.foot_bodies[0]  # its body sits at the ankle, the shank's at the knee
+    return StandFrame(thigh_m=float(-m.body_pos[foot - 1, 2]), shank_m=float(-m.body_pos[foot, 2]),
+                      ankle_z_m=float(ankle[2]), offset_x_m=float(pelvis[0] - ankle[0]), height_m=float(pelvis[2]))
+
+
+def gait_motion(gait: Gait, ch: Character, stand_qpos: np.ndarray, t_s: np.ndarray) -> GaitMotion:
+    """The keyed gait at times ``t_s`` (see the module docstring), from the stand pose ``stand_qpos`` (feet
+    together and flat, knees straight): the reference a ``gait`` task tracks."""
+    t = np.atleast_1d(np.asarray(t_s, float))
+    frame = stand_frame(ch, stand_qpos)
+    q = _pose(gait, ch, stand_qpos, t, frame)
     # rates by central differences RATE_STEP_S wide, the same whatever times are asked for (the angles are smooth
     # functions of smooth paths: measured against 0.1 ms differences, within 1e-4 of the largest rate)
-    q_ahead, q_behind = (_pose(gait, ch, stand_qpos, t + h, legs, keys) for h in (RATE_STEP_S, -RATE_STEP_S))
+    q_ahead, q_behind = (_pose(gait, ch, stand_qpos, t + h, frame) for h in (RATE_STEP_S, -RATE_STEP_S))
     qd = (q_ahead - q_behind) / (2 * RATE_STEP_S)
     qdd = (q_ahead - 2 * q + q_behind) / RATE_STEP_S**2
-    feet = feet_paths(gait, t, keys[0])
-    return GaitMotion(q, qd, qdd, *feet)
+    return GaitMotion(q, qd, qdd, *feet_paths(gait, t, frame.ankle_z_m))
 
 
 RATE_STEP_S = 1e-3
 
 
-def _pose(gait: Gait, ch: Character, stand_qpos: np.ndarray, t: np.ndarray, legs: tuple[float, float],
-          keys: tuple[float, float, float]) -> np.ndarray:
+def _pose(gait: Gait, ch: Character, stand_qpos: np.ndarray, t: np.ndarray, frame: StandFrame) -> np.ndarray:
     """qpos (n, nq) of the keyed gait at times ``t``: the pelvis on its path, each leg's angles from IK with the
     foot flat, everything else as in the stand pose."""
-    ankle_z0, offset_x, height = keys
-    ax_, az_ = feet_paths(gait, t, ankle_z0)[:2]
+    offset_x, height = frame.offset_x_m, frame.height_m
+    ax_, az_ = feet_paths(gait, t, frame.ankle_z_m)[:2]
     px, pz = pelvis_path(gait, t, offset_x, height)
     pitch = float(stand_qpos[2])
     q = np.tile(stand_qpos, (t.size, 1))
@@ -249,7 +268,7 @@ def _pose(gait: Gait, ch: Character, stand_qpos: np.ndarray, t: np.ndarray, legs
     q[:, 1] += pz - height
     names = ch.dof_names
     for f, side in enumerate("rl"):
-        thigh, knee = leg_ik(ax_[:, f] - px, az_[:, f] - pz, *legs)
+        thigh, knee = leg_ik(ax_[:, f] - px, az_[:, f] - pz, frame.thigh_m, frame.shank_m)
         q[:, names.index(f"hip_{side}")] = thigh - pitch
         q[:, names.index(f"knee_{side}")] = knee
         q[:, names.index(f"ankle_{side}")] = -(thigh + knee)  # the foot flat: pitch + hip + knee + ankle = 0
@@ -269,19 +288,14 @@ def check_gait(gait: Gait, stand_qpos: np.ndarray, clip_s: float) -> None:
                         "(the body comes to rest)")
     ch = character()
     t = np.arange(0.0, gait.end_s + CHECK_STEP_S, CHECK_STEP_S)
-    m = ch.model
-    d = mujoco.MjData(m)
-    d.qpos[:] = stand_qpos
-    mujoco.mj_kinematics(m, d)
-    pelvis, ankle = d.xpos[1].copy(), d.xpos[ch.foot_bodies[0]].copy()
-    reach = float(-m.body_pos[ch.foot_bodies[0] - 1, 2] - m.body_pos[ch.foot_bodies[0], 2])
-    ax_, az_ = feet_paths(gait, t, float(ankle[2]))[:2]
-    px, pz = pelvis_path(gait, t, float(pelvis[0] - ankle[0]), float(pelvis[2]))
+    frame = stand_frame(ch, stand_qpos)
+    ax_, az_ = feet_paths(gait, t, frame.ankle_z_m)[:2]
+    px, pz = pelvis_path(gait, t, frame.offset_x_m, frame.height_m)
     far = np.hypot(ax_ - px[:, None], az_ - pz[:, None]).max()
-    if far > reach + 1e-9:
-        raise CmrtError(f"gait: a foot {far:.3f} m from the hip is out of the leg's reach ({reach:.2f} m): shorten "
-                        "gait_step_length_m or deepen gait_crouch_m")
-    q = gait_motion(gait, ch, stand_qpos, t).q
+    if far > frame.reach_m + 1e-9:
+        raise CmrtError(f"gait: a foot {far:.3f} m from the hip is out of the leg's reach ({frame.reach_m:.2f} m): "
+                        "shorten gait_step_length_m or deepen gait_crouch_m")
+    q = _pose(gait, ch, stand_qpos, t, frame)
     lo, hi = ch.joint_range_rad()
     dofs = list(ch.actuated_dofs)
     outside = (q[:, dofs] < lo - 1e-9) | (q[:, dofs] > hi + 1e-9)

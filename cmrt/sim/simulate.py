@@ -51,7 +51,7 @@ from cmrt.control.stepping import MOMENTUM, StepCommand, StepConfig, StepPlan, S
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.ensemble import NOMINAL, Perturbation
 from cmrt.motion.footsteps import DOUBLE_SUPPORT_S, FIRST_STEP_S
-from cmrt.motion.gait import feet_paths
+from cmrt.motion.gait import feet_paths, stand_frame
 from cmrt.motion.task import Task
 from cmrt.sim.balance import REASONS, BalanceLimits, FallReason, capture_point_x
 from cmrt.sim.monitor import FallMonitor, ProtectiveMode
@@ -1165,10 +1165,7 @@ def _stepper(task: Task, n: int, com_stiffness: float = ControllerConfig.k_l) ->
     heel, toe = (ch.model.geom_pos[g, 0] for g in ch.foot_point_geoms[:2])
     if task.gait is not None:
         heel_z = ch.model.geom_pos[ch.foot_point_geoms[0], 2]
-        d = mujoco.MjData(ch.model)
-        d.qpos[:] = task.start_qpos()
-        mujoco.mj_kinematics(ch.model, d)
-        g, ankle_z0_m = task.gait, float(d.xpos[ch.foot_bodies[0], 2])
+        g, ankle_z0_m = task.gait, stand_frame(ch, task.start_qpos()).ankle_z_m
         swings = KeyedSwings(foot=np.array([g.foot(j) for j in range(g.n_steps)]),
                              lift_off_s=np.array([g.lift_off_s(j) for j in range(g.n_steps)]), swing_s=g.swing_s,
                              feet_paths=functools.partial(feet_paths, g, ankle_z0_m=ankle_z0_m))
