@@ -72,7 +72,12 @@ class ControllerConfig:
     regularization: float = 1e-6  # eps on |qdd|^2, keeps the KKT matrix regular
     control_every: int = 4  # physics steps per control step: 125 Hz at the 2 ms step (ABC: 60-120 Hz)
     friction_coef: float = 0.8  # planned |F_x| <= mu F_z (the MJCF's floor friction is 1.0)
-    min_point_force_n: float = 40.0  # planned normal force of every loaded heel/toe point: no point goes slack
+    # Every loaded heel/toe point is planned to carry at least this (a point planned below ~35 N goes slack for a
+    # physics step now and then: measured, docs/controller.md), and the plan's vertical force never falls below it
+    # per loaded point (160 N, 0.23 body weights, on four: the body is never planned to drop faster). Where the load
+    # is too low to give every point this and keep the middle half of the feet (F_z < 2 x points x this), the floor
+    # per point is half an equal share instead: the planned CoP never closes in on the support centre.
+    min_point_force_n: float = 40.0
     support_damping: float = 20.0  # 1/s, support rows ask the contact points' velocity to decay
     roll_weight: float = 1.0  # w_r: cost of a rolling foot's pitch acceleration away from its return-to-flat target
     roll_k: float = 100.0  # 1/s^2, return-to-flat stiffness of a rolling foot

@@ -380,7 +380,22 @@ def _support_rows(state, frames, qd, q, params, leg_dofs, swing, swing_target_ro
 
 
 @njit(cache=True, nogil=True)
-def _ground_rows(A, a_g, pts, com, mg, params, support, nrow, E, e, ne):
+def _point_floor(fmin, n_flat, n_points, length, low_load):
+    """How far the CoP rows keep the CoP from the support's ends so that every loaded heel/toe point carries its
+    floor: (edge, band) with (p - lo) F_z >= edge + band F_z. Normally the floor is ``fmin`` per point (edge): a
+    point planned below ~35 N goes slack for a physics step now and then (the plan is followed with a lag on a
+    soft contact), and the CoP of the rest jumps to an end (measured: docs/controller.md). That floor closes the
+    band at the support centre as F_z falls to n_points x fmin; so when the load is too low to give every point
+    ``fmin`` and keep half the foot (``low_load``: F_z < 2 n_points fmin), the floor is half an equal share per
+    point instead (band): the plan's CoP keeps the middle half of the feet at any load, where the controller can
+    still place it."""
+    if low_load:
+        return 0.0, n_flat * length / (2.0 * max(n_points, 1))
+    return fmin * n_flat * length, 0.0
+
+
+@njit(cache=True, nogil=True)
+def _ground_rows(A, a_g, pts, com, mg, params, support, nrow, E, e, ne, low_load=False):
     """The ground's rows on the wrench w = A qdd + a (F_x = w0, F_z = w1 + m g, Hdot = w2): unilateral F_z,
     two friction rows and two CoP rows (C, c, the first N_INEQ of ``nrow`` rows; the rest are filled by
     :func:`_limit_rows`) with which are on; a rolling foot's CoP equality and an airborne body's zero wrench
@@ -392,15 +407,15 @@ def _ground_rows(A, a_g, pts, com, mg, params, support, nrow, E, e, ne):
     zc = (pts[0, 2] + pts[1, 2] + pts[2, 2] + pts[3, 2]) / 4.0
     arm = zc - com[2]
     mu, fmin = params[P_MU], params[P_FMIN]
-    edge = fmin * n_flat * (hi - lo)
+    edge, band = _point_floor(fmin, n_flat, n_points, hi - lo, low_load)
     R = np.zeros((N_INEQ, 3))
     r0 = np.zeros(N_INEQ)
     R[0, 1] = 1.0
     r0[0] = mg - fmin * n_points
     R[1, 0], R[1, 1], r0[1] = -1.0, mu, mu * mg
     R[2, 0], R[2, 1], r0[2] = 1.0, mu, mu * mg
-    R[3, 0], R[3, 1], R[3, 2], r0[3] = arm, com[0] - lo, -1.0, (com[0] - lo) * mg - edge
-    R[4, 0], R[4, 1], R[4, 2], r0[4] = -arm, hi - com[0], 1.0, (hi - com[0]) * mg - edge
+    R[3, 0], R[3, 1], R[3, 2], r0[3] = arm, com[0] - lo - band, -1.0, (com[0] - lo - band) * mg - edge
+    R[4, 0], R[4, 1], R[4, 2], r0[4] = -arm, hi - com[0] - band, 1.0, (hi - com[0] - band) * mg - edge
     C = np.zeros((nrow, nv))
     c = np.empty(nrow)
     C[:N_INEQ] = R @ A
@@ -549,7 +564,7 @@ def _inverse_dynamics(A, qdd, a_g, mg, com, arm, dyn, load_gen, pts, Jp, loaded,
     split = ((carries[0] or carries[1]) and (carries[2] or carries[3])
              and abs(pts[0, 0] - pts[2, 0]) > SPLIT_STANCE_M and fz > 1e-9)
     if split:
-        shares = bounded_shares(pts[:, 0], carries, cop, min(fmin / fz, 1.0 / count))
+        shares = bounded_shares(pts[:, 0], carries, cop, min(fmin / fz, 0.5 / count))
     for p in range(4):
         if carries[p]:
             if split:
@@ -624,7 +639,8 @@ def control_step(rows, fields, model, refs, support, warm, load, out):
                           field_w if field_gen.shape[0] > 0 else field_w[:0])
         E, e, ne, lo, hi, n_flat, n_points = _support_rows(state, (pts, Jp, bp), qd, q, params, leg_dofs, swing,
                                                           swing_target[i], Q, g)
-        C, c, c_on, ne, arm = _ground_rows(A, a_g, pts, com, mg, params, (lo, hi, n_flat, n_points), nrow, E, e, ne)
+        support_now, ne_support = (lo, hi, n_flat, n_points), ne
+        C, c, c_on, ne, arm = _ground_rows(A, a_g, pts, com, mg, params, support_now, nrow, E, e, ne_support)
 
         # the torques are affine in the plan, tau = T qdd + t0: the motors' limits are rows of the QP, so the
         # plan is one the motors can carry out - nothing is clipped after the solve
@@ -640,8 +656,14 @@ def control_step(rows, fields, model, refs, support, warm, load, out):
         if in_plan:
             _limit_rows(C, c, c_on, (Tm, t0), q, qd, actuated, limits, params)
         active = warm_in[row, :nrow].copy() if params[P_WARM] > 0.0 else np.zeros(nrow, np.bool_)
-        qdd = solve_qp(Q, g, E[:ne], e[:ne], C, c, c_on, params[P_DUALREG],
-                       MAX_PASSES_LIMITS if in_plan else MAX_PASSES, active)
+        passes = MAX_PASSES_LIMITS if in_plan else MAX_PASSES
+        qdd = solve_qp(Q, g, E[:ne], e[:ne], C, c, c_on, params[P_DUALREG], passes, active)
+        if n_flat > 0 and A[1] @ qdd + a_g[1] + mg < 2.0 * n_points * params[P_FMIN]:  # a low load: the floor per
+            C, c, c_on, ne, arm = _ground_rows(A, a_g, pts, com, mg, params, support_now, nrow, E, e, ne_support,
+                                               True)  # point becomes half an equal share (_point_floor), re-planned
+            if in_plan:
+                _limit_rows(C, c, c_on, (Tm, t0), q, qd, actuated, limits, params)
+            qdd = solve_qp(Q, g, E[:ne], e[:ne], C, c, c_on, params[P_DUALREG], passes, active)
         warm_out[row, :nrow] = active
         warm_out[row, nrow:] = False
 

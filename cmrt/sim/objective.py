@@ -58,16 +58,21 @@ NOT_SETTLED_PENALTY = 5.0
 # tracking error moves a 0.17 rad neck's 90 % crossing by ~25 ms)
 DRIVING_JOINT_RAD = 0.2
 MAX_TIMING_LAG_S = 0.05  # s: no driving joint of a pose change should arrive later than this (or 0.1 T)
-# Whether a pose change must also be on time (``timing_lag_s`` <= ``timing_lag_bound_s``) to count as performed.
-# Not yet: the shipped fast bend's reference asks the ground to pull (-2.2 body weights) and cannot be done on
-# time by any controller with its feet on the ground - with the rule, no CMRT succeeds on it (CMA-ES, 1490
-# evaluations: none) - so the rule waits for the re-authored bend (docs/controller.md, issue 25). Reported now.
-ENFORCE_TIMING = False
+# Whether a motion must also be on time (``timing_lag_s`` <= ``timing_lag_bound_s``) to count as performed: every
+# pose change and every interaction (a prop task's driving joints). A test switches it off to show what it adds.
+ENFORCE_TIMING = True
+# What a success must also look like (docs/physics.md, *Success*): a motion a researcher would accept, not only
+# a score. Each is a figure of the Evaluation; a success never stands beside one that breaks its bound.
+MAX_PLAN_COP_ERROR_M = 0.005  # planned vs executed CoP, outside impact windows: the plan is what happens
+MAX_GROUND_FORCE_BW = 2.5  # peak vertical ground force, outside impact windows
+MAX_AIRBORNE_S = 0.01  # both feet off the ground (feet planted: no flight)
+MIN_COP_MARGIN_M = 0.0  # the measured CoP inside the feet
+NOT_PLAUSIBLE_PENALTY = 5.0  # x (1 + the worst excess over its bound, up to 1): CMA-ES keeps a slope
 TIMING_FRACTION = 0.9  # a driving joint has arrived when it covers this fraction of the reference's excursion
 BODY_ON_FLOOR_Z_M = 0.0  # as the balance monitor's BODY_ON_FLOOR check: a non-foot body below the floor
 # Figures only a recorded run (traces, ``cmrt simulate``) has, or has differently (a topple played out): a scoring
 # run reports None (fall_direction from the capture point). Nothing the score depends on is among them.
-TRACE_ONLY_FIELDS = ("max_plan_cop_error_m", "max_foot_slip_m", "fall_direction", "fall_direction_source",
+TRACE_ONLY_FIELDS = ("max_foot_slip_m", "fall_direction", "fall_direction_source",
                      "after_fall_max_joint_speed_rad_s", "after_fall_peak_foot_force_bw", "after_fall_max_foot_lift_m",
                      "after_fall_floor_contact_s")
 
@@ -128,7 +133,7 @@ class Evaluation:
     # where it was asked to (m; None without a plan). All landed within FOOTSTEP_TOLERANCE_M: the plan performed
     footsteps_landed: int | None = None
     max_footstep_error_m: float | None = None
-    # diagnostics (docs/controller.md, *Diagnostics*); none enters the objective or the verdict
+    # diagnostics (docs/controller.md, *Diagnostics*); the plan gap, timing lag and the figures above enter the verdict
     max_plan_cop_error_m: float | None = None  # planned vs executed CoP (recorded runs)
     max_foot_slip_m: float | None = None  # how far a heel/toe point slid along the support while touching it
     timing_lag_s: float | None = None  # how late the motion was done (pose changes)
@@ -139,6 +144,11 @@ class Evaluation:
     after_fall_peak_foot_force_bw: float | None = None
     after_fall_max_foot_lift_m: float | None = None
     after_fall_floor_contact_s: float | None = None  # None: no body other than the feet reached the floor
+    # the one verdict rule (``success_rule`` names what "performed" means for this task): the rules this clip
+    # broke, in order - "balance", "performed", "on_time", "settled", "plan", "ground_force", "airborne",
+    # "cop_margin", "final_pose" - empty for a success
+    failed_rules: tuple[str, ...] = ()
+    success_rule: str = ""
 
     def scored(self) -> Evaluation:
         """This evaluation without the trace-only figures: what a scoring run of the same clip gives."""
@@ -197,51 +207,113 @@ def _before_fall(traj: Trajectory) -> np.ndarray:
 
 def _performed(task: Task, traj: Trajectory, tracking: float | None, final_err: float,
                lag: float | None) -> tuple[bool | None, float | None, float | None]:
-    """Whether the clip performed the motion (None: the task has no end pose to judge it by), with the
-    tracking bound and the timing-lag bound it was judged against (None when not used)."""
+    """Whether the clip performed the motion (None: the task has nothing to perform), with the tracking bound
+    and the timing-lag bound it was judged against (None when not used): a prop task met its goal, a pose change
+    ended in its pose tracked within the RMS bound, a footstep plan landed every step; and with ``ENFORCE_TIMING``
+    the driving joints of a pose change or an interaction arrived on time."""
+    lag_bound = timing_lag_bound_s(task) if lag is not None else None
+    on_time = not ENFORCE_TIMING or lag is None or lag <= lag_bound + 1e-12
     if traj.task_success is not None:
-        return traj.task_success, None, None
+        return traj.task_success and on_time, None, lag_bound
     steps_ok = None
     if task.footsteps_planned:  # a footstep plan or a gait: every step landed, each where it was asked to
         errors = np.abs(np.asarray(traj.footstep_errors_m, float))
         steps_ok = bool(len(errors) == task.footsteps_planned and np.all(errors <= FOOTSTEP_TOLERANCE_M))
     if task.end_pose_deg is None:
-        return steps_ok, None, None
+        return steps_ok, None, lag_bound
     start, stop = task.task_window_s()
     bound = task.tracking_bound_rad(np.arange(start, stop + 1e-9, task.cop_sample_step_s))
-    lag_bound = timing_lag_bound_s(task)
     performed = bool(final_err < FINAL_POSE_TOLERANCE_RAD and tracking is not None and tracking <= bound)
-    if ENFORCE_TIMING:
-        performed = performed and lag is not None and lag <= lag_bound
+    performed = performed and on_time
     if steps_ok is not None:
         performed = performed and steps_ok
     return performed, bound, lag_bound
 
 
-def _penalty(task: Task, traj: Trajectory, settled: bool, performed: bool | None, tracking: float | None,
-             bound: float | None, lag: float | None, lag_bound: float | None) -> float:
+def success_rule(task: Task) -> str:
+    """What "performed" means for this task, as the verdict names it (docs/physics.md, *Success*)."""
+    if task.has_goal:
+        return "interaction: goal met, on time"
+    if task.footsteps_planned:
+        return "footsteps: every step within 3 cm" + (", then the end pose" if task.end_pose_deg else "")
+    if task.end_pose_deg is not None:
+        return "pose change: end pose, tracked, on time"
+    return "standing"
+
+
+def _excesses(ev: dict, fell: bool) -> dict[str, float]:
+    """Each plausibility rule's excess over its bound (> 0: broken), from the evaluation's figures. The final
+    pose is a rule of its own where "performed" does not already judge it (standing, steps, props)."""
+    out = {}
+    if ev["max_plan_cop_error_m"] is not None:
+        out["plan"] = ev["max_plan_cop_error_m"] / MAX_PLAN_COP_ERROR_M - 1.0
+    out["ground_force"] = ev["peak_normal_force_bw"] / MAX_GROUND_FORCE_BW - 1.0
+    out["airborne"] = ev["airborne_s"] / MAX_AIRBORNE_S - 1.0 if ev["airborne_s"] > MAX_AIRBORNE_S else -1.0
+    out["cop_margin"] = (MIN_COP_MARGIN_M - ev["min_cop_margin_m"]) / 0.01
+    if not fell:
+        out["final_pose"] = ev["final_pose_error_rad"] / FINAL_POSE_TOLERANCE_RAD - 1.0
+    return out
+
+
+def _verdict(task: Task, traj: Trajectory, settled: bool, performed: bool | None, lag: float | None,
+             lag_bound: float | None, figures: dict) -> tuple[tuple[str, ...], float]:
+    """The rules the clip broke, in order, and the worst plausibility excess (for the penalty)."""
+    failed = []
+    if traj.fell:
+        failed.append("balance")
+    late = ENFORCE_TIMING and lag is not None and lag_bound is not None and lag > lag_bound + 1e-12
+    if performed is False and not (late and _only_late(task, traj, figures)):
+        failed.append("performed")
+    if late:
+        failed.append("on_time")
+    if not traj.fell and not settled:
+        failed.append("settled")
+    excess = _excesses(figures, traj.fell)
+    failed += [rule for rule, x in excess.items() if x > 0.0]
+    worst = max((x for x in excess.values() if x > 0.0), default=0.0)
+    return tuple(failed), worst
+
+
+def _only_late(task: Task, traj: Trajectory, figures: dict) -> bool:
+    """A motion not performed only because it was late (its pose, tracking and goal were met)."""
+    if traj.task_success is not None:
+        return bool(traj.task_success)
+    bound = figures["tracking_bound_rad"]
+    tracking = figures["tracking_error_rad"]
+    return bool(figures["final_pose_error_rad"] < FINAL_POSE_TOLERANCE_RAD and tracking is not None
+                and bound is not None and tracking <= bound)
+
+
+def _penalty(task: Task, traj: Trajectory, failed: tuple[str, ...], tracking: float | None, bound: float | None,
+             lag: float | None, lag_bound: float | None, worst_excess: float) -> float:
     """The penalties added to the CoP-error norm: a divergence, a fall (the earlier the more), not settling,
-    a missed goal, a motion not performed (the further off the reference or the later, the more)."""
+    a missed goal, a motion not performed or late (the further off the reference or the later, the more), a
+    motion a person would not make (the further over its bound, the more)."""
     run_s = task.clip_s + task.tail_s
     if traj.diverged:
-        penalty = DIVERGED_PENALTY
-    elif traj.fell:
+        return DIVERGED_PENALTY + (MISSED_GOAL_PENALTY if traj.task_success is False else 0.0)
+    if traj.fell:
         penalty = FALL_PENALTY + 10.0 * max(run_s - (traj.fall_time_s or 0.0), 0.0) / run_s
     else:
-        penalty = 0.0 if settled else NOT_SETTLED_PENALTY
+        penalty = NOT_SETTLED_PENALTY if "settled" in failed else 0.0
     if traj.task_success is False:
         penalty += MISSED_GOAL_PENALTY
-    elif performed is False and not traj.fell:
-        excess = tracking / bound - 1.0 if tracking is not None and bound else 1.0
-        if ENFORCE_TIMING and lag_bound:  # late counts like off the reference: the worse of the two
-            excess = max(excess, lag / lag_bound - 1.0 if lag is not None else 1.0)
+    elif ("performed" in failed or "on_time" in failed) and not traj.fell:
+        excess = tracking / bound - 1.0 if tracking is not None and bound else 0.0
+        if "performed" in failed and not (tracking is not None and bound):
+            excess = 1.0
+        if "on_time" in failed:  # late counts like off the reference: the worse of the two
+            excess = max(excess, lag / lag_bound - 1.0)
         penalty += NOT_PERFORMED_PENALTY * (1.0 + float(np.clip(excess, 0.0, 1.0)))
+    if worst_excess > 0.0 and not traj.fell:
+        penalty += NOT_PLAUSIBLE_PENALTY * (1.0 + float(np.clip(worst_excess, 0.0, 1.0)))
     return penalty
 
 
 def evaluate(task: Task, traj: Trajectory) -> Evaluation:
     """Score a simulated clip: the CoP-error 2-norm (the paper's objective) plus penalties for a fall, a
-    missed goal, a motion not performed and not settling; never raises on a failed clip."""
+    missed goal, a motion not performed or late, not settling and a motion a person would not make; never
+    raises on a failed clip. ``success`` is the one verdict rule: ``failed_rules`` empty."""
     weight = character().mass_kg * GRAVITY_M_S2
     idx = _sample_index(task, traj)
     idx = idx[_loaded(task, traj, idx)]
@@ -251,10 +323,7 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
     margin = np.minimum(traj.cop_x_m[idx] - traj.support_lo_x_m[idx], traj.support_hi_x_m[idx] - traj.cop_x_m[idx])
     before = _before_fall(traj)
     contact = _contact_summary(traj, before)
-    grf = before.copy()
-    if contact["first_contact_s"] is not None:  # the impact itself is not a plausibility violation
-        start = contact["first_contact_s"]
-        grf &= ~((traj.time_s >= start) & (traj.time_s < start + IMPACT_WINDOW_S))
+    grf = before & ~_impact_windows(traj, contact["first_contact_s"], touchdowns=False)
     fz = traj.normal_force_n[grf]
     fz = fz[np.isfinite(fz)]
     dt = float(traj.time_s[1] - traj.time_s[0]) if traj.time_s.size > 1 else 0.0
@@ -267,13 +336,21 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
     lag = timing_lag_s(task, traj)
     performed, bound, lag_bound = _performed(task, traj, tracking, final_err, lag)
     settled = not traj.fell and traj.final_com_speed_m_s < SETTLED_COM_SPEED_M_S
-    penalty = _penalty(task, traj, settled, performed, tracking, bound, lag, lag_bound)
+    figures = {
+        "max_plan_cop_error_m": plan_cop_error_m(traj, contact["first_contact_s"]),
+        "peak_normal_force_bw": float(fz.max() / weight) if fz.size else 0.0,
+        "airborne_s": float(np.count_nonzero(fz < AIRBORNE_FORCE_FRACTION * weight) * dt),
+        "min_cop_margin_m": float(margin.min()) if margin.size else 0.0,
+        "final_pose_error_rad": final_err, "tracking_error_rad": tracking, "tracking_bound_rad": bound,
+    }
+    failed, worst = _verdict(task, traj, settled, performed, lag, lag_bound, figures)
+    penalty = _penalty(task, traj, failed, tracking, bound, lag, lag_bound, worst)
     return Evaluation(
         objective=norm + penalty,
         cop_error_norm=norm,
         penalty=penalty,
         cop_error_own_reference_norm=float(np.linalg.norm(own[np.isfinite(own)])),
-        success=bool(not traj.fell and performed is not False and settled),
+        success=not failed,
         performed=performed,
         settled=settled,
         fell=traj.fell,
@@ -281,9 +358,9 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
         fall_reason=None if traj.fall_reason is None else traj.fall_reason.value,
         diverged=traj.diverged,
         max_cop_error_m=float(np.max(np.abs(e))) if e.size else 0.0,
-        min_cop_margin_m=float(margin.min()) if margin.size else 0.0,
-        peak_normal_force_bw=float(fz.max() / weight) if fz.size else 0.0,
-        airborne_s=float(np.count_nonzero(fz < AIRBORNE_FORCE_FRACTION * weight) * dt),
+        min_cop_margin_m=figures["min_cop_margin_m"],
+        peak_normal_force_bw=figures["peak_normal_force_bw"],
+        airborne_s=figures["airborne_s"],
         max_joint_speed_rad_s=float(speeds.max()) if speeds.size else 0.0,
         tracking_error_rad=tracking,
         tracking_bound_rad=bound,
@@ -300,13 +377,32 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
         footsteps_landed=len(traj.footstep_errors_m) if task.footsteps_planned else None,
         max_footstep_error_m=(float(np.max(np.abs(traj.footstep_errors_m)))
                               if task.footsteps_planned and traj.footstep_errors_m else None),
-        max_plan_cop_error_m=plan_cop_error_m(traj, contact["first_contact_s"]),
+        max_plan_cop_error_m=figures["max_plan_cop_error_m"],
         max_foot_slip_m=foot_slip_m(traj),
         timing_lag_s=lag,
         timing_lag_bound_s=lag_bound,
         **fall_direction(traj),
         **after_fall(traj),
+        failed_rules=failed,
+        success_rule=success_rule(task),
     )
+
+
+def _impact_windows(traj: Trajectory, first_contact_s: float | None, touchdowns: bool = True) -> np.ndarray:
+    """Steps inside an impact (``IMPACT_WINDOW_S`` after the first hand-prop contact and, with ``touchdowns``,
+    after each planned or reactive step's touchdown, and while an unannounced push acts): a contact's first
+    instants are a collision, and a push is a force the controller does not know - neither is the plan at work.
+    A touchdown's force is still judged (a step that slams down is not hidden); its plan gap is not."""
+    t = traj.time_s
+    inside = np.zeros(t.size, bool)
+    if touchdowns and traj.push_n is not None:
+        inside |= traj.push_n[: t.size] != 0.0
+    starts = [] if first_contact_s is None else [first_contact_s]
+    if touchdowns:
+        starts += [float(f[1]) for f in traj.footprints]
+    for start in starts:
+        inside |= (t >= start - 1e-9) & (t < start + IMPACT_WINDOW_S)
+    return inside
 
 
 def foot_slip_m(traj: Trajectory) -> float | None:
@@ -349,16 +445,15 @@ def _contact_summary(traj: Trajectory, before: np.ndarray) -> dict:
 
 
 def plan_cop_error_m(traj: Trajectory, first_contact_s: float | None = None) -> float | None:
-    """Largest |planned - executed CoP| over the control steps of a recorded run: the controller's
-    ``ControlOutput.cop_x_m`` against the CoP the touch sensors measured during the physics step its torques
-    were first applied in. Only where the feet carry ``MIN_FOOT_FORCE_FRACTION`` of body weight, before any
-    fall, outside ``IMPACT_WINDOW_S`` after the first hand-prop contact, no foot swinging (the record is NaN
-    there). None without a plan (an unrecorded run)."""
+    """Largest |planned - executed CoP| over the control steps: the controller's ``ControlOutput.cop_x_m``
+    against the CoP the touch sensors measured during the physics step its torques were first applied in. Only
+    where the feet carry ``MIN_FOOT_FORCE_FRACTION`` of body weight, before any fall, outside the impact windows
+    (the first hand-prop contact, each step's touchdown), no foot swinging (the record is NaN there). None when
+    no control step qualifies."""
     weight = character().mass_kg * GRAVITY_M_S2
     keep = np.isfinite(traj.plan_cop_x_m) & np.isfinite(traj.cop_x_m) & _before_fall(traj)
     keep &= traj.normal_force_n >= MIN_FOOT_FORCE_FRACTION * weight
-    if first_contact_s is not None:
-        keep &= ~((traj.time_s >= first_contact_s) & (traj.time_s < first_contact_s + IMPACT_WINDOW_S))
+    keep &= ~_impact_windows(traj, first_contact_s)
     if not keep.any():
         return None
     return float(np.max(np.abs(traj.plan_cop_x_m[keep] - traj.cop_x_m[keep])))

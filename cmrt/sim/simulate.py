@@ -121,6 +121,8 @@ class Trajectory:
     # any fall (a footstep plan: Task.steps)
     support_pose: np.ndarray | None = None  # (n, 3): the support frame's world tilt (rad), x, z (m); None: a
     # still level floor (a floating box's pose is known only from its run: pictures take it from here)
+    push_n: np.ndarray | None = None  # (n,): the horizontal push on the thorax at every step (the task's and an
+    # ensemble member's; the controller does not know it); None: no push
 
     @property
     def max_lift_m(self) -> float:
@@ -488,18 +490,21 @@ def direct_step(batch: mujoco.batch.Batch, stage: mujoco.mjtStage):
     return step
 
 
-def _ground_records(rec: _Recorder, touch: np.ndarray, sample_x: np.ndarray, sample_every: int) -> None:
+def _ground_records(rec: _Recorder, touch: np.ndarray, sample_x: np.ndarray, sample_every: int,
+                    control_every: int) -> None:
     """The ground-force records of the steps a compiled scoring loop ran, from its per-step heel/toe forces
-    ``touch`` (n, k, 4; a row's readings past its last step are cut off later) and heel/toe x at the sample
-    steps: the same sums, in the same order, as the Python loop makes step by step (numpy sums four terms
-    one by one)."""
+    ``touch`` (n, k, 4; a row's readings past its last step are cut off later) and heel/toe x at the control and
+    sample steps: the same sums, in the same order, as the Python loop makes step by step (numpy sums four terms
+    one by one). The CoP is measured at both; the rest at the sample steps."""
     k = touch.shape[1]
     fz = touch.sum(axis=2)
     rec["fz"][:, :k] = fz
-    samples = np.arange(0, k, sample_every)
-    t, f = touch[:, samples], fz[:, samples]
+    read = np.union1d(np.arange(0, k, sample_every), np.arange(0, k, control_every))
     with np.errstate(all="ignore"):
-        rec["cop"][:, samples] = np.where(f > 1e-9, (t * sample_x[:, samples]).sum(axis=2) / f, np.nan)
+        rec["cop"][:, read] = np.where(fz[:, read] > 1e-9, (touch[:, read] * sample_x[:, read]).sum(axis=2)
+                                       / fz[:, read], np.nan)
+    samples = np.arange(0, k, sample_every)
+    t = touch[:, samples]
     rec["ffz"][:, samples, 0] = t[:, :, :2].sum(axis=2)
     rec["ffz"][:, samples, 1] = t[:, :, 2:].sum(axis=2)
 
@@ -647,7 +652,7 @@ class _CompiledTick:
                       drive.disp_m, drive.disp_vel_m_s)
         self.lean = (lean_check, rec["prop_force"], CONTACT_FORCE_N)
         self.state = (falls.airborne_for_s, falls.code, rec["sc"], rec["lo"], rec["hi"], rec["qpos"], rec["com"],
-                      rec["jspeed"], rec["cref"])
+                      rec["jspeed"], rec["cref"], rec["plan_cop"])
         self.delay = (delay_steps, fb_vel)
         self.warm = (warm, np.zeros_like(warm))  # the active sets, and where this step's are written first
 
@@ -913,8 +918,8 @@ def _compiled_loop(g: _Group, s: _LoopState) -> None:
                 s.prop_stepped = k
                 break
             point_x, fell, new, momentum = out
+            sample_x[ids, k] = point_x  # the executed CoP of every control step (the plan's) and CoP sample step
             if k % g.sample_every == 0:
-                sample_x[ids, k] = point_x
                 rec["pref"][ids, k] = g.cop_ref_now[ids]
             if fell:
                 s.next_end = _fell_now(g, s, k, new, b["qpos"][sel], momentum)
@@ -929,7 +934,7 @@ def _compiled_loop(g: _Group, s: _LoopState) -> None:
         touch[:, k] = sensors  # rows that stopped repeat their last reading: cut off at ``last``
         k += 1
     s.k = k
-    _ground_records(rec, touch[:, :k], sample_x[:, :k], g.sample_every)
+    _ground_records(rec, touch[:, :k], sample_x[:, :k], g.sample_every, every)
 
 
 @dataclass
@@ -997,7 +1002,7 @@ def _python_step(g: _Group, s: _LoopState, k: int) -> None:
 
     if g.has_contact_force:
         g.rec["prop_force"][sel, k] = g.prop.contact_force(b, sel)
-    _record_ground(g, s, k, None if r is None else r.point_x, sample)
+    _record_ground(g, s, k, None if r is None else r.point_x, sample, control)
 
 
 def _read(g: _Group, s: _LoopState, k: int, control: bool) -> _Reading:
@@ -1089,9 +1094,9 @@ def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
     ctrl, bad, plan_cop = _torques(g.controller, b, sel, ids, g.falls.code[ids] > 0, g.drive, k, felt, r.contact,
                                    mass, g.m.nu, s.step, g.warm, g.prop,
                                    None if g.field is None else g.field.for_controller())
-    if g.record:  # the plan against the CoP measured in the physics step these torques act in
-        swinging = np.zeros(ids.size, bool) if stepper is None else stepper.swinging(ids).any(axis=1)
-        rec["plan_cop"][sel, k] = np.where(swinging, np.nan, plan_cop)
+    # the plan against the CoP measured in the physics step these torques act in (plan vs execution)
+    swinging = np.zeros(ids.size, bool) if stepper is None else stepper.swinging(ids).any(axis=1)
+    rec["plan_cop"][sel, k] = np.where(swinging, np.nan, plan_cop)
     g.ctrl_all[ids] = ctrl
     b["ctrl"][sel] = ctrl
 
@@ -1115,13 +1120,14 @@ def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
         s.next_end = _fell_now(g, s, k, new, r.qpos, r.momentum)
 
 
-def _record_ground(g: _Group, s: _LoopState, k: int, point_x: np.ndarray | None, sample: bool) -> None:
-    """The ground force after step ``k`` (every step: peak force, time airborne) and, at the sample steps, the
-    measured CoP, the reference CoP and each foot's force."""
+def _record_ground(g: _Group, s: _LoopState, k: int, point_x: np.ndarray | None, sample: bool,
+                   control: bool = False) -> None:
+    """The ground force after step ``k`` (every step: peak force, time airborne), the measured CoP at the
+    control steps (against the plan) and the sample steps, and there the reference CoP and each foot's force."""
     sel, rec = s.sel, g.rec
     rec_fz = rec["fz"]
     touch = g.b["sensordata"][sel, :g.geo.points.size]  # normal force at heel_r, toe_r, heel_l, toe_l
-    if not sample:  # the steps in between: the ground force only (peak force, time airborne)
+    if not sample and not control:  # the steps in between: the ground force only (peak force, time airborne)
         if s.step_ids is None:  # all active: write straight into the buffer's column
             np.add.reduce(touch, axis=1, out=rec_fz[:, k])
         else:
@@ -1131,6 +1137,8 @@ def _record_ground(g: _Group, s: _LoopState, k: int, point_x: np.ndarray | None,
     rec_fz[sel, k] = fz
     with np.errstate(all="ignore"):
         rec["cop"][sel, k] = np.where(fz > 1e-9, (touch * point_x).sum(axis=1) / fz, np.nan)
+    if not sample:
+        return
     rec["pref"][sel, k] = g.cop_ref_now[sel]
     rec["ffz"][sel, k, 0] = touch[:, :2].sum(axis=1)
     rec["ffz"][sel, k, 1] = touch[:, 2:].sum(axis=1)
@@ -1155,7 +1163,8 @@ def _finish(g: _Group, s: _LoopState) -> list[Trajectory]:
     _judge_prop(g.prop, b, standing, g.rec["prop_force"][standing, :g.run_steps], g.times[:g.run_steps],
                 g.drive.windows_s, g.goal, g.extras)
     return _trajectories(g.task, g.rec, g.times, s.last, falls, g.drive.disp_m, g.extras, g.goal, final_qpos,
-                         final_speed, g.stepper, None if g.field is None else g.field.poses(g.times))
+                         final_speed, g.stepper, None if g.field is None else g.field.poses(g.times),
+                         g.drive.push_n)
 
 
 def _stepper(task: Task, n: int, com_stiffness: float = ControllerConfig.k_l) -> StepSupervisor | GaitTracker | None:
@@ -1200,7 +1209,7 @@ def _step_command(stepper: StepSupervisor | GaitTracker, kin: PlanarKinematics, 
 def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarray, falls: FallMonitor, disp: np.ndarray,
                   extras: dict[str, np.ndarray], goal: np.ndarray, final_qpos: np.ndarray,
                   final_speed: np.ndarray, stepper: StepSupervisor | GaitTracker | None = None,
-                  poses: np.ndarray | None = None) -> list[Trajectory]:
+                  poses: np.ndarray | None = None, push_n: np.ndarray | None = None) -> list[Trajectory]:
     """One Trajectory per simulation, cut where it stopped."""
     out = []
     for i in range(last.size):
@@ -1232,6 +1241,7 @@ def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarra
             footstep_errors_m=() if stepper is None else tuple(e for t, e in stepper.placement_error_m[i]
                                                                if not code or t <= times[falls.step[i]]),
             support_pose=None if poses is None else poses[min(i, poses.shape[0] - 1), : last[i]].copy(),
+            push_n=None if push_n is None or not push_n[i].any() else push_n[i, : last[i]].copy(),
         ))
     return out
 

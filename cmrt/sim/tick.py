@@ -177,7 +177,7 @@ def linear_momentum(rows, cinert, cvel, nb, out):
 # references (variants, steps, nv), each row's variant, the CMRT: (q_ref, qd_ref, qdd_ref, variant, disp_m,
 # disp_vel_m_s); ``lean``, whether to look for leaning on a prop (last step's force > leaning_n): (lean_check,
 # prop_force, leaning_n); ``state``, monitor state and records, (n_all, ...): (airborne_for_s, fall_code, rec_sc,
-# rec_lo, rec_hi, rec_qpos, rec_com, rec_jspeed, rec_cref); ``now``, the mass the character carries, the held
+# rec_lo, rec_hi, rec_qpos, rec_com, rec_jspeed, rec_cref, rec_plan); ``now``, the mass the character carries, the held
 # references and the torques: (carried_kg, com_ref_now, cop_ref_now, ctrl_all); ``delay``, the balance feedback's
 # delay (steps) and the CoM velocity at past control steps (n_all, steps): (delay_steps, fb_vel); ``warm_sets``, the
 # QPs' active sets (n_all, rows), kept from the last control step, and this step's first: (warm, warm_out);
@@ -201,7 +201,7 @@ def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, 
      airborne_s, roll_rad, capture_margin_m) = consts
     chain, m_rows, m_cols, point_bodies, actuated, torque_limits, w2, params = controller
     q_ref, qd_ref, qdd_ref, variant, disp_m, disp_vel_m_s = drive
-    airborne_for_s, fall_code, rec_sc, rec_lo, rec_hi, rec_qpos, rec_com, rec_jspeed, rec_cref = state
+    airborne_for_s, fall_code, rec_sc, rec_lo, rec_hi, rec_qpos, rec_com, rec_jspeed, rec_cref, rec_plan = state
     carried_kg, com_ref_now, cop_ref_now, ctrl_all = now
     delay_steps, fb_vel = delay
     (warm, warm_out), (ext_f, ext_p, ext_bodies), (point_x, momentum, new) = warm_sets, load, out
@@ -261,6 +261,7 @@ def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, 
         s = ids[r]
         for j in range(warm.shape[1]):
             warm[s, j] = warm_out[s, j]
+        rec_plan[s, k] = info[r, 2]  # the planned CoP, against the measured one after the step (plan vs execution)
     return _judge_tick(k, ids, clock, fields, consts, lean, state, now, tau,
                        (grounded, c_lo, c_hi, lowest, vel_x, roll), new)
 
