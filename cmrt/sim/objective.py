@@ -40,6 +40,7 @@ import numpy as np
 
 from cmrt.body.character import GRAVITY_M_S2, character
 from cmrt.body.props import CONTACT_FORCE_N
+from cmrt.control.controller import ControllerConfig
 from cmrt.motion.task import Task
 from cmrt.sim.simulate import Trajectory
 
@@ -241,7 +242,7 @@ def success_rule(task: Task) -> str:
     return "standing"
 
 
-def _excesses(ev: dict, fell: bool) -> dict[str, float]:
+def _excesses(ev: dict, fell: bool, pose_judged: bool) -> dict[str, float]:
     """Each plausibility rule's excess over its bound (> 0: broken), from the evaluation's figures. The final
     pose is a rule of its own where "performed" does not already judge it (standing, steps, props)."""
     out = {}
@@ -250,7 +251,7 @@ def _excesses(ev: dict, fell: bool) -> dict[str, float]:
     out["ground_force"] = ev["peak_normal_force_bw"] / MAX_GROUND_FORCE_BW - 1.0
     out["airborne"] = ev["airborne_s"] / MAX_AIRBORNE_S - 1.0 if ev["airborne_s"] > MAX_AIRBORNE_S else -1.0
     out["cop_margin"] = (MIN_COP_MARGIN_M - ev["min_cop_margin_m"]) / 0.01
-    if not fell:
+    if not fell and not pose_judged:
         out["final_pose"] = ev["final_pose_error_rad"] / FINAL_POSE_TOLERANCE_RAD - 1.0
     return out
 
@@ -268,7 +269,8 @@ def _verdict(task: Task, traj: Trajectory, settled: bool, performed: bool | None
         failed.append("on_time")
     if not traj.fell and not settled:
         failed.append("settled")
-    excess = _excesses(figures, traj.fell)
+    pose_change = task.end_pose_deg is not None and traj.task_success is None  # "performed" judged its end pose
+    excess = _excesses(figures, traj.fell, pose_change)
     failed += [rule for rule, x in excess.items() if x > 0.0]
     worst = max((x for x in excess.values() if x > 0.0), default=0.0)
     return tuple(failed), worst
@@ -478,7 +480,7 @@ def timing_lag_s(task: Task, traj: Trajectory) -> float | None:
     idx, t = idx[t >= start - 1e-9], t[t >= start - 1e-9]
     if idx.size == 0:
         return None
-    q_ref = task.reference(t)[0]
+    q_ref = _reachable(task.reference(t)[0])
     ch = character()
     skip = set()
     if task.balance_joint:
@@ -498,6 +500,19 @@ def timing_lag_s(task: Task, traj: Trajectory) -> float | None:
         done_at = _crossing_s(t, np.sign(target) * (traj.qpos[idx, j] - q_ref[0, j]), goal)
         lags.append((t[-1] if done_at is None else done_at) - ref_at)
     return max(0.0, float(max(lags))) if lags else None
+
+
+def _reachable(q_ref: np.ndarray) -> np.ndarray:
+    """The reference with each actuated joint kept ``stop_margin_rad`` inside its stops, as the controller keeps
+    it (a rise's straight knee ends 0.02 rad short of its 0 rad stop: 90 % of a 15 deg excursion would otherwise
+    leave it 0.35 deg to spare, and the stop's spring makes that last part slow)."""
+    ch = character()
+    lo, hi = ch.joint_range_rad()
+    margin = ControllerConfig.stop_margin_rad
+    q = np.array(q_ref, dtype=float)
+    dofs = list(ch.actuated_dofs)
+    q[:, dofs] = np.clip(q[:, dofs], lo + margin, hi - margin)
+    return q
 
 
 def timing_lag_bound_s(task: Task) -> float:
