@@ -69,13 +69,21 @@ MAX_GROUND_FORCE_BW = 2.5  # peak vertical ground force, outside impact windows
 MAX_AIRBORNE_S = 0.01  # both feet off the ground (feet planted: no flight)
 MIN_COP_MARGIN_M = 0.0  # the measured CoP inside the feet
 NOT_PLAUSIBLE_PENALTY = 5.0  # x (1 + the worst excess over its bound, up to 1): CMA-ES keeps a slope
+
+
+def verdict_bounds() -> dict[str, float]:
+    """The fixed bounds of the verdict's rules, keyed by the figure each bounds (reports print them beside the
+    figures; the tracking and timing bounds depend on the task and are figures of each evaluation)."""
+    return {"max_plan_cop_error_m": MAX_PLAN_COP_ERROR_M, "peak_normal_force_bw": MAX_GROUND_FORCE_BW,
+            "airborne_s": MAX_AIRBORNE_S, "min_cop_margin_m": MIN_COP_MARGIN_M,
+            "final_pose_error_rad": FINAL_POSE_TOLERANCE_RAD, "final_com_speed_m_s": SETTLED_COM_SPEED_M_S}
 TIMING_FRACTION = 0.9  # a driving joint has arrived when it covers this fraction of the reference's excursion
 BODY_ON_FLOOR_Z_M = 0.0  # as the balance monitor's BODY_ON_FLOOR check: a non-foot body below the floor
 # Figures only a recorded run (traces, ``cmrt simulate``) has, or has differently (a topple played out): a scoring
 # run reports None (fall_direction from the capture point). Nothing the score depends on is among them.
 TRACE_ONLY_FIELDS = ("max_foot_slip_m", "fall_direction", "fall_direction_source",
                      "after_fall_max_joint_speed_rad_s", "after_fall_peak_foot_force_bw", "after_fall_max_foot_lift_m",
-                     "after_fall_floor_contact_s")
+                     "after_fall_floor_contact_s", "after_fall_airborne_s")
 
 
 @dataclass(frozen=True)
@@ -145,6 +153,7 @@ class Evaluation:
     after_fall_peak_foot_force_bw: float | None = None
     after_fall_max_foot_lift_m: float | None = None
     after_fall_floor_contact_s: float | None = None  # None: no body other than the feet reached the floor
+    after_fall_airborne_s: float | None = None  # from the fall to the end of the record: nothing on the floor (a hop)
     # the one verdict rule (``success_rule`` names what "performed" means for this task): the rules this clip
     # broke, in order - "balance", "performed", "on_time", "settled", "plan", "ground_force", "airborne",
     # "cop_margin", "final_pose" - empty for a success
@@ -581,12 +590,15 @@ def after_fall(traj: Trajectory) -> dict:
     span = _after_fall_span(traj)
     if span is None:
         return {"after_fall_max_joint_speed_rad_s": None, "after_fall_peak_foot_force_bw": None,
-                "after_fall_max_foot_lift_m": None, "after_fall_floor_contact_s": None}
+                "after_fall_max_foot_lift_m": None, "after_fall_floor_contact_s": None, "after_fall_airborne_s": None}
     k, last, contact_s = span
     part = slice(k, last + 1)
     weight = character().mass_kg * GRAVITY_M_S2
     dofs = list(character().actuated_dofs)
+    # a hop after the fall: neither the feet nor any other body on the floor, to the end of the record
+    dt = float(traj.time_s[1] - traj.time_s[0])
+    flying = (traj.normal_force_n[k:] < AIRBORNE_FORCE_FRACTION * weight) & (traj.lowest_body_z_m[k:] > 0.0)
     return {"after_fall_max_joint_speed_rad_s": float(np.nanmax(np.abs(traj.qvel[part][:, dofs]))),
             "after_fall_peak_foot_force_bw": float(np.nanmax(traj.normal_force_n[part]) / weight),
             "after_fall_max_foot_lift_m": float(np.nanmax(traj.point_lift_m[part])),
-            "after_fall_floor_contact_s": contact_s}
+            "after_fall_floor_contact_s": contact_s, "after_fall_airborne_s": float(np.count_nonzero(flying) * dt)}
