@@ -929,7 +929,8 @@ class Demo(Command):
         from cmrt.sim.report import simulate_report
 
         task = load_task("bend").with_speed(0.4)
-        print("Fast bend (T = 0.4 s, trunk first, both feet planted). The reactive controller alone:")
+        print("Fast bend (T = 0.4 s: a rotation at the hips into a crouched bend, both feet planted). The reactive "
+              "controller alone:")
         print(_report_text(simulate_report(task, Cmrt.zero(task.clip_s), "zero")))
         store_path = resolve_path(args.store)
         print(f"\nOptimizing its CMRT with CMA-ES (seed 1) into {store_path} ...", flush=True)
