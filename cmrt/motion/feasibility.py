@@ -206,10 +206,11 @@ def outputs(ld: Loads) -> np.ndarray:
 
 
 def violations(y: np.ndarray, foot_m: float, lim: Limits) -> tuple[np.ndarray, np.ndarray]:
-    """Normalised violations (n, 4 + 2 nu; > 0 violated) of the CoP (beyond the toe, behind the heel: in foot
-    lengths), friction (both ways: in mu F_z) and torques (both ways: in limits), and their gradients in ``y``
-    (n, rows, 3 + nu). Where F_z < 0.25 BW the CoP's and friction's are scaled by 0.25 BW instead of F_z: the
-    same sign, no singularity where the ground would pull."""
+    """Normalised violations (n, 5 + 2 nu; > 0 violated) and their gradients in ``y`` (n, rows, 3 + nu): F_z
+    below 0.25 BW (in body weights), the CoP beyond the toe and behind the heel (in foot lengths: the heel or the
+    toe points would have to pull), friction both ways (in mu F_z) and the torques both ways (in their limits).
+    Where F_z < 0.25 BW the CoP's and friction's are scaled by 0.25 BW instead of F_z: the same sign, no
+    singularity where the ground would pull."""
     n, ny = y.shape
     fx, fz, mh = y[:, 0], y[:, 1], y[:, 2]
     scale = np.maximum(fz, lim.min_force_n)
@@ -224,17 +225,19 @@ def violations(y: np.ndarray, foot_m: float, lim: Limits) -> tuple[np.ndarray, n
     dnum[:, 3, 0], dnum[:, 3, 1] = -1.0 / mu, -1.0
     ground = num / scale[:, None]
     dground = dnum / scale[:, None, None] - (num / scale[:, None] ** 2)[:, :, None] * dscale[:, None, :]
+    dforce = np.zeros((n, 1, ny))
+    dforce[:, 0, 1] = -1.0 / lim.weight_n
     tau = y[:, 3:] / lim.torque_nm
     nu = tau.shape[1]
     dtau = np.zeros((n, 2 * nu, ny))
     eye = np.eye(nu) / lim.torque_nm
     dtau[:, :nu, 3:], dtau[:, nu:, 3:] = eye, -eye
-    return np.hstack([ground, tau - 1.0, -tau - 1.0]), np.concatenate([dground, dtau], axis=1)
+    rows = np.hstack([((lim.min_force_n - fz) / lim.weight_n)[:, None], ground, tau - 1.0, -tau - 1.0])
+    return rows, np.concatenate([dforce, dground, dtau], axis=1)
 
 
-def force_violation(y: np.ndarray, lim: Limits) -> np.ndarray:
-    """(n,) how far F_z is below 0.25 BW, in body weights (> 0 violated)."""
-    return (lim.min_force_n - y[:, 1]) / lim.weight_n
+#: The first rows of ``violations``: F_z, the CoP (toe, heel), friction (+x, -x); then the torques (+, -).
+FORCE, TOE, HEEL, FRICTION, TORQUE = 0, 1, 2, 3, 5
 
 
 # --- the search ----------------------------------------------------------------------
@@ -264,8 +267,7 @@ class _Point:
 
     coef: np.ndarray
     loads: Loads
-    rows: np.ndarray  # (n, rows searched) normalised violations: CoP, friction, torques
-    force: np.ndarray  # (n,) F_z's below 0.25 BW
+    rows: np.ndarray  # (n, rows searched) normalised violations (``violations``)
     merit: float
 
     @property
@@ -286,7 +288,6 @@ class _Problem:
     lim: Limits
     b: np.ndarray  # (3, n, k): the B-splines and their two derivatives at the samples
     kept: np.ndarray  # the violation rows searched: a right/left twin of a row is left out
-    force_cap: float  # F_z's violation is kept under this (the keyed motion's, or 0)
     spread: float
 
     def point(self, coef: np.ndarray) -> _Point:
@@ -295,11 +296,11 @@ class _Problem:
         rows = violations(y, self.motion.toe_x_m - self.motion.heel_x_m, self.lim)[0][:, self.kept]
         merit = (rows.max() + self.spread * np.maximum(rows.max(axis=1), 0.0).sum()
                  + SHIFT_WEIGHT * (np.abs(coef).mean() if coef.size else 0.0))
-        return _Point(coef, ld, rows, force_violation(y, self.lim), float(merit))
+        return _Point(coef, ld, rows, float(merit))
 
-    def gradients(self, pt: _Point) -> tuple[np.ndarray, np.ndarray]:
-        """d rows / d coef (n, rows, k) and d force / d coef (n, k): each sample's outputs differentiated in delta,
-        its rate and its acceleration there (finite differences of the exact inverse dynamics), times the basis."""
+    def gradients(self, pt: _Point) -> np.ndarray:
+        """d rows / d coef (n, rows, k): each sample's outputs differentiated in delta, its rate and its
+        acceleration there (finite differences of the exact inverse dynamics), times the basis."""
         shift = self.b @ pt.coef
         y = outputs(pt.loads)
         dy = np.empty(y.shape + (3,))
@@ -308,24 +309,21 @@ class _Problem:
             moved[i] += FD_STEP
             dy[..., i] = (outputs(loads(self.motion, tuple(moved))) - y) / FD_STEP
         drows = violations(y, self.motion.toe_x_m - self.motion.heel_x_m, self.lim)[1][:, self.kept]
-        per_sample = self.b.transpose(1, 0, 2)  # (n, 3, k)
-        return (drows @ dy) @ per_sample, -(dy[:, 1:2, :] @ per_sample)[:, 0, :] / self.lim.weight_n
+        return (drows @ dy) @ self.b.transpose(1, 0, 2)  # the basis per sample: (n, 3, k)
 
-    def hard_rows(self, pt: _Point, g_force: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-        """The hard rows (A step <= b) a step within ``radius`` could reach: F_z's violation under the cap, the
-        ankle inside its range less the controller's stop margin."""
-        near = np.flatnonzero(pt.force + np.abs(g_force).sum(axis=1) * radius > self.force_cap)
+    def hard_rows(self, pt: _Point, radius: float) -> tuple[np.ndarray, np.ndarray]:
+        """The hard rows (A step <= b) a step within ``radius`` could reach: the ankle inside its range less the
+        controller's stop margin."""
         ch = character()
         ankle = ch.ankle_dofs[0]
         margin = ControllerConfig().stop_margin_rad
         lo, hi = ch.model.jnt_range[ch.model.dof_jntid[ankle]] + np.array([margin, -margin])
         angle = self.motion.qpos[:, ankle] + self.b[0] @ pt.coef
         high, low = np.flatnonzero(hi - angle < radius), np.flatnonzero(angle - lo < radius)
-        return (np.vstack([g_force[near], self.b[0][high], -self.b[0][low]]),
-                np.concatenate([self.force_cap - pt.force[near], (hi - angle)[high], (angle - lo)[low]]))
+        return np.vstack([self.b[0][high], -self.b[0][low]]), np.concatenate([(hi - angle)[high], (angle - lo)[low]])
 
 
-def _lp_step(pb: _Problem, pt: _Point, grads: tuple[np.ndarray, np.ndarray], radius: float, rows: np.ndarray
+def _lp_step(pb: _Problem, pt: _Point, grads: np.ndarray, radius: float, rows: np.ndarray
              ) -> tuple[np.ndarray, float, np.ndarray]:
     """The step (|each coefficient| <= radius) minimising the linearised merit under the hard rows; returns (step,
     predicted merit, the rows the program ended with).
@@ -334,14 +332,13 @@ def _lp_step(pb: _Problem, pt: _Point, grads: tuple[np.ndarray, np.ndarray], rad
     near their bound, with ``spread``), and adds the rows its solution breaks or nearly breaks until it breaks none
     (constraint generation: the optimum with every row). Each row has at most four coefficients (the B-splines over
     its sample): the program is sparse."""
-    g_rows, g_force = grads
-    n, r, k = g_rows.shape
-    v, g = pt.rows.ravel(), g_rows.reshape(-1, k)
+    n, r, k = grads.shape
+    v, g = pt.rows.ravel(), grads.reshape(-1, k)
     near = v >= pt.worst - NEAR_WORST
     if pb.spread:
         near |= v > -NEAR_WORST
     rows = np.union1d(rows, np.flatnonzero(near))
-    hard = pb.hard_rows(pt, g_force, radius)
+    hard = pb.hard_rows(pt, radius)
     for _ in range(MAX_ROUNDS):
         solved = _solve(pb, pt, v, g, rows, r, hard, radius)
         if solved is None:
@@ -408,7 +405,7 @@ def _search(pb: _Problem, start: np.ndarray) -> tuple[_Point, int]:
             break
         trial = pb.point(pt.coef + step)
         gained = pt.merit - trial.merit
-        if gained > 0.1 * promised and trial.worst <= pt.worst + 1e-9 and trial.force.max() <= pb.force_cap + 1e-9:
+        if gained > 0.1 * promised and trial.worst <= pt.worst + 1e-9:
             pt, grads = trial, None
             radius = min(2.0 * radius if gained > 0.75 * promised else radius, MAX_RADIUS_RAD)
         else:
@@ -421,37 +418,37 @@ def _searches(motion: FlatFootMotion, keyed: Loads, lim: Limits, onset_s: float)
     so that more freedom never ends worse. Only ``any``'s best path is reported beyond its worst violation and
     shift, so only it weighs the violations beyond the worst (``SPREAD_PER_S``)."""
     starts = {"from_reaction": onset_s + ControllerConfig().feedback_delay_s, "from_onset": onset_s, "any": 0.0}
-    y = outputs(keyed)
-    force_cap = max(float(force_violation(y, lim).max()), 0.0)
-    kept = _distinct_rows(violations(y, motion.toe_x_m - motion.heel_x_m, lim)[0])
+    kept = _searched_rows(keyed)
     end = float(motion.t_s[-1])
     out, previous = {}, (np.zeros(0), np.zeros(0))
     for name, start_s in starts.items():
         centres = knots(start_s, end, onset_s)
         coef = np.zeros(centres.size)
         coef[np.searchsorted(centres, previous[0] - 1e-9)] = previous[1]
-        pb = _Problem(motion, lim, basis(motion.t_s, centres), kept, force_cap,
-                      SPREAD_PER_S * DT_S if name == "any" else 0.0)
+        pb = _Problem(motion, lim, basis(motion.t_s, centres), kept, SPREAD_PER_S * DT_S if name == "any" else 0.0)
         pt, iterations = _search(pb, coef)
         out[name] = (_found(name, start_s, pb.b[0] @ pt.coef, pt, keyed, kept, iterations), pt.loads)
         previous = (centres, pt.coef)
     return {name: out[name] for name in SEARCHES}
 
 
-def _distinct_rows(rows: np.ndarray) -> np.ndarray:
-    """The rows that are not a copy of an earlier one all through the keyed motion (a left limb's of a right limb's
-    moving the same: the legs always, the arms in a symmetric motion; an ankle shift turns both alike)."""
-    _, first = np.unique(rows.T, axis=0, return_index=True)
-    return np.sort(first)
+def _searched_rows(keyed: Loads) -> np.ndarray:
+    """The violation rows a search needs: all but a left limb's torques where the right one's are the same all
+    through the keyed motion (the legs always, the arms of a symmetric motion; an ankle shift turns both alike)."""
+    ch = character()
+    names = [ch.dof_names[i] for i in ch.actuated_dofs]
+    nu = len(names)
+    twins = [u for u, n in enumerate(names) if n.endswith("_l")
+             and np.array_equal(keyed.torque_nm[:, u], keyed.torque_nm[:, names.index(n[:-2] + "_r")])]
+    dropped = {TORQUE + u for u in twins} | {TORQUE + nu + u for u in twins}
+    return np.array([r for r in range(TORQUE + 2 * nu) if r not in dropped])
 
 
 def _found(name: str, start_s: float, delta: np.ndarray, pt: _Point, keyed: Loads, kept: np.ndarray,
            iterations: int) -> Search:
     shift = pt.loads.com_m[:, 0] - keyed.com_m[:, 0]
-    worst, what = pt.worst, _row_name(int(kept[np.unravel_index(np.argmax(pt.rows), pt.rows.shape)[1]]))
-    if pt.force.max() > worst:
-        worst, what = float(pt.force.max()), "vertical force"
-    return Search(name=name, free_from_s=start_s, worst_violation=worst, worst=what,
+    what = _row_name(int(kept[np.unravel_index(np.argmax(pt.rows), pt.rows.shape)[1]]))
+    return Search(name=name, free_from_s=start_s, worst_violation=pt.worst, worst=what,
                   com_shift_range_m=(float(shift.min()), float(shift.max())),
                   ankle_shift_range_deg=(float(np.degrees(delta.min())), float(np.degrees(delta.max()))),
                   iterations=iterations)
@@ -459,10 +456,10 @@ def _found(name: str, start_s: float, delta: np.ndarray, pt: _Point, keyed: Load
 
 def _row_name(row: int) -> str:
     ch = character()
-    if row < 4:
-        return ("CoP beyond the toes", "CoP behind the heels", "friction", "friction")[row]
+    if row < TORQUE:
+        return ("vertical force", "CoP beyond the toes", "CoP behind the heels", "friction", "friction")[row]
     names = [ch.dof_names[i] for i in ch.actuated_dofs]
-    return f"{names[(row - 4) % len(names)]} torque"
+    return f"{names[(row - TORQUE) % len(names)]} torque"
 
 
 # --- the report -----------------------------------------------------------------------
@@ -486,10 +483,9 @@ def first_violation(ld: Loads, lim: Limits) -> str | None:
     """The first constraint ``ld`` violates in time (beyond ``PRECISION``), as a sentence: what, how much at its
     worst in that stretch, when, and the bound (None: none is). At the same instant the vertical force comes first,
     then the CoP, friction and the torques."""
-    y = outputs(ld)
-    checks = [("force", force_violation(y, lim) > PRECISION)]
-    rows = violations(y, ld.toe_x_m - ld.heel_x_m, lim)[0] > PRECISION
-    checks += [("toe", rows[:, 0]), ("heel", rows[:, 1]), ("friction", rows[:, 2] | rows[:, 3])]
+    rows = violations(outputs(ld), ld.toe_x_m - ld.heel_x_m, lim)[0] > PRECISION
+    checks = [("force", rows[:, FORCE]), ("toe", rows[:, TOE]), ("heel", rows[:, HEEL]),
+              ("friction", rows[:, FRICTION] | rows[:, FRICTION + 1])]
     over = np.abs(ld.torque_nm) > lim.torque_nm * (1.0 + PRECISION)
     checks += [(u, over[:, u]) for u in range(over.shape[1])]
     firsts = [(int(np.argmax(bad)), i) for i, (_, bad) in enumerate(checks) if bad.any()]
