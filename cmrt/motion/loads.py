@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from cmrt.body.character import FOOT_POINT_RADIUS_M, GRAVITY_M_S2, MODEL_PATH, character
+from cmrt.body.character import FOOT_POINT_RADIUS_M, GRAVITY_M_S2, MODEL_PATH, STANCE_HEEL_X_M, character
 from cmrt.motion.task import Task
 
 #: The samples' step (s): the motions' quintic easings are smooth on it (the fastest shipped one, the 0.3 s
@@ -82,9 +82,15 @@ class Loads:
         return np.where(fz > 0, self.heel_x_m + self.heel_moment_nm / np.where(fz > 0, fz, 1.0), np.nan)
 
     def point_forces_n(self) -> tuple[np.ndarray, np.ndarray]:
-        """(heel, toe) vertical force per foot by the lever rule (each foot carries half)."""
-        toe = 0.5 * self.heel_moment_nm / (self.toe_x_m - self.heel_x_m)
-        return 0.5 * self.force_n[:, 1] - toe, toe
+        """(heel, toe) vertical force per foot: ``lever_split``."""
+        return lever_split(self.force_n[:, 1], self.heel_moment_nm, self.toe_x_m - self.heel_x_m)
+
+
+def lever_split(fz_n: np.ndarray, heel_moment_nm: np.ndarray, foot_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(heel, toe) vertical force per foot as the controller splits F_z (``cmrt.control.kernel``): by the linear
+    lever rule for the CoP, each foot carrying half. Linear in the wrench: no division by F_z."""
+    toe = 0.5 * heel_moment_nm / foot_m
+    return 0.5 * fz_n - toe, toe
 
 
 def keyed_motion(task: Task, dt_s: float = DT_S) -> FlatFootMotion:
@@ -99,7 +105,7 @@ def keyed_motion(task: Task, dt_s: float = DT_S) -> FlatFootMotion:
     knee = ch.dof("knee_r")
     pelvis, knee_at, com, com_vel = (np.empty((t.size, 2)) for _ in range(4))
     jac, jac_dot, jac_com = np.empty((3, m.nv)), np.empty((3, m.nv)), np.empty((3, m.nv))
-    target = np.array([-0.06, FOOT_POINT_RADIUS_M])  # the right heel point's centre, as feet_flat_qpos puts it
+    target = np.array([STANCE_HEEL_X_M, FOOT_POINT_RADIUS_M])  # the right heel point's centre (feet_flat_qpos)
     for k in range(t.size):
         d.qpos[:] = q[k]
         d.qpos[:2] = 0.0
@@ -118,7 +124,7 @@ def keyed_motion(task: Task, dt_s: float = DT_S) -> FlatFootMotion:
         mujoco.mj_jacDot(m, d, jac_dot, None, point, foot)
         qdd[k, :2] = -(jac[[0, 2], 2:] @ qdd[k, 2:] + (jac_dot @ qd[k])[[0, 2]])  # nor accelerate
         mujoco.mj_jacSubtreeCom(m, d, jac_com, 1)
-        pelvis[k] = d.xanchor[ch.model.dof_jntid[ch.root_dofs[2]], [0, 2]]
+        pelvis[k] = d.xanchor[m.dof_jntid[ch.root_dofs[2]], [0, 2]]
         knee_at[k] = d.xanchor[m.dof_jntid[knee], [0, 2]]
         com[k] = d.subtree_com[1, [0, 2]]
         com_vel[k] = (jac_com @ qd[k])[[0, 2]]
@@ -183,9 +189,7 @@ def loads(motion: FlatFootMotion, shift: tuple[np.ndarray, np.ndarray, np.ndarra
     knee = motion.ankle_m + _turn(motion.knee_m - motion.ankle_m, phi)
     # the root hinge's force is the ground's moment about the pelvis origin, the forces acting on the floor (z = 0)
     heel_moment = (pelvis[:, 0] - motion.heel_x_m) * force[:, 1] - pelvis[:, 1] * force[:, 0] - qfrc[:, 2]
-    out = Loads(t_s=motion.t_s, force_n=force, heel_moment_nm=heel_moment, torque_nm=np.empty(0),
-                com_m=_com(motion, phi), heel_x_m=motion.heel_x_m, toe_x_m=motion.toe_x_m)
-    heel_fz, toe_fz = out.point_forces_n()
+    heel_fz, toe_fz = lever_split(force[:, 1], heel_moment, motion.toe_x_m - motion.heel_x_m)
     ground = np.zeros_like(qfrc)  # J_c' f: the ground force on each foot as generalized forces
     axes = {"hip": pelvis, "knee": knee, "ankle": np.broadcast_to(motion.ankle_m, pelvis.shape)}
     for name, o in axes.items():
@@ -196,7 +200,7 @@ def loads(motion: FlatFootMotion, shift: tuple[np.ndarray, np.ndarray, np.ndarra
             ground[:, ch.dof(f"{name}_{side}")] = gen
     torque = (qfrc - ground)[:, list(ch.actuated_dofs)]
     return Loads(t_s=motion.t_s, force_n=force, heel_moment_nm=heel_moment, torque_nm=torque,
-                 com_m=out.com_m, heel_x_m=motion.heel_x_m, toe_x_m=motion.toe_x_m)
+                 com_m=_com(motion, phi), heel_x_m=motion.heel_x_m, toe_x_m=motion.toe_x_m)
 
 
 def _com(motion: FlatFootMotion, phi: np.ndarray) -> np.ndarray:
