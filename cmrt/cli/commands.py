@@ -287,7 +287,12 @@ def _warn_if_not_feasible(name: str, task: Task) -> None:
 
     if not_checkable(task) is not None:
         return
-    found = check_reference(task)
+    try:
+        found = check_reference(task)
+    except CmrtError as exc:  # advice only: the run goes on
+        print(f"cmrt: warning: {escape(name)}: its reference motion was not checked: {inputs.one_line(str(exc))}",
+              file=sys.stderr, flush=True)
+        return
     if not found.feasible:
         print(f"cmrt: warning: {escape(name)}: its reference motion cannot be done on time with both feet flat: "
               f"{found.first_violation} (cmrt check {shlex.quote(escape(name))})", file=sys.stderr, flush=True)
