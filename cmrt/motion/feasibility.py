@@ -102,10 +102,10 @@ class Feasibility:
 
     task: str
     speed: float | None
-    feasible: bool
-    needs_anticipation: bool
-    from_onset_suffices: bool
-    first_violation: str | None
+    feasible: bool  # the best ankle path of ``any`` meets every constraint at every sample (within PRECISION)
+    needs_anticipation: bool  # feasible, but not with a path that starts 0.1 s after the onset
+    from_onset_suffices: bool  # a path that starts at the onset meets every constraint
+    first_violation: str | None  # the first constraint the best path breaks, as a sentence (None: feasible)
     keyed: LoadSummary  # the keyed ankle, literally
     best: LoadSummary  # the best ankle shift of the ``any`` search
     searches: tuple[Search, ...]
