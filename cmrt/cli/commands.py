@@ -82,6 +82,7 @@ class Output:
 
     data: object
     text: str | Callable[[object], str]
+    status: int = 0  # the exit status (``cmrt check``: 1 when the reference is not feasible, like a linter)
 
 
 def format_output(out: Output, as_json: bool) -> str:
@@ -304,6 +305,27 @@ def resolve_task(name: str, speed: float | None, sets: list[str] | None, referen
     return task_variant(name, speed, inputs.parse_sets(sets), reference, steps)
 
 
+def _warn_if_not_feasible(name: str, task: Task) -> None:
+    """A user's task file (given by path) whose reference motion ``cmrt check`` finds not feasible gets one warning
+    line on stderr naming the first violation; the run goes on. Shipped tasks are not checked here (it costs about
+    a second; ``cmrt check`` checks them), nor tasks the check does not apply to (walks, steps)."""
+    if Path(name).suffix != ".toml":
+        return
+    from cmrt.motion.feasibility import check_reference, not_checkable
+
+    if not_checkable(task) is not None:
+        return
+    try:
+        found = check_reference(task)
+    except CmrtError as exc:  # advice only: the run goes on
+        print(f"cmrt: warning: {escape(name)}: its reference motion was not checked: {inputs.one_line(str(exc))}",
+              file=sys.stderr, flush=True)
+        return
+    if not found.feasible:
+        print(f"cmrt: warning: {escape(name)}: its reference motion cannot be done on time with both feet flat: "
+              f"{found.first_violation} (cmrt check {shlex.quote(escape(name))})", file=sys.stderr, flush=True)
+
+
 def _curve(args, spec: str, task: Task, flag: str = "--curve") -> tuple[Cmrt, str]:
     """A ``--curve``/``--compare`` value -> (curve, name); ``--force`` lets a CMRT made for another task in."""
     from cmrt.service.known import resolve_curve
@@ -420,6 +442,7 @@ def _opt_task(args, speed: float | None) -> Task:
     if isinstance(args.init, int):
         with _store(args.store, readonly=True) as store:
             store.run(args.init)
+    _warn_if_not_feasible(args.task, task)
     return task.with_robust() if args.robust else task
 
 
@@ -475,7 +498,58 @@ class Simulate(Command):
             _check_out(args, args.trace, "--trace", (".npz",))
         task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None))
         curve, name = _curve(args, args.curve, task)
+        _warn_if_not_feasible(args.task, task)
         return Output(simulate_report(task, curve, name, args.trace), _report_text)
+
+
+class Check(Command):
+    name, help = "check", ("can a task's reference motion be done on time with both feet flat? (exit 0 yes, 1 no; "
+                           "docs/feasibility.md)")
+
+    def add_arguments(self, p):
+        _task_args(p)
+
+    def run(self, args):
+        from cmrt.motion.feasibility import check_reference
+
+        task = resolve_task(args.task, args.speed, args.set, args.reference, args.steps)
+        found = check_reference(task)
+        return Output(found.to_dict(), _check_text, status=0 if found.feasible else 1)
+
+
+def _check_text(r: dict) -> str:
+    """``cmrt check``'s text form: the verdict, a table of what the motion asks against the limits (the keyed
+    ankle and the best ankle path), and the three searches."""
+    speed = f" --speed {r['speed']:g}" if r["speed"] is not None else ""
+    keyed, best = r["keyed"], r["best"]
+    rows = [("min vertical force (BW)", keyed["min_vertical_force_bw"], best["min_vertical_force_bw"],
+             f">= {r['min_vertical_force_needed_bw']:g}"),
+            ("friction needed", keyed["friction_needed"], best["friction_needed"], f"<= {r['floor_friction']:g}"),
+            ("CoP margin (m)", keyed["min_cop_margin_m"], best["min_cop_margin_m"], ">= 0")]
+    for joint in dict.fromkeys(n.split("_")[0] for n in r["torque_limit_nm"]):
+        sides = [n for n in r["torque_limit_nm"] if n.split("_")[0] == joint]
+        peak = [max(d["peak_torque_nm"][n] for n in sides) for d in (keyed, best)]
+        rows.append((f"{joint} torque (N m)", *peak, f"<= {max(r['torque_limit_nm'][n] for n in sides):g}"))
+    lines = [f"{escape(r['task'])}{speed}: {_verdict(r)}",
+             *(f"  (not included: {escape(x)})" for x in r["ignored"]),
+             f"  {'':26}{'keyed ankle':>12}{'best ankle path':>17}   limit"]
+    lines += [f"  {name:26}{_n(a, '12.3g')}{_n(b, '17.3g')}   {limit}" for name, a, b, limit in rows]
+    lines.append(f"  {'ankle path free from':26}{'worst violation':>17}{'CoM shift (cm)':>20}")
+    for name, s in r["searches"].items():
+        lo, hi = s["com_shift_range_m"]
+        lines.append(f"  {name + ' (t >= ' + format(s['free_from_s'], '.2f') + ' s)':26}"
+                     f"{s['worst_violation']:+17.3f}{100 * lo:+12.1f} .. {100 * hi:+.1f}  {s['worst']}")
+    lines.append(f"  [{r['wall_s']:.2f} s]")
+    return "\n".join(lines)
+
+
+def _verdict(r: dict) -> str:
+    if not r["feasible"]:
+        return f"NOT FEASIBLE: {r['first_violation']}"
+    if not r["needs_anticipation"]:
+        return "FEASIBLE (an ankle path starting after a 0.1 s reaction suffices)"
+    when = "one from the motion's onset suffices" if r["from_onset_suffices"] else "it must start before the onset"
+    return f"FEASIBLE, NEEDS ANTICIPATION (not with an ankle path starting after a 0.1 s reaction; {when})"
 
 
 class Submit(Command):
@@ -986,7 +1060,7 @@ class Dashboard(Command):
 
 
 COMMANDS: tuple[Command, ...] = (
-    Tasks(), Simulate(), Submit(), Optimize(), Worker(), Requeue(), Jobs(), Runs(), Show(), Best(), Export(),
+    Tasks(), Simulate(), Check(), Submit(), Optimize(), Worker(), Requeue(), Jobs(), Runs(), Show(), Best(), Export(),
     Interpolate(), Sequence(), Plot(), Render(), Bench(), Demo(), Dashboard(),
 )
 
@@ -1033,7 +1107,8 @@ def help_reference() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one verb; exit status 0, 2 for bad input (one line on stderr), 130 on Ctrl-C."""
+    """Run one verb; exit status 0 (``check``: 1 for a reference that is not feasible), 2 for bad input (one line
+    on stderr), 130 on Ctrl-C."""
     args = None
     clear_signals()
     # a worker gives its run back, as on Ctrl-C: a closed terminal (SIGHUP) and SIGQUIT too, not only SIGTERM
@@ -1052,7 +1127,7 @@ def main(argv: list[str] | None = None) -> int:
             raise
         if out is not None:
             print(format_output(out, getattr(args, "json", False)))
-        return 0
+        return 0 if out is None else out.status
     except CmrtError as exc:
         print(f"cmrt: error: {inputs.one_line(str(exc))}", file=sys.stderr)  # one line, control characters escaped
         return EXIT_BAD_INPUT
