@@ -861,12 +861,27 @@ def _set_up(task: Task, curves: list[Cmrt | None], config: ControllerConfig, rec
     )
 
 
+def _with_held(g: _Group, ids: np.ndarray, com: np.ndarray, vel_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The CoM (x, y, z rows) and its x velocity of the character with what its hands hold and its bodies do not
+    carry yet (``Prop.held_mass``: a gripped ball before its mass is handed over): what balances and falls."""
+    held = g.prop.held_mass(g.b, ids)
+    if held is None or not held[0].any():
+        return com, vel_x
+    m, xz, vx = held
+    own = g.ch.mass_kg + g.prop.carried_kg[ids]
+    total = own + m
+    com = com.copy()
+    com[:, 0] = (own * com[:, 0] + m * xz[:, 0]) / total
+    com[:, 2] = (own * com[:, 2] + m * xz[:, 1]) / total
+    return com, (own * vel_x + m * vx) / total
+
+
 def _fell_now(g: _Group, s: _LoopState, k: int, new: np.ndarray, qpos: np.ndarray, momentum: np.ndarray) -> int:
     """Rows ``new`` (of ``s.ids``) fell at step ``k``; returns the next step at which a row stops."""
     b, falls, prop, ch = g.b, g.falls, g.prop, g.ch
     sims = s.ids[new]
-    com = b["subtree_com"][sims, 1]
-    falls.com_vel_x[sims] = momentum[new, 0] / (ch.mass_kg + prop.carried_kg[sims])
+    com, vel_x = _with_held(g, sims, b["subtree_com"][sims, 1], momentum[new, 0] / (ch.mass_kg + prop.carried_kg[sims]))
+    falls.com_vel_x[sims] = vel_x
     with np.errstate(all="ignore"):  # a blow-up's NaNs
         falls.capture_x[sims] = capture_point_x(com[:, 0], com[:, 2], falls.com_vel_x[sims])
     # scoring: stop after this step; recording: play the topple out (not a blow-up: nothing to show)
@@ -1105,14 +1120,14 @@ def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
     if stepper is not None:  # a swing foot is not a rolled foot; where it lands is support
         c_lo, c_hi = stepper.landing_span(ids, c_lo, c_hi)
         roll = np.where(stepper.swinging(ids), 0.0, roll)
-    if g.has_contact_force and k > 0:  # leaning on a prop: the pendulum's capture point does not apply
-        leaning = rec["prop_force"][ids, k - 1] > CONTACT_FORCE_N
+    if g.has_contact_force and k > 0 and g.prop.holds_body_up:  # leaning on a prop: the pendulum's capture point
+        leaning = rec["prop_force"][ids, k - 1] > CONTACT_FORCE_N  # does not apply
         c_lo, c_hi = np.where(leaning, -np.inf, c_lo), np.where(leaning, np.inf, c_hi)
-    com = r.com
+    com, vel_x = _with_held(g, ids, r.com, r.vel_x)
     if g.field is not None:  # the CoM where the field projects it onto the support (its capture point from there)
         com = com.copy()
         com[:, 0] -= g.field.lean_x(ids, k, g.times[k], com[:, 2])
-    vel_x = r.vel_x if g.field is None else r.vel_x - lean_vel
+    vel_x = vel_x if g.field is None else vel_x - lean_vel
     new = g.falls.check(ids, k, ok=~bad, grounded=r.grounded, support_lo_x=c_lo, support_hi_x=c_hi,
                         lowest_body_z=r.lowest, qpos=r.qpos, com=com, com_vel_x=vel_x, roll=roll,
                         time_s=b["time"][sel])
