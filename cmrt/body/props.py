@@ -9,17 +9,19 @@ index and the controller works on the leading slices of the batch arrays.
 * ``ball``: a sphere on planar joints, held still until it is released on a ballistic arc
   (gravity on) that brings it to the hands at ``ball_arrival_s`` with speed
   ``ball_speed_m_s``, descending at ``ball_angle_deg``, after ``ball_flight_s`` of flight.
-  When it touches the fingertips a ``connect`` equality to each forearm is switched on
-  (the grip, made at contact). Caught = gripped and held: the hands within ``max_ball_sag_m``
-  of where the reference holds them for the last ``ball_hold_s``. From the grip on, the
-  controller plans with the ball's measured pull on the hands (``Ball.hand_load``: -m (a - g)
-  of the ball, an external force on the forearms in the QP). Once the grip has brought the
-  ball to the hands' velocity (at most ``GRIP_SETTLE_S`` later), its mass is moved into the
-  two forearms (per-simulation model fields, ``mj_setConst``): from then on MuJoCo's own
-  dynamics of the character - the
+  When it touches a hand (the last ``HAND_LENGTH_M`` of a forearm) a ``connect`` equality to each
+  forearm is switched on (the grip, made at contact) and the ball stops colliding. Caught = gripped
+  and held: the hands within ``max_ball_sag_m`` of where the reference holds them, from the grip on,
+  for the last ``ball_hold_s``. From the grip on, the controller plans with the ball's measured pull
+  on the hands (``Ball.hand_load``: -m (a - g) of the ball, an external force on the forearms in the
+  QP), and the balance monitor counts the ball's mass in the CoM it judges (``Prop.held_mass``; a
+  held ball pulls, it does not hold the body up as a slab leant on does: ``holds_body_up``). With
+  ``ball_balanced`` 1, once the grip has brought the ball to the hands' velocity (at most
+  ``ball_grip_settle_s`` later), its mass is moved into the two forearms (per-simulation model
+  fields, ``mj_setConst``): from then on MuJoCo's own dynamics of the character - the
   momentum matrix, the mass matrix, gravity - carry the load, and so does the controller
-  (it knows what the character holds). The ball body keeps ``BALL_RESIDUAL_MASS_KG`` and
-  stops colliding.
+  (it balances body and ball together). The ball body keeps ``BALL_RESIDUAL_MASS_KG``. With 0 the ball
+  stays a load on the hands to the end: felt, not balanced (ABC's reactive controller).
 * ``slab``: a free block (planar joints: it can slide and tip) standing on the floor in
   front of the character; floor friction 1.0 (MuJoCo takes the larger of the two geoms').
   Toppled when it has rotated past its balance angle and is falling (``TOPPLED_DEG``).
@@ -55,7 +57,7 @@ FOREARM_RADIUS_M = 0.035
 HAND_OFFSET_M = np.array([0.0, 0.0, -0.40])  # forearm frame -> fingertip end of the capsule
 HAND_LENGTH_M = 0.19  # the hand: the last 0.108 H (Winter) of the forearm+hand capsule, where a ball is gripped
 WRIST_OFFSET_M = HAND_OFFSET_M + np.array([0.0, 0.0, HAND_LENGTH_M])  # forearm frame -> the wrist
-GRIP_TOLERANCE_M = 0.005  # the ball counts as touching the fingertips within this gap
+GRIP_TOLERANCE_M = 0.005  # the ball counts as touching a hand within this gap
 GRIP_TIMECONST_S = 0.01  # the grip's constraint time constant (MuJoCo's default 0.02 lets 12 kg wobble)
 GRIP_SETTLE_S = 0.06  # at the latest this long after the grip the load is handed to the forearms
 BALL_HOLD_S = 0.3  # a catch is held when the hands have stayed this long within max_ball_sag_m of the reference
@@ -256,7 +258,7 @@ class Ball(Prop):
         self.handed_over = np.zeros(0, bool)  # its mass has moved into the forearms
         self.handover_s = np.zeros(0)  # when (s; NaN: not yet)
         self.drift = np.zeros((0, 2))  # the ball's (x, z) offset from its anchor on the right forearm, last step
-        self.held_sag_m = np.zeros(0)  # largest |sag| of the hands since the hand-over (m; NaN: not handed over)
+        self.held_sag_m = np.zeros(0)  # largest |sag| of the hands since the grip (m; NaN: not gripped)
         self._now_s = 0.0  # the time of the last step (s)
         self.out_s = np.zeros(0)  # the last time the hands were off the reference by more than max_ball_sag_m (s)
         # ... and the batch's per-simulation model fields the ball changes (views: batch.expand)
