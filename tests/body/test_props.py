@@ -148,7 +148,7 @@ def test_the_balls_weight_alone_can_be_held_without_anticipation():
 def test_the_7_kg_ball_is_held_and_pulls_the_reactive_controller_over(catch):
     """The paper's catch without anticipation (docs/controller.md, *Catch*): the ball is caught and held, arms out,
     and the body goes over its toes with it. The capture point of body and ball passes the toes 0.2 s after the
-    grip with the CoP pinned at the front of the feet; the body's own capture point is still 8 cm inside them - it
+    grip with the CoP pinned at the front of the feet; the body's own capture point is still 7 cm inside them - it
     is the held ball that takes it over. Played out, the topple goes forward."""
     task, traj = catch
     ev = evaluate(task, traj)
