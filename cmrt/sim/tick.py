@@ -186,8 +186,7 @@ def linear_momentum(rows, cinert, cvel, nb, out):
 # the balance monitor adds it to the CoM): (mass (n,), x/z (n, 2), x velocity (n,)); ``out``, rows ``ids``:
 # (point_x, momentum, new).
 @njit(cache=True, nogil=True)
-def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, now, delay, warm_sets, load, held,
-                 out):
+def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, now, delay, warm_sets, load, held, out):
     """Control step ``k`` of a scoring run, rows ``ids`` (center reference, feet planted, nobody fallen),
     in the Python loop's order: geometry, records, CoM velocity, targets ``c_r = s + d(t)``, ``p_r = s``,
     torques (into ``ctrl_all``; the caller copies them into the batch) and the balance monitor.
