@@ -9,17 +9,19 @@ index and the controller works on the leading slices of the batch arrays.
 * ``ball``: a sphere on planar joints, held still until it is released on a ballistic arc
   (gravity on) that brings it to the hands at ``ball_arrival_s`` with speed
   ``ball_speed_m_s``, descending at ``ball_angle_deg``, after ``ball_flight_s`` of flight.
-  When it touches the fingertips a ``connect`` equality to each forearm is switched on
-  (the grip, made at contact). Caught = gripped and held: the hands within ``max_ball_sag_m``
-  of where the reference holds them for the last ``ball_hold_s``. From the grip on, the
-  controller plans with the ball's measured pull on the hands (``Ball.hand_load``: -m (a - g)
-  of the ball, an external force on the forearms in the QP). Once the grip has brought the
-  ball to the hands' velocity (at most ``GRIP_SETTLE_S`` later), its mass is moved into the
-  two forearms (per-simulation model fields, ``mj_setConst``): from then on MuJoCo's own
-  dynamics of the character - the
+  When it touches a hand (the last ``HAND_LENGTH_M`` of a forearm) a ``connect`` equality to each
+  forearm is switched on (the grip, made at contact) and the ball stops colliding. Caught = gripped
+  and held: the hands within ``max_ball_sag_m`` of where the reference holds them, from the grip on,
+  for the last ``ball_hold_s``. From the grip on, the controller plans with the ball's measured pull
+  on the hands (``Ball.hand_load``: -m (a - g) of the ball, an external force on the forearms in the
+  QP), and the balance monitor counts the ball's mass in the CoM it judges (``Prop.held_mass``; a
+  held ball pulls, it does not hold the body up as a slab leant on does: ``holds_body_up``). With
+  ``ball_balanced`` 1, once the grip has brought the ball to the hands' velocity (at most
+  ``ball_grip_settle_s`` later), its mass is moved into the two forearms (per-simulation model
+  fields, ``mj_setConst``): from then on MuJoCo's own dynamics of the character - the
   momentum matrix, the mass matrix, gravity - carry the load, and so does the controller
-  (it knows what the character holds). The ball body keeps ``BALL_RESIDUAL_MASS_KG`` and
-  stops colliding.
+  (it balances body and ball together). The ball body keeps ``BALL_RESIDUAL_MASS_KG``. With 0 the ball
+  stays a load on the hands to the end: felt, not balanced (ABC's reactive controller).
 * ``slab``: a free block (planar joints: it can slide and tip) standing on the floor in
   front of the character; floor friction 1.0 (MuJoCo takes the larger of the two geoms').
   Toppled when it has rotated past its balance angle and is falling (``TOPPLED_DEG``).
@@ -53,7 +55,9 @@ from cmrt.inputs import Range
 BALL_RADIUS_M = 0.12
 FOREARM_RADIUS_M = 0.035
 HAND_OFFSET_M = np.array([0.0, 0.0, -0.40])  # forearm frame -> fingertip end of the capsule
-GRIP_TOLERANCE_M = 0.005  # the ball counts as touching the fingertips within this gap
+HAND_LENGTH_M = 0.19  # the hand: the last 0.108 H (Winter) of the forearm+hand capsule, where a ball is gripped
+WRIST_OFFSET_M = HAND_OFFSET_M + np.array([0.0, 0.0, HAND_LENGTH_M])  # forearm frame -> the wrist
+GRIP_TOLERANCE_M = 0.005  # the ball counts as touching a hand within this gap
 GRIP_TIMECONST_S = 0.01  # the grip's constraint time constant (MuJoCo's default 0.02 lets 12 kg wobble)
 GRIP_SETTLE_S = 0.06  # at the latest this long after the grip the load is handed to the forearms
 BALL_HOLD_S = 0.3  # a catch is held when the hands have stayed this long within max_ball_sag_m of the reference
@@ -126,6 +130,13 @@ class Prop:
     mass_body: ClassVar[str | None] = None
     #: the prop acts every physics step (a ball released or caught at the right instant), not every control step
     every_step: ClassVar[bool] = False
+    #: the hands can lean on the prop (a slab): while they touch it the body is held up, and the inverted pendulum's
+    #: capture point does not apply. A held ball only pulls on the hands.
+    holds_body_up: ClassVar[bool] = True
+
+    @classmethod
+    def check(cls, p: dict[str, float]) -> None:
+        """CmrtError if the task's parameters ``p`` are ones the prop cannot use (beyond their ranges, ``LIMITS``)."""
 
     @classmethod
     def add_to_spec(cls, spec: mujoco.MjSpec, p: dict[str, float]) -> None:
@@ -169,6 +180,12 @@ class Prop:
         the hands (n, 2) x/z N, where it acts (n, 3) and the bodies sharing it; None: none."""
         return None
 
+    def held_mass(self, b: dict, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Mass the hands hold that the character's own bodies do not carry yet, for simulations ``rows``: kg (n,),
+        its (x, z) (n, 2) and x velocity (n,) - part of what balances and falls (the balance monitor adds it to the
+        character's CoM). None: none."""
+        return None
+
     def contact_force(self, b: dict, sel) -> np.ndarray | None:
         """Force between the character's hands and the prop during the step just taken (N), or None."""
         if self.sensors is None:
@@ -190,7 +207,7 @@ class Ball(Prop):
     PARAMS = {"ball_mass_kg": 7.0, "ball_speed_m_s": 4.0, "ball_angle_deg": 10.0, "ball_flight_s": 0.4,
               "ball_arrival_s": 1.35, "ball_height_m": 1.36, "ball_reach_m": 0.86, "max_ball_sag_m": 0.1,
               "ball_hold_s": BALL_HOLD_S, "ball_grip_timeconst_s": GRIP_TIMECONST_S,
-              "ball_grip_settle_s": GRIP_SETTLE_S}
+              "ball_grip_settle_s": GRIP_SETTLE_S, "ball_balanced": 1.0}
     MODEL_PARAMS = ("ball_mass_kg", "ball_grip_timeconst_s")
     LIMITS = {"ball_mass_kg": Range(0.1, 100.0, unit="kg"),  # above BALL_RESIDUAL_MASS_KG: the hand-over moves it
               "ball_speed_m_s": Range(0.0, 50.0, unit="m/s"), "ball_angle_deg": Range(-90.0, 90.0, unit="deg"),
@@ -199,9 +216,19 @@ class Ball(Prop):
               "max_ball_sag_m": Range(0.0, 2.0, unit="m"), "ball_hold_s": Range(0.0, 10.0, unit="s"),
               # the grip's constraint time constant: >= 2 physics steps (MuJoCo's stability rule), at most 0.5 s
               "ball_grip_timeconst_s": Range(0.004, 0.5, unit="s"),
-              "ball_grip_settle_s": Range(0.004, 2.0, unit="s")}
+              "ball_grip_settle_s": Range(0.004, 2.0, unit="s"),
+              # 1: once the grip has settled the controller balances body and ball together (the ball's mass moves
+              # into the forearms); 0: never - the ball stays a load on the hands, felt (its pull is in the plan) but
+              # not balanced: ABC's reactive controller, to which the ball is a disturbance
+              "ball_balanced": Range(0.0, 1.0)}  # 0 or 1 (``check``)
     mass_body = "ball"
     every_step = True
+    holds_body_up = False
+
+    @classmethod
+    def check(cls, p):
+        if p.get("ball_balanced", 1.0) not in (0.0, 1.0):
+            raise CmrtError(f"ball_balanced must be 0 or 1, got {p['ball_balanced']:g}")
 
     @classmethod
     def add_to_spec(cls, spec, p):
@@ -231,7 +258,7 @@ class Ball(Prop):
         self.handed_over = np.zeros(0, bool)  # its mass has moved into the forearms
         self.handover_s = np.zeros(0)  # when (s; NaN: not yet)
         self.drift = np.zeros((0, 2))  # the ball's (x, z) offset from its anchor on the right forearm, last step
-        self.held_sag_m = np.zeros(0)  # largest |sag| of the hands since the hand-over (m; NaN: not handed over)
+        self.held_sag_m = np.zeros(0)  # largest |sag| of the hands since the grip (m; NaN: not gripped)
         self._now_s = 0.0  # the time of the last step (s)
         self.out_s = np.zeros(0)  # the last time the hands were off the reference by more than max_ball_sag_m (s)
         # ... and the batch's per-simulation model fields the ball changes (views: batch.expand)
@@ -277,8 +304,8 @@ class Ball(Prop):
 
     def step(self, batch, b, ids, t):
         self._now_s = t
-        held = ids[self.handed_over[ids]]
-        if held.size:  # the hold: the hands must stay where the reference holds them, up or down
+        held = ids[~np.isnan(self.grip_s[ids])]
+        if held.size:  # the hold, from the grip on: the hands must stay where the reference holds them, up or down
             sag = np.abs(self.reference_tip_z - self._tip_z(b, held))
             self.held_sag_m[held] = np.fmax(self.held_sag_m[held], sag)
             off = (sag > self.params["max_ball_sag_m"]) | np.isinf(self.out_s[held])
@@ -292,18 +319,19 @@ class Ball(Prop):
             self._hold(b, release)
         free = ids[self.released[ids] & np.isnan(self.grip_s[ids])]
         if free.size:
-            hand = self.forearms[0]
-            R = b["xmat"][free, hand].reshape(-1, 3, 3)
-            tip = b["xpos"][free, hand] + R @ HAND_OFFSET_M
-            ball = b["xpos"][free, self.body]
-            gap = np.hypot(ball[:, 0] - tip[:, 0], ball[:, 2] - tip[:, 2]) - BALL_RADIUS_M - FOREARM_RADIUS_M
+            gap = self._hand_gap(b, free)
             for sim in free[gap <= GRIP_TOLERANCE_M]:  # the grip, made at contact
                 for eq, body in enumerate(self.forearms):
                     Rb = b["xmat"][sim, body].reshape(3, 3)
                     self.eq_data[sim, eq, 0:3] = Rb.T @ (b["xpos"][sim, self.body] - b["xpos"][sim, body])
                     self.eq_data[sim, eq, 3:6] = 0.0  # the ball's centre
                     b["eq_active"][sim, eq] = 1.0
+                # held: the grip alone carries it (its compliance lets the ball sink into the hands, which a contact
+                # with the forearm it overlaps would fight)
+                self.contype[sim, self.geom] = self.conaffinity[sim, self.geom] = 0
                 self.grip_s[sim] = t
+        if not self.params.get("ball_balanced", 1.0):
+            return  # the ball stays a load on the hands
         held = ids[~self.handed_over[ids] & ~np.isnan(self.grip_s[ids])]
         due = held[self._settled(b, held, t)]
         if due.size:
@@ -313,6 +341,19 @@ class Ball(Prop):
             anchors = self.eq_data.copy()  # mj_setConst recomputes connect anchors from qpos0: keep ours
             batch.set_const()
             self.eq_data[:] = anchors
+
+    def _hand_gap(self, b: dict, rows: np.ndarray) -> np.ndarray:
+        """Gap (m) between the ball's surface and the right hand's (the last ``HAND_LENGTH_M`` of the forearm
+        capsule, to the fingertip), in the plane: < 0 where they overlap."""
+        hand = self.forearms[0]
+        R = b["xmat"][rows, hand].reshape(-1, 3, 3)
+        tip = (b["xpos"][rows, hand] + R @ HAND_OFFSET_M)[:, [0, 2]]
+        wrist = (b["xpos"][rows, hand] + R @ WRIST_OFFSET_M)[:, [0, 2]]
+        ball = b["xpos"][rows, self.body][:, [0, 2]]
+        axis = tip - wrist
+        s = np.clip(np.einsum("ij,ij->i", ball - wrist, axis) / np.einsum("ij,ij->i", axis, axis), 0.0, 1.0)
+        nearest = wrist + s[:, None] * axis
+        return np.hypot(*(ball - nearest).T) - BALL_RADIUS_M - FOREARM_RADIUS_M
 
     def _settled(self, b: dict, rows: np.ndarray, t: float) -> np.ndarray:
         """Has the grip brought the ball to the hands' motion? The drift of the ball away from its anchor
@@ -374,6 +415,12 @@ class Ball(Prop):
             f[held, 0] = -m * acc[:, 0]
             f[held, 1] = -m * (acc[:, 1] + GRAVITY_M_S2)
         return f, np.ascontiguousarray(b["xpos"][rows, self.body]), np.array(self.forearms, np.int64)
+
+    def held_mass(self, b, rows):
+        """The gripped ball until its mass is handed over to the forearms (from then on the forearms carry it)."""
+        gripped = ~np.isnan(self.grip_s[rows]) & ~self.handed_over[rows]
+        mass = np.where(gripped, self.mass[rows, self.body], 0.0)
+        return mass, b["xpos"][rows, self.body][:, [0, 2]], b["qvel"][rows, self.dofs.start]
 
     def contact_force(self, b, sel):
         """|m (a - g)| of the ball: what the hands (or anything else) apply to it."""

@@ -285,6 +285,7 @@ class Task:
             if any(k in p for k in keys) and not all(k in p for k in keys):
                 raise CmrtError(f"a second push needs all of {', '.join(keys)}")
         _check_box(p, self.prop)
+        prop_class(self.prop).check(p)
         if self.steps:
             check_plan(self.plan, p["clip_s"])
         elif p.get("planned_step_s", 0.0) > 0.0:

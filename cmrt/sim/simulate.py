@@ -510,6 +510,11 @@ def _ground_records(rec: _Recorder, touch: np.ndarray, sample_x: np.ndarray, sam
 
 
 @functools.lru_cache(maxsize=64)
+def _no_held(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nothing held that the character's bodies do not carry (``Prop.held_mass``), for the compiled tick."""
+    return np.zeros(n), np.zeros((n, 2)), np.zeros(n)
+
+
 def _no_load(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """No load on the hands (``Prop.hand_load``), for the compiled tick's arguments, made once per n: writable like
     a prop's load (the kernel only reads them; another array type would compile the tick a second time)."""
@@ -657,7 +662,7 @@ class _CompiledTick:
         self.warm = (warm, np.zeros_like(warm))  # the active sets, and where this step's are written first
 
     def __call__(self, k: int, ids: np.ndarray, carried_kg: np.ndarray, com_ref_now: np.ndarray,
-                 cop_ref_now: np.ndarray, ctrl_all: np.ndarray, load: tuple | None = None):
+                 cop_ref_now: np.ndarray, ctrl_all: np.ndarray, load: tuple | None = None, held: tuple | None = None):
         """Control step ``k`` of rows ``ids``: (point_x, how many fell, the mask of those
         that fell, momentum), or None when the Python path must do it (a fallen row, or a singular plan it
         finds row by row)."""
@@ -669,7 +674,8 @@ class _CompiledTick:
             fell = control_tick(k, ids, (self.dt, self.control_dt, self.nb, self.mass_kg), self.fields,
                                 self.geometry, self.controller, self.drive, self.lean, self.state,
                                 (carried_kg, com_ref_now, cop_ref_now, ctrl_all), self.delay, self.warm,
-                                _no_load(n) if load is None else tuple(load), (point_x, momentum, new))
+                                _no_load(n) if load is None else tuple(load),
+                                _no_held(n) if held is None else tuple(held), (point_x, momentum, new))
         except np.linalg.LinAlgError:
             return None
         if fell < 0:
@@ -843,8 +849,8 @@ def _set_up(task: Task, curves: list[Cmrt | None], config: ControllerConfig, rec
     delay_steps = config.control_every * int(round(config.feedback_delay_s / control_dt))
     fb_vel = np.full((n, n_steps), np.nan)
     warm = np.zeros((n, controller.n_rows), bool)
-    compiled = (_CompiledTick(b, geo, controller, drive, rec, falls, act, nb, ch.mass_kg, has_contact_force,
-                              delay_steps, fb_vel, warm)
+    compiled = (_CompiledTick(b, geo, controller, drive, rec, falls, act, nb, ch.mass_kg,
+                              has_contact_force and prop.holds_body_up, delay_steps, fb_vel, warm)
                 if COMPILED_TICK and yu is None and stepper is None and not record and support.still_and_level
                 else None)
     return _Group(
@@ -861,12 +867,28 @@ def _set_up(task: Task, curves: list[Cmrt | None], config: ControllerConfig, rec
     )
 
 
+def _with_held(g: _Group, ids: np.ndarray, com: np.ndarray, vel_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The CoM (x, y, z rows) and its x velocity of the character with what its hands hold and its bodies do not
+    carry yet (``Prop.held_mass``: a gripped ball before its mass is handed over): what balances and falls."""
+    held = g.prop.held_mass(g.b, ids)
+    if held is None or not held[0].any():
+        return com, vel_x
+    m, xz, vx = held
+    own = g.ch.mass_kg + g.prop.carried_kg[ids]
+    total = own + m
+    holding = m > 0.0  # the others' CoM untouched (as the compiled tick's: bit for bit)
+    com = com.copy()
+    com[:, 0] = np.where(holding, (own * com[:, 0] + m * xz[:, 0]) / total, com[:, 0])
+    com[:, 2] = np.where(holding, (own * com[:, 2] + m * xz[:, 1]) / total, com[:, 2])
+    return com, np.where(holding, (own * vel_x + m * vx) / total, vel_x)
+
+
 def _fell_now(g: _Group, s: _LoopState, k: int, new: np.ndarray, qpos: np.ndarray, momentum: np.ndarray) -> int:
     """Rows ``new`` (of ``s.ids``) fell at step ``k``; returns the next step at which a row stops."""
     b, falls, prop, ch = g.b, g.falls, g.prop, g.ch
     sims = s.ids[new]
-    com = b["subtree_com"][sims, 1]
-    falls.com_vel_x[sims] = momentum[new, 0] / (ch.mass_kg + prop.carried_kg[sims])
+    com, vel_x = _with_held(g, sims, b["subtree_com"][sims, 1], momentum[new, 0] / (ch.mass_kg + prop.carried_kg[sims]))
+    falls.com_vel_x[sims] = vel_x
     with np.errstate(all="ignore"):  # a blow-up's NaNs
         falls.capture_x[sims] = capture_point_x(com[:, 0], com[:, 2], falls.com_vel_x[sims])
     # scoring: stop after this step; recording: play the topple out (not a blow-up: nothing to show)
@@ -913,7 +935,8 @@ def _compiled_loop(g: _Group, s: _LoopState) -> None:
         if control or every_step:
             prop.step(g.batch, b, ids, g.times[k])
         if control:
-            out = g.compiled(k, ids, prop.carried_kg, g.com_ref_now, g.cop_ref_now, g.ctrl_all, prop.hand_load(b, ids))
+            out = g.compiled(k, ids, prop.carried_kg, g.com_ref_now, g.cop_ref_now, g.ctrl_all, prop.hand_load(b, ids),
+                             prop.held_mass(b, ids))
             if out is None:  # a fallen row or a singular plan: the Python loop goes on from here
                 s.prop_stepped = k
                 break
@@ -1105,14 +1128,14 @@ def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
     if stepper is not None:  # a swing foot is not a rolled foot; where it lands is support
         c_lo, c_hi = stepper.landing_span(ids, c_lo, c_hi)
         roll = np.where(stepper.swinging(ids), 0.0, roll)
-    if g.has_contact_force and k > 0:  # leaning on a prop: the pendulum's capture point does not apply
-        leaning = rec["prop_force"][ids, k - 1] > CONTACT_FORCE_N
+    if g.has_contact_force and k > 0 and g.prop.holds_body_up:  # leaning on a prop: the pendulum's capture point
+        leaning = rec["prop_force"][ids, k - 1] > CONTACT_FORCE_N  # does not apply
         c_lo, c_hi = np.where(leaning, -np.inf, c_lo), np.where(leaning, np.inf, c_hi)
-    com = r.com
+    com, vel_x = _with_held(g, ids, r.com, r.vel_x)
     if g.field is not None:  # the CoM where the field projects it onto the support (its capture point from there)
         com = com.copy()
         com[:, 0] -= g.field.lean_x(ids, k, g.times[k], com[:, 2])
-    vel_x = r.vel_x if g.field is None else r.vel_x - lean_vel
+    vel_x = vel_x if g.field is None else vel_x - lean_vel
     new = g.falls.check(ids, k, ok=~bad, grounded=r.grounded, support_lo_x=c_lo, support_hi_x=c_hi,
                         lowest_body_z=r.lowest, qpos=r.qpos, com=com, com_vel_x=vel_x, roll=roll,
                         time_s=b["time"][sel])

@@ -182,9 +182,11 @@ def linear_momentum(rows, cinert, cvel, nb, out):
 # delay (steps) and the CoM velocity at past control steps (n_all, steps): (delay_steps, fb_vel); ``warm_sets``, the
 # QPs' active sets (n_all, rows), kept from the last control step, and this step's first: (warm, warm_out);
 # ``load``, a held load's pull on the hands, rows ``ids``: (ext_f, ext_p, ext_bodies) - force (n, 2), point (n, 3),
-# the bodies sharing it; ``out``, rows ``ids``: (point_x, momentum, new).
+# the bodies sharing it; ``held``, a mass the hands hold and the bodies do not carry, rows ``ids`` (``Prop.held_mass``:
+# the balance monitor adds it to the CoM): (mass (n,), x/z (n, 2), x velocity (n,)); ``out``, rows ``ids``:
+# (point_x, momentum, new).
 @njit(cache=True, nogil=True)
-def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, now, delay, warm_sets, load, out):
+def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, now, delay, warm_sets, load, held, out):
     """Control step ``k`` of a scoring run, rows ``ids`` (center reference, feet planted, nobody fallen),
     in the Python loop's order: geometry, records, CoM velocity, targets ``c_r = s + d(t)``, ``p_r = s``,
     torques (into ``ctrl_all``; the caller copies them into the batch) and the balance monitor.
@@ -263,15 +265,16 @@ def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, 
             warm[s, j] = warm_out[s, j]
         rec_plan[s, k] = info[r, 2]  # the planned CoP, against the measured one after the step (plan vs execution)
     return _judge_tick(k, ids, clock, fields, consts, lean, state, now, tau,
-                       (grounded, c_lo, c_hi, lowest, vel_x, roll), new)
+                       (grounded, c_lo, c_hi, lowest, vel_x, roll), held, new)
 
 
 @njit(cache=True, nogil=True)
-def _judge_tick(k, ids, clock, fields, consts, lean, state, now, tau, read, new):
+def _judge_tick(k, ids, clock, fields, consts, lean, state, now, tau, read, held, new):
     """The end of ``control_tick``: the torques into ``ctrl_all`` (zero for a non-finite plan), then the balance
     monitor on rows ``ids`` (``read``: what the tick's geometry read, (grounded, c_lo, c_hi, lowest, vel_x,
-    roll)); ``new`` gets the rows that fell now; returns how many."""
-    dt, control_dt = clock[0], clock[1]
+    roll); ``held``: a mass held and not carried, added to the CoM it judges); ``new`` gets the rows that fell now;
+    returns how many."""
+    dt, control_dt, mass_kg = clock[0], clock[1], clock[3]
     qpos, subtree_com, time_s = fields[2], fields[11], fields[12]
     com_height_m, airborne_s, roll_rad, capture_margin_m = consts[9], consts[10], consts[11], consts[12]
     lean_check, prop_force, leaning_n = lean
@@ -299,10 +302,19 @@ def _judge_tick(k, ids, clock, fields, consts, lean, state, now, tau, read, new)
         finite[r] = ok and abs(time_s[s] - k * dt) < 1e-9
         if lean_check and k > 0 and prop_force[s, k - 1] > leaning_n:  # leaning on a prop
             c_lo[r], c_hi[r] = -np.inf, np.inf
-    com_x, com_z = np.empty(n), np.empty(n)
+    com_x, com_z, com_vel = np.empty(n), np.empty(n), np.empty(n)
+    held_m, held_xz, held_vx = held
+    carried_kg = now[0]
     for r in range(n):
-        com_x[r], com_z[r] = subtree_com[ids[r], 1, 0], subtree_com[ids[r], 1, 2]
-    code = _first_failed(finite, lowest, com_x, com_z, vel_x, air, roll, c_lo, c_hi, com_height_m, airborne_s,
+        com_x[r], com_z[r], com_vel[r] = subtree_com[ids[r], 1, 0], subtree_com[ids[r], 1, 2], vel_x[r]
+        m = held_m[r]
+        if m > 0.0:  # simulate._with_held's operations
+            own = mass_kg + carried_kg[ids[r]]
+            total = own + m
+            com_x[r] = (own * com_x[r] + m * held_xz[r, 0]) / total
+            com_z[r] = (own * com_z[r] + m * held_xz[r, 1]) / total
+            com_vel[r] = (own * com_vel[r] + m * held_vx[r]) / total
+    code = _first_failed(finite, lowest, com_x, com_z, com_vel, air, roll, c_lo, c_hi, com_height_m, airborne_s,
                          roll_rad, capture_margin_m)
     fell = 0
     for r in range(n):
