@@ -35,16 +35,26 @@ from cmrt.viz.render import render, task_label, verdict
 CURVE_SAMPLES = 200  # points of a CMRT curve d(t) sent to the page
 MAX_TRACE_POINTS = 1500  # a CoP trace is thinned to at most this many points (a 2 ms step: every second one)
 MAX_COMPARED_RUNS = 12
-#: the plausibility figures of docs/results/plausibility.md and the limits its tests assert
+#: the figures the one verdict rule judges (docs/physics.md, *Success*) and the fastest joint, with their limits: a
+#: number, or the key of the report's task-dependent bound (the same for both clips of a run: one task)
 PLAUSIBILITY = (
-    ("peak_normal_force_bw", "peak ground force (x body weight)", 2.5),
-    ("airborne_s", "airborne (s)", 0.01),
+    ("peak_normal_force_bw", "peak ground force (x body weight)", "peak_normal_force_bw"),
+    ("airborne_s", "airborne (s)", "airborne_s"),
     ("max_joint_speed_rad_s", "fastest joint (rad/s)", 25.0),
-    ("min_cop_margin_m", "smallest CoP margin to the feet's edge (m)", None),
-    ("tracking_error_rad", "RMS tracking error over the motion (rad)", None),
-    ("final_pose_error_rad", "final pose error (rad)", None),
-    ("timing_lag_s", "timing lag of the motion (s)", None),
+    ("min_cop_margin_m", "smallest CoP margin to the feet's edge (m, at least)", "min_cop_margin_m"),
+    ("max_plan_cop_error_m", "planned vs executed CoP (m)", "max_plan_cop_error_m"),
+    ("tracking_error_rad", "RMS tracking error over the motion (rad)", "tracking_bound_rad"),
+    ("final_pose_error_rad", "final pose error (rad)", "final_pose_error_rad"),
+    ("timing_lag_s", "timing lag of the motion (s)", "timing_lag_bound_s"),
 )
+
+
+def _limit(limit: float | str, report: dict) -> float | None:
+    """A figure's limit: a number as it stands, a key read from the verdict's bounds or the report itself."""
+    if not isinstance(limit, str):
+        return limit
+    bounds = report.get("verdict_bounds") or {}
+    return bounds.get(limit, report.get(limit))
 
 
 class NotFound(CmrtError):
@@ -187,6 +197,8 @@ def _trace(task: Task, curve: Cmrt, label: str) -> dict:
         "time_s": t[::step].tolist(), "cop_error_cm": err[::step].tolist(), "support_lo_cm": lo[::step].tolist(),
         "support_hi_cm": hi[::step].tolist(),
         "plausibility": {k: report.get(k) for k, _, _ in PLAUSIBILITY},
+        "limits": {k: _limit(lim, report) for k, _, lim in PLAUSIBILITY},
+        "failed_rules": list(ev.failed_rules),
     })
 
 
@@ -200,10 +212,10 @@ def run_traces(store: Store, run_id: int, cache: SimCache) -> dict:
     def make() -> dict:
         task = task_of(run)
         best = Cmrt.from_dict(run.best_cmrt)
-        return {"run_id": run_id, "task": _task_info(task),
-                "clips": [_trace(task, Cmrt.zero(task.clip_s), "zero CMRT"),
-                          _trace(task, best, f"run {run_id} best CMRT")],
-                "plausibility_fields": [{"key": k, "label": lab, "limit": lim} for k, lab, lim in PLAUSIBILITY]}
+        clips = [_trace(task, Cmrt.zero(task.clip_s), "zero CMRT"), _trace(task, best, f"run {run_id} best CMRT")]
+        return {"run_id": run_id, "task": _task_info(task), "clips": clips,
+                "plausibility_fields": [{"key": k, "label": lab, "limit": clips[0]["limits"][k]}
+                                        for k, lab, _ in PLAUSIBILITY]}
 
     return cache.get(_key("traces", run.task_definition, run.best_cmrt), make)
 

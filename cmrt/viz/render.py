@@ -191,8 +191,12 @@ def _floating_box(scene: mujoco.MjvScene, model: mujoco.MjModel) -> None:
 
 
 def verdict(score: Evaluation) -> str:
-    """A clip's verdict in words, as ``cmrt render`` prints it and every frame shows it."""
-    return "SUCCESS" if score.success else "lost balance" if score.fell else "balance kept, not a success"
+    """A clip's verdict in words, as ``cmrt render`` prints it and every frame shows it: the rules it broke."""
+    if score.success:
+        return "SUCCESS"
+    if score.fell:
+        return "lost balance"
+    return "balance kept, not a success: " + ", ".join(r.replace("_", " ") for r in score.failed_rules)
 
 
 def task_label(task: Task) -> str:

@@ -2,6 +2,7 @@
 one the motors can carry out, so what MuJoCo does with its torques is what was planned."""
 
 import dataclasses
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -12,6 +13,8 @@ from cmrt.control import ControllerConfig, MomentumBalanceController
 from cmrt.control.kernel import LIMIT_SLACK
 from cmrt.motion.taskfile import load_task
 from cmrt.sim.simulate import CONTROL_FIELDS, _in_contact, simulate
+
+V03_BEND = Path(__file__).parent.parent / "data" / "v03_bend.toml"  # the bend shipped until v0.3
 
 # 40 % of the MJCF's motor limits: the bend's plan needs more than that at some of the states below.
 WEAK = 0.4
@@ -28,7 +31,7 @@ def _weak_controller(in_plan: bool) -> MomentumBalanceController:
 
 @pytest.fixture(scope="module")
 def bend_states():
-    task = load_task("bend").with_speed(0.8)
+    task = load_task(str(V03_BEND)).with_speed(0.8)  # a bend whose weak motors meet their limits
     # knees off their stops, and planned as the test plans (no feedback delay: it calls the controller with the
     # present CoM)
     traj = simulate(task, config=ControllerConfig(limits_in_plan=True, feedback_delay_s=0.0))

@@ -86,9 +86,13 @@ def test_a_run_has_its_convergence_curves_and_task(client):
 def test_the_cop_traces_and_plausibility_of_the_zero_and_best_cmrt(client):
     t = client.get("/api/runs/1/traces").json()
     zero, best = t["clips"]
-    assert zero["verdict"] == "balance kept, not a success" and best["verdict"] == "SUCCESS"
+    assert zero["verdict"].startswith("balance kept, not a success: ") and best["verdict"] == "SUCCESS"
+    assert zero["failed_rules"] and "on time" in zero["verdict"] and best["failed_rules"] == []
     assert len(best["time_s"]) == len(best["cop_error_cm"]) <= 1500
     assert best["plausibility"]["peak_normal_force_bw"] > 1
+    limits = {f["key"]: f["limit"] for f in t["plausibility_fields"]}  # every figure the verdict judges has its limit
+    assert limits["max_plan_cop_error_m"] == 0.005 and limits["min_cop_margin_m"] == 0.001
+    assert limits["timing_lag_s"] == pytest.approx(0.04) and limits["tracking_error_rad"] > 0
     assert client.get("/api/runs/3/traces").status_code == 404  # queued: nothing to simulate yet
 
 
