@@ -35,7 +35,8 @@ from cmrt.errors import CmrtError, Terminated, TransientFault, clear_signals, no
 from cmrt.inputs import escape, shown
 from cmrt.modes import BACKENDS, REFERENCE_MODES
 from cmrt.optimize.settings import FAMILY_SIGMA0, STALE_AFTER_S, OptimizeSettings
-from cmrt.service.store import DEFAULT_STORE, RUN_STATUSES, Run, Store, open_store, resolve_path
+from cmrt.service.records import RUN_STATUSES, Run
+from cmrt.service.store import DEFAULT_STORE, Store, open_store, resolve_path
 
 # Start-up: a verb imports what it uses (MuJoCo, numba, scipy, pycma, dask: ~4 s in all) when it runs, so
 # that `cmrt --help`, `cmrt runs` or `cmrt show` answer at once. Building the parser imports none of them:
@@ -227,11 +228,12 @@ def _result_text(r: dict) -> str:
     speed = f" --speed {r['speed']:g}" if r["speed"] is not None else ""
     kind = "robust CMRT:   " if r["robust"] else "optimized CMRT:"
     lines = [
-        f"run {r['run_id']} {escape(r['task'])}{speed}: {r['status']} ({r['stop_reason']}) after "
-        f"{r['evaluations']} evaluations, {r['restarts']} restarts, {r['wall_s']:.1f} s; start: {escape(r['init'])}",
-        f"  zero CMRT:      objective {r['baseline_objective']:.4f}  "
+        f"run {r['run_id']} {escape(r['task'])}{speed}: {r['status']} ({escape(str(r['stop_reason']))}) after "
+        f"{r['evaluations']} evaluations, {r['restarts']} restarts, {_n(r['wall_s'], '.1f')} s; start: "
+        f"{escape(r['init'])}",
+        f"  zero CMRT:      objective {_n(r['baseline_objective'], '.4f')}  "
         f"{_outcome_word(r['baseline_success'], r['baseline_fell'])}",
-        f"  {kind} objective {r['best_objective']:.4f}  {_outcome_word(r['success'], r['fell'])}"
+        f"  {kind} objective {_n(r['best_objective'], '.4f')}  {_outcome_word(r['success'], r['fell'])}"
         + ("" if r.get("improvement_over_zero") is None else
            f"  ({r['improvement_over_zero']:.4f} better than no CMRT)" if r["improvement_over_zero"] > 0 else
            "  (no better than no CMRT: the zero CMRT is the best known)"),

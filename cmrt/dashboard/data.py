@@ -24,7 +24,7 @@ from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.task import Task
 from cmrt.service.interpolate import blend
-from cmrt.service.query import run_details, run_summary, task_of
+from cmrt.service.query import run_details, run_summary, stored_curve, task_of
 from cmrt.service.store import Run, Store, StoredEvaluation
 from cmrt.sim.objective import evaluate
 from cmrt.sim.report import evaluation_dict
@@ -165,7 +165,7 @@ def run_page(store: Store, run_id: int) -> dict:
         details = run_details(store, run_id)
         evaluations = store.evaluations(run_id)
     task = task_of(run)
-    best = curve_points(Cmrt.from_dict(run.best_cmrt)) if run.best_cmrt else None
+    best = curve_points(stored_curve(run)) if run.best_cmrt else None
     return inputs.json_safe({
         "run": run_row(run), "details": details, "task": _task_info(task), "task_definition": run.task_definition,
         "convergence": _convergence(run, evaluations), "best_cmrt": best,
@@ -199,7 +199,7 @@ def run_traces(store: Store, run_id: int, cache: SimCache) -> dict:
 
     def make() -> dict:
         task = task_of(run)
-        best = Cmrt.from_dict(run.best_cmrt)
+        best = stored_curve(run)
         return {"run_id": run_id, "task": _task_info(task),
                 "clips": [_trace(task, Cmrt.zero(task.clip_s), "zero CMRT"),
                           _trace(task, best, f"run {run_id} best CMRT")],
@@ -240,7 +240,7 @@ def compare(store: Store, run_ids: list[int], cache: SimCache) -> dict:
     members, shown_runs = [], []
     for run in runs:
         task = task_of(run)
-        curve = Cmrt.from_dict(run.best_cmrt) if run.best_cmrt else None
+        curve = stored_curve(run) if run.best_cmrt else None
         shown_runs.append({**run_row(run), "label": f"run {run.id}: {task_label(task)}",
                            "curve": curve_points(curve) if curve else None})
         if curve is not None and run.task == runs[0].task:
@@ -274,6 +274,6 @@ def clip(store: Store, run_id: int, fps: int) -> Path:
         except OSError as exc:
             raise CmrtError(f"cannot cache the clip beside the store ({out.parent}): {exc.strerror}") from None
         task = task_of(run)
-        render(task, Cmrt.from_dict(run.best_cmrt), out, Cmrt.zero(task.clip_s),
+        render(task, stored_curve(run), out, Cmrt.zero(task.clip_s),
                (f"run {run_id} best CMRT", "zero CMRT"), fps=fps)
     return out

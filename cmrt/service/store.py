@@ -24,7 +24,6 @@ import contextlib
 import errno
 import functools
 import json
-import math
 import os
 import random
 import shutil
@@ -35,12 +34,22 @@ import threading
 import time
 import urllib.parse
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import sqlite_utils
 
 from cmrt.errors import CmrtError, TransientFault
+from cmrt.service.records import (
+    EVALUATIONS,
+    GENERATIONS,
+    Generation,
+    Run,
+    RunProgress,
+    RunSpec,
+    StoredEvaluation,
+    decode,
+)
 
 DEFAULT_STORE = Path("store") / "cmrt.sqlite"
 BUSY_TIMEOUT_MS = 30_000
@@ -54,7 +63,6 @@ BEGIN_RETRIES = 20
 SQLITE_MAGIC = b"SQLite format 3\x00"
 APP_ID = "cmrt"
 
-RUN_STATUSES = ("queued", "running", "done", "failed")
 #: a run is given back to the queue after a transient fault (or taken over after its worker died) at most
 #: this many times; then it is failed with the reason (as optuna's RetryFailedTrialCallback bounds retries)
 MAX_RETRIES = 10
@@ -310,17 +318,6 @@ def _schema_difference(have: dict, want: dict) -> str:
     return "; ".join(parts)[:200]
 
 
-def _json(text, where: str, kind: type = object):
-    """A JSON column's value; CmrtError if the stored text is damaged (not JSON, or not a ``kind``)."""
-    try:
-        value = json.loads(text)
-    except (TypeError, ValueError, RecursionError):
-        raise CmrtError(f"the store is damaged: {where} is not valid JSON") from None
-    if not isinstance(value, kind):
-        raise CmrtError(f"the store is damaged: {where} is not a {kind.__name__}")
-    return value
-
-
 class LostClaim(RuntimeError):
     """Another worker took this run over (ours was considered dead)."""
 
@@ -332,180 +329,6 @@ class Claim:
     run_id: int
     worker: str
     attempt: int
-
-
-@dataclass(frozen=True)
-class RunSpec:
-    """Everything that defines a run, written in one INSERT when it is queued."""
-
-    task: str
-    speed: float | None
-    params: dict[str, float]
-    task_hash: str  # Task.content_hash(): the physics and the score, not the name
-    task_definition: dict  # Task.to_dict(): later edits of the task file do not change a queued run
-    seed: int
-    max_evals: int
-    popsize: int
-    sigma0: float
-    min_evals: int
-    stop_threshold: float
-    stall_generations: int
-    backend: str
-    init_source: str  # where the start point came from: "none", "run 12", "library (speed 0.4)"
-    init_params: tuple[float, ...] | None  # the start point itself (a resume never re-resolves it)
-    init_run: int | None = None  # the run id given as --init, if one was
-    robust: dict | None = None  # the training ensemble's [robust] table (None: a plain run)
-    reference: str = "center"  # the controller's reference mode: "center" or "yu" (cmrt.control.references)
-
-
-@dataclass(frozen=True)
-class Run:
-    """One row of ``runs``, decoded (JSON columns as Python values, flags as bools)."""
-
-    id: int
-    task: str
-    speed: float | None
-    params: dict[str, float]
-    task_hash: str
-    task_definition: dict
-    seed: int
-    max_evals: int
-    popsize: int
-    sigma0: float
-    min_evals: int
-    stop_threshold: float | None
-    init_run: int | None
-    backend: str | None
-    status: str  # one of RUN_STATUSES
-    worker: str | None
-    attempt: int
-    heartbeat_at: float | None  # unix time of the last write of the worker holding it
-    created_at: float
-    started_at: float | None
-    finished_at: float | None
-    best_objective: float | None
-    best_params: tuple[float, ...] | None
-    best_fell: bool | None
-    best_success: bool | None
-    best_cmrt: dict | None  # Cmrt.to_dict() of the best candidate
-    baseline_objective: float | None  # the zero CMRT's score
-    baseline_fell: bool | None
-    baseline_success: bool | None
-    evaluations: int
-    generations: int
-    stop_reason: str | None
-    wall_s: float | None
-    eval_s: float | None  # summed simulation time of the evaluations
-    error: str | None
-    init_source: str | None
-    init_params: tuple[float, ...] | None
-    restarts: int | None
-    stall_generations: int | None  # None: the default (OptimizeSettings)
-    robust: dict | None
-    robustness: dict | None  # cmrt.sim.validate.robustness of the best CMRT
-    retries: int | None = None  # transient faults and take-overs so far (NULL before schema 4: none)
-    reference: str = "center"  # the controller's reference mode the run was optimized with (NULL: "center")
-
-    @classmethod
-    def from_row(cls, row: sqlite3.Row) -> Run:
-        """Decode a ``runs`` row (JSON columns, 0/1 flags); a damaged row is a CmrtError naming it."""
-        d = dict(row)
-        where = f"run {d.get('id')}"
-        d["task_definition"] = _json(d.pop("task_source"), f"{where}: task_source")
-        for key in ("params", "best_cmrt", "robust", "robustness"):
-            d[key] = _json(d[key], f"{where}: {key}") if d[key] else None
-        for key in ("best_params", "init_params"):
-            d[key] = tuple(_json(d[key], f"{where}: {key}", list)) if d[key] else None
-        _check_run_types(d, where)
-        for key in ("best_fell", "baseline_fell", "best_success", "baseline_success"):
-            d[key] = None if d[key] is None else bool(d[key])
-        d["reference"] = d.get("reference") or "center"
-        return cls(**d)
-
-    def to_dict(self) -> dict:
-        """The run as JSON-ready values (what ``cmrt show --json`` prints, with derived figures)."""
-        return asdict(self)
-
-
-#: The Python types a ``runs`` column may hold (SQLite stores any value in any column: a store from someone
-#: else may hold text where a number belongs). NULL is allowed where the schema allows it.
-_RUN_INTS = ("id", "seed", "max_evals", "popsize", "min_evals", "init_run", "attempt", "evaluations", "generations",
-             "restarts", "stall_generations", "retries")
-_RUN_FLOATS = ("speed", "sigma0", "stop_threshold", "heartbeat_at", "created_at", "started_at", "finished_at",
-               "best_objective", "baseline_objective", "wall_s", "eval_s")
-_RUN_TEXTS = ("task", "task_hash", "backend", "status", "worker", "stop_reason", "error", "init_source",
-              "reference")
-_RUN_FLAGS = ("best_fell", "baseline_fell", "best_success", "baseline_success")
-_RUN_NOT_NULL = ("id", "task", "seed", "status", "created_at")
-
-
-def _check_run_types(d: dict, where: str) -> None:
-    """Refuse (one-line CmrtError) a run row whose values are not of their column's kind, or a status cmrt
-    never writes: every read decodes through here, so a hostile value is a message, not a traceback."""
-    def bad(key: str, kind: str) -> CmrtError:
-        return CmrtError(f"the store is damaged: {where}: {key} is not {kind}")
-
-    for key in _RUN_NOT_NULL:
-        if d.get(key) is None:
-            raise bad(key, "set")
-    for key in _RUN_INTS:
-        v = d.get(key)
-        if v is not None and (type(v) is not int or v < 0):
-            raise bad(key, "a non-negative integer")
-    for key in _RUN_FLOATS:
-        v = d.get(key)
-        if v is not None and (type(v) not in (int, float) or not math.isfinite(v)):
-            raise bad(key, "a finite number")
-    for key in _RUN_TEXTS:
-        if d.get(key) is not None and type(d[key]) is not str:
-            raise bad(key, "text")
-    for key in _RUN_FLAGS:
-        if d.get(key) not in (None, 0, 1):
-            raise bad(key, "0 or 1")
-    if d["status"] not in RUN_STATUSES:
-        raise bad("status", "one of " + ", ".join(RUN_STATUSES))
-
-
-@dataclass(frozen=True)
-class Generation:
-    """One CMA-ES generation of a run (its checkpoint blob stays in the store)."""
-
-    gen: int
-    sigma: float
-    best_objective: float  # best so far in the run
-    gen_best_objective: float  # best of this generation
-    mean: tuple[float, ...]
-    evaluations: int  # so far in the run
-    created_at: float
-
-
-@dataclass(frozen=True)
-class StoredEvaluation:
-    """One candidate's score as stored (``idx``: its place in the generation)."""
-
-    gen: int
-    idx: int
-    params: tuple[float, ...]
-    objective: float
-    fell: bool
-    success: bool | None  # None: stored by a cmrt before schema 2
-    seconds: float
-
-
-@dataclass(frozen=True)
-class RunProgress:
-    """What a run's row says after a generation."""
-
-    evaluations: int
-    generations: int
-    restarts: int
-    best_objective: float
-    best_params: tuple[float, ...]
-    best_fell: bool
-    best_success: bool
-    best_cmrt: dict
-    wall_s: float
-    eval_s_added: float  # simulation seconds of this generation's evaluations
 
 
 class Store:
@@ -627,51 +450,59 @@ class Store:
             )
             return int(cur.lastrowid)
 
-    def claim(self, worker: str, stale_after_s: float, run_id: int | None = None) -> Claim | None:
-        """Take run ``run_id`` (if claimable), else the oldest queued run, else an orphaned running one
-        (heartbeat older than ``stale_after_s``); None if there is none. The claim bumps the run's attempt:
-        the (worker, attempt) pair fences every later write. Taking over an orphan counts as a retry; an
-        orphan already retried ``MAX_RETRIES`` times is failed instead (a run that kills its worker every
-        time must not take the queue down with it)."""
+    def claim(self, worker: str, stale_after_s: float, run_id: int | None = None,
+              on_failure: Callable[[int, str], None] | None = None) -> Claim | None:
+        """Take run ``run_id`` (if claimable), else the oldest queued run, else an orphaned running one (its
+        heartbeat older than ``stale_after_s``, missing, or more than ``stale_after_s`` in the future: a clock
+        that went back, or a hostile value, must not hold a run for ever); None if there is none. The claim
+        bumps the run's attempt: the (worker, attempt) pair fences every later write. A row that does not
+        decode (a hostile or damaged value) fails that run with the reason, never the worker or the queue.
+        Taking over an orphan counts as a retry; an orphan already retried ``MAX_RETRIES`` times is failed
+        instead (a run that kills its worker every time must not take the queue down with it). ``on_failure(run_id,
+        reason)`` is told of each run failed so, once that is committed."""
+        failed: list[tuple[int, str]] = []
+        try:
+            return self._claim(worker, stale_after_s, run_id, failed)
+        finally:
+            for rid, why in failed if on_failure else ():
+                on_failure(rid, why)
+
+    def _claim(self, worker: str, stale_after_s: float, run_id: int | None, failed: list) -> Claim | None:
         now = time.time()
+        stale = "(status = 'running' AND (heartbeat_at IS NULL OR heartbeat_at < ? OR heartbeat_at > ?))"
+        window = (now - stale_after_s, now + stale_after_s)
         with self.transaction() as conn:
             while True:
-                stale = "(status = 'running' AND heartbeat_at < ?)"
                 if run_id is not None:
-                    row = conn.execute(f"SELECT id, status, retries, error FROM runs WHERE id = ? AND "
-                                       f"(status = 'queued' OR {stale})", (run_id, now - stale_after_s)).fetchone()
+                    row = conn.execute(f"SELECT * FROM runs WHERE id = ? AND (status = 'queued' OR {stale})",
+                                       (run_id, *window)).fetchone()
                 else:
-                    row = conn.execute("SELECT id, status, retries, error FROM runs WHERE status = 'queued' "
-                                       "ORDER BY id LIMIT 1").fetchone()
+                    row = conn.execute("SELECT * FROM runs WHERE status = 'queued' ORDER BY id LIMIT 1").fetchone()
                     if row is None:
-                        row = conn.execute(f"SELECT id, status, retries, error FROM runs WHERE {stale} "
-                                           "ORDER BY id LIMIT 1", (now - stale_after_s,)).fetchone()
+                        row = conn.execute(f"SELECT * FROM runs WHERE {stale} ORDER BY id LIMIT 1", window).fetchone()
                 if row is None:
                     return None
-                rid = row[0]
-                full = conn.execute("SELECT * FROM runs WHERE id = ?", (rid,)).fetchone()
-                try:  # one bad row (a hostile or damaged value) fails that run, never the worker or the queue
-                    Run.from_row(full)
+                rid, why = row["id"], None
+                try:
+                    run = Run.from_row(row)
                 except CmrtError as exc:
-                    conn.execute("UPDATE runs SET status = 'failed', finished_at = ?, error = ? WHERE id = ?",
-                                 (now, f"refused: {exc}"[:500], rid))
-                    if run_id is not None:
-                        return None
-                    continue
-                retries = (row[2] or 0) + (row[1] == "running")
-                if retries <= MAX_RETRIES:
-                    break
+                    why = f"refused: {exc}"[:500]
+                else:
+                    retries = (run.retries or 0) + (run.status == "running")
+                    if retries <= MAX_RETRIES:
+                        break
+                    why = f"gave up after {MAX_RETRIES} retries; last: {run.error or 'its worker died'}"
                 conn.execute("UPDATE runs SET status = 'failed', finished_at = ?, error = ? WHERE id = ?",
-                             (now, f"gave up after {MAX_RETRIES} retries; last: {row[3] or 'its worker died'}", rid))
+                             (now, why, rid))
+                failed.append((rid, why))
                 if run_id is not None:
                     return None
             conn.execute(
-                "UPDATE runs SET status = 'running', worker = ?, attempt = attempt + 1, heartbeat_at = ?, "
+                "UPDATE runs SET status = 'running', worker = ?, attempt = ?, heartbeat_at = ?, "
                 "started_at = COALESCE(started_at, ?), retries = ? WHERE id = ?",
-                (worker, now, now, retries, rid),
+                (worker, run.attempt + 1, now, now, retries, rid),
             )
-            attempt = conn.execute("SELECT attempt FROM runs WHERE id = ?", (rid,)).fetchone()[0]
-        return Claim(rid, worker, int(attempt))
+        return Claim(rid, worker, run.attempt + 1)
 
     def heartbeat(self, claim: Claim, every_s: float) -> Heartbeat:
         """``with store.heartbeat(claim, every_s):`` keeps the claimed run's heartbeat fresh meanwhile."""
@@ -729,7 +560,7 @@ class Store:
         fail it once it has been retried MAX_RETRIES times. If the store cannot be written now (a full disk),
         nothing changes and the run's heartbeat goes stale: the next worker takes it over, counted too."""
         with contextlib.suppress(LostClaim, TransientFault), self.transaction() as conn:
-            retries = (conn.execute("SELECT retries FROM runs WHERE id = ?", (claim.run_id,)).fetchone()[0] or 0) + 1
+            retries = (self._run_in(conn, claim.run_id).retries or 0) + 1
             if retries > MAX_RETRIES:
                 _fenced_update(conn, claim, "status = 'failed', error = ?, finished_at = ?",
                                (f"gave up after {MAX_RETRIES} retries; last: {message}", time.time()))
@@ -739,13 +570,11 @@ class Store:
 
     def requeue(self, run_id: int) -> Run:
         """Put a failed run back in the queue (``cmrt requeue``): it resumes from its last checkpoint, its
-        retry count starts over."""
+        retry count starts over. A run whose row does not decode is refused before anything is written."""
         with self.transaction() as conn:
-            row = conn.execute("SELECT status FROM runs WHERE id = ?", (run_id,)).fetchone()
-            if row is None:
-                raise CmrtError(f"no run {run_id} in {self.path}")
-            if row[0] != "failed":
-                raise CmrtError(f"run {run_id} is {row[0]}: only a failed run can be requeued")
+            run = self._run_in(conn, run_id)
+            if run.status != "failed":
+                raise CmrtError(f"run {run_id} is {run.status}: only a failed run can be requeued")
             conn.execute("UPDATE runs SET status = 'queued', worker = NULL, retries = 0, error = NULL, "
                          "finished_at = NULL WHERE id = ?", (run_id,))
         return self.run(run_id)
@@ -758,7 +587,10 @@ class Store:
     # --- reads -----------------------------------------------------------------------
     def run(self, run_id: int) -> Run:
         """The run ``run_id``; CmrtError if there is none."""
-        row = self.conn.execute("SELECT * FROM runs WHERE id = ?", (run_id,)).fetchone()
+        return self._run_in(self.conn, run_id)
+
+    def _run_in(self, conn: sqlite3.Connection, run_id: int) -> Run:
+        row = conn.execute("SELECT * FROM runs WHERE id = ?", (run_id,)).fetchone()
         if row is None:
             raise CmrtError(f"no run {run_id} in {self.path}")
         return Run.from_row(row)
@@ -788,10 +620,7 @@ class Store:
             "ORDER BY gen, idx",
             (run_id,),
         )
-        return [StoredEvaluation(gen=r["gen"], idx=r["idx"], params=tuple(_json(r["params"], "an evaluation", list)),
-                                 objective=r["objective"], fell=bool(r["fell"]),
-                                 success=None if r["success"] is None else bool(r["success"]), seconds=r["seconds"])
-                for r in rows]
+        return [StoredEvaluation(**decode(EVALUATIONS, r, f"run {run_id}: an evaluation")) for r in rows]
 
     def generations(self, run_id: int) -> list[Generation]:
         """A run's generations (CMA-ES step size, mean, best so far), in order."""
@@ -800,10 +629,7 @@ class Store:
             "FROM generations WHERE run_id = ? ORDER BY gen",
             (run_id,),
         )
-        return [Generation(gen=r["gen"], sigma=r["sigma"], best_objective=r["best_objective"],
-                           gen_best_objective=r["gen_best_objective"],
-                           mean=tuple(_json(r["mean"], "a generation", list)), evaluations=r["evaluations"],
-                           created_at=r["created_at"]) for r in rows]
+        return [Generation(**decode(GENERATIONS, r, f"run {run_id}: a generation")) for r in rows]
 
     def successful_runs(self, task_name: str, reference: str = "center") -> list[Run]:
         """Finished runs of a task with this reference mode whose best CMRT is a success (warm-start candidates),
@@ -828,7 +654,10 @@ class Store:
         row = self.conn.execute(
             "SELECT gen, checkpoint FROM generations WHERE run_id = ? ORDER BY gen DESC LIMIT 1", (run_id,)
         ).fetchone()
-        return (int(row["gen"]), bytes(row["checkpoint"])) if row else None
+        if row is None:
+            return None
+        values = decode(GENERATIONS, row, f"run {run_id}: its last generation")
+        return values["gen"], values["checkpoint"]
 
 
 class Heartbeat:
