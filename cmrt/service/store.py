@@ -26,6 +26,7 @@ import functools
 import json
 import os
 import random
+import re
 import shutil
 import sqlite3
 import stat
@@ -279,19 +280,54 @@ def _inspect(path: Path, label: Path | None = None) -> str:
     return "store"
 
 
+#: the tokens of an SQL definition: strings, quoted identifiers ("x", [x], `x`), words, numbers, comments, symbols
+_SQL_TOKENS = re.compile(r"""'(?:[^']|'')*'|"(?:[^"]|"")*"|\[[^\]]*\]|`(?:[^`]|``)*`|[A-Za-z_][A-Za-z0-9_$]*"""
+                         r"""|[0-9.]+(?:[eE][+-]?[0-9]+)?|--[^\n]*|/\*.*?(?:\*/|$)|\S""", re.DOTALL)
+
+
+def _definition(sql: str | None) -> str | None:
+    """An object's SQL as SQLite reads it, written one way: tokens separated by one space, identifiers unquoted
+    and in lower case (SQLite's are case-insensitive), comments dropped, string literals kept as written. Two
+    definitions are the same object exactly when these are equal: a CHECK, a COLLATE, an expression or a
+    WHERE that cmrt did not write is a difference, quoting and line breaks are not."""
+    if sql is None:
+        return None
+    out = []
+    for token in _SQL_TOKENS.findall(sql):
+        if token.startswith(("--", "/*")):
+            continue
+        if token[0] in "\"[`":
+            token = token[1:-1].replace(token[0] * 2, token[0]) if token[0] != "[" else token[1:-1]
+            token = token.lower()
+        elif token[0] != "'":
+            token = token.lower()
+        out.append(token)
+    return " ".join(out)
+
+
+def _pragma(con: sqlite3.Connection, pragma: str, columns: str, name: str) -> tuple:
+    return tuple(sorted(map(tuple, con.execute(f"SELECT {columns} FROM pragma_{pragma}(?)", (name,)).fetchall()),
+                        key=repr))
+
+
 def _schema(con: sqlite3.Connection) -> dict:
-    """Every schema object of a database - (type, name) -> its table and, for a table, its columns as
-    ``PRAGMA table_xinfo`` gives them (hidden = generated) and its foreign keys - read from ``sqlite_master``
-    and pragmas only, so a hostile view or trigger is listed, never run."""
+    """Every schema object of a database - (type, name) -> its table, for a table its columns as ``PRAGMA
+    table_xinfo`` gives them (hidden = generated), its foreign keys and its indexes, for an index its columns
+    and expressions (``index_xinfo``), and for every object its definition (:func:`_definition` of its SQL:
+    CHECK constraints, index expressions, partial-index WHEREs, trigger and view bodies) - read from
+    ``sqlite_master`` and pragmas only, so a hostile view, trigger or index expression is listed, never run."""
     out = {}
-    for kind, name, table in con.execute("SELECT type, name, tbl_name FROM sqlite_master").fetchall():
-        entry: tuple = (table,)
+    for kind, name, table, sql in con.execute("SELECT type, name, tbl_name, sql FROM sqlite_master").fetchall():
         if kind == "table":
-            cols = con.execute("SELECT name, type, \"notnull\", dflt_value, pk, hidden FROM pragma_table_xinfo(?)",
-                               (name,)).fetchall()
-            fks = con.execute('SELECT "table", "from", "to" FROM pragma_foreign_key_list(?)', (name,)).fetchall()
-            entry = (table, tuple(map(tuple, cols)), tuple(sorted(map(tuple, fks))))
-        out[(kind, name)] = entry
+            entry: tuple = (
+                table, _pragma(con, "table_xinfo", 'cid, name, type, "notnull", dflt_value, pk, hidden', name),
+                _pragma(con, "foreign_key_list", '"table", "from", "to", on_update, on_delete, "match"', name),
+                _pragma(con, "index_list", 'name, "unique", origin, partial', name))
+        elif kind == "index":
+            entry = (table, _pragma(con, "index_xinfo", 'seqno, cid, name, "desc", coll, "key"', name))
+        else:
+            entry = (table,)
+        out[(kind, name)] = (*entry, _definition(sql))
     return out
 
 
@@ -314,7 +350,7 @@ def _schema_difference(have: dict, want: dict) -> str:
     missing = sorted(f"{k} {n}" for k, n in set(want) - set(have))
     changed = sorted(f"{k} {n}" for k, n in set(have) & set(want) if have[(k, n)] != want[(k, n)])
     parts = [f"unexpected {', '.join(extra)}"] * bool(extra) + [f"missing {', '.join(missing)}"] * bool(missing)
-    parts += [f"different columns or keys in {', '.join(changed)}"] * bool(changed)
+    parts += [f"a different definition of {', '.join(changed)}"] * bool(changed)
     return "; ".join(parts)[:200]
 
 

@@ -137,5 +137,5 @@ def test_every_column_of_every_table_has_its_check():
     schema = _expected_schema(SCHEMA_VERSION)
     for table, columns in (("runs", records.RUNS), ("generations", records.GENERATIONS),
                            ("evaluations", records.EVALUATIONS), ("meta", records.META)):
-        assert sorted(c[0] for c in schema[("table", table)][1]) == sorted(columns), table
+        assert sorted(c[1] for c in schema[("table", table)][1]) == sorted(columns), table
     assert records.CMRT_PARAMS == 2 * N_KNOTS
