@@ -301,6 +301,15 @@ def _store(path: str | None, readonly: bool = False, create: bool = True) -> Sto
     return store
 
 
+def _store_arg(text: str) -> str:
+    """``--store``: any path but an empty one (which named the default store, silently)."""
+    try:
+        resolve_path(text)
+    except CmrtError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
 def _init_arg(value: str) -> str | int:
     if value in ("auto", "none"):
         return value
@@ -969,7 +978,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="cmrt", description="Anticipatory balance: center-of-mass reference trajectories.")
     sub = p.add_subparsers(dest="verb", required=True, parser_class=_Parser)
     common = _Parser(add_help=False)
-    common.add_argument("--store", metavar="PATH", help=f"SQLite store (default $CMRT_STORE or {DEFAULT_STORE})")
+    common.add_argument("--store", metavar="PATH", type=_store_arg,
+                        help=f"SQLite store (default $CMRT_STORE or {DEFAULT_STORE})")
     for command in COMMANDS:
         sp = sub.add_parser(command.name, help=command.help, parents=[common])
         if command.json_flag:

@@ -136,7 +136,11 @@ SCHEMA_VERSION = len(MIGRATIONS)
 
 
 def resolve_path(path: str | os.PathLike | None) -> Path:
-    """The store path: as given, else ``$CMRT_STORE``, else ``store/cmrt.sqlite``."""
+    """The store path: as given, else ``$CMRT_STORE``, else ``store/cmrt.sqlite``. An empty path given names no
+    store (it once meant the default store, silently); an empty ``$CMRT_STORE`` is unset."""
+    if path is not None and os.fspath(path) in ("", b""):
+        raise CmrtError("an empty store path names no store (leave --store out for $CMRT_STORE or "
+                        f"{DEFAULT_STORE})")
     return Path(path or os.environ.get("CMRT_STORE") or DEFAULT_STORE)
 
 
