@@ -36,7 +36,7 @@ from cmrt.inputs import escape, shown
 from cmrt.modes import BACKENDS, REFERENCE_MODES
 from cmrt.optimize.settings import FAMILY_SIGMA0, STALE_AFTER_S, OptimizeSettings
 from cmrt.service.records import RUN_STATUSES, Run
-from cmrt.service.store import DEFAULT_STORE, Store, open_store, resolve_path
+from cmrt.service.store import DEFAULT_STORE, Store, disk_full, is_disk_full, open_store, resolve_path
 
 # Start-up: a verb imports what it uses (MuJoCo, numba, scipy, pycma, dask: ~4 s in all) when it runs, so
 # that `cmrt --help`, `cmrt runs` or `cmrt show` answer at once. Building the parser imports none of them:
@@ -1040,11 +1040,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cmrt: error: {inputs.one_line(str(exc))}", file=sys.stderr)  # one line, control characters escaped
         return EXIT_BAD_INPUT
     except sqlite3.DatabaseError as exc:  # a damaged store (store.py refuses foreign files; damage shows in a query)
-        store = shown(str(resolve_path(getattr(args, "store", None))))
-        print(f"cmrt: error: {inputs.one_line(f'store {store} is damaged: {exc}')}", file=sys.stderr)
+        path = resolve_path(getattr(args, "store", None))
+        if is_disk_full(exc, path):  # a read that needed room beside the store (its -shm) and found none
+            print(f"cmrt: error: {inputs.one_line(str(disk_full(path)))}", file=sys.stderr)
+            return EXIT_TEMPFAIL
+        print(f"cmrt: error: {inputs.one_line(f'store {shown(str(path))} is damaged: {exc}')}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except TransientFault as exc:
-        print(f"cmrt: error: {exc}", file=sys.stderr)
+        print(f"cmrt: error: {inputs.one_line(str(exc))}", file=sys.stderr)
         return EXIT_TEMPFAIL
     except Terminated as exc:
         print(f"cmrt: terminated ({signal.Signals(exc.signum).name}){_resume_hint(exc, args)}", file=sys.stderr)

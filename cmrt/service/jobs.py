@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 
 from cmrt import inputs
-from cmrt.errors import CmrtError, TransientFault, pending_termination
+from cmrt.errors import CmrtError, DiskFull, TransientFault, pending_termination
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.task import Task
 from cmrt.optimize.driver import (
@@ -59,6 +59,14 @@ def released(exc: KeyboardInterrupt, run_id: int) -> KeyboardInterrupt:
     CLI can say which run is queued and how to resume it."""
     exc.released_run = run_id  # type: ignore[attr-defined]
     return exc
+
+
+def given_back(fault: TransientFault, run_id: int, back: bool) -> TransientFault:
+    """``fault`` (a full disk, a lost worker process) said with what became of the run: back in the queue, or
+    (its give-back could not be written) left to be taken over once its heartbeat is stale."""
+    where = (f"run {run_id} is back in the queue, its last checkpoint kept ('cmrt worker' resumes it)" if back else
+             f"run {run_id} could not be given back: a worker takes it over once its heartbeat is stale")
+    return type(fault)(f"{fault}; {where}")
 
 
 def check_settings(*, seed: int, max_evals: int, popsize: int, sigma0: float, min_evals: int,
@@ -220,8 +228,7 @@ def optimize_now(
             store.release(c)
             raise released(exc, run_id) from None
         except TransientFault as exc:
-            store.retry_later(c, str(exc))
-            raise TransientFault(f"run {run_id} is back in the queue ('cmrt worker' resumes it): {exc}") from exc
+            raise given_back(exc, run_id, store.retry_later(c, str(exc))) from exc
         except Exception as exc:  # never leave the run 'running' until its heartbeat goes stale
             if (terminated := pending_termination()) is not None:  # a signal inside an SQLite step
                 store.release(c)
@@ -327,7 +334,9 @@ def work(
                 store.release(c)
                 raise released(exc, c.run_id) from None
             except TransientFault as exc:
-                store.retry_later(c, str(exc))
+                back = store.retry_later(c, str(exc))
+                if isinstance(exc, DiskFull):  # the next run could not be written either: stop, exit 75
+                    raise given_back(exc, c.run_id, back) from exc
                 if on_failure:
                     on_failure(c.run_id, f"transient fault, back in the queue: {exc}")
             except Exception as exc:  # a bug or a bad stored run must not take the worker (and the queue) down

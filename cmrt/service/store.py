@@ -40,7 +40,7 @@ from pathlib import Path
 
 import sqlite_utils
 
-from cmrt.errors import CmrtError, TransientFault
+from cmrt.errors import CmrtError, DiskFull, TransientFault
 from cmrt.service.records import (
     EVALUATIONS,
     GENERATIONS,
@@ -61,6 +61,7 @@ WAL_AUTOCHECKPOINT_PAGES = 100
 # A heartbeat is written at most this often, however short --stale-after is (a quarter of it otherwise).
 MIN_HEARTBEAT_S = 0.05
 BEGIN_RETRIES = 20
+GIVE_BACK_TRIES = 6  # a run is given back after a transient fault within 0.1 + 0.2 + ... + 3.2 s of waiting
 SQLITE_MAGIC = b"SQLite format 3\x00"
 APP_ID = "cmrt"
 
@@ -270,9 +271,7 @@ def _inspect(path: Path, label: Path | None = None) -> str:
             if not was:
                 with contextlib.suppress(OSError):
                     p.unlink()
-        if isinstance(exc, sqlite3.OperationalError) and "unable to open" in str(exc):
-            raise CmrtError(f"cannot open store {label} (permissions?)") from None
-        raise CmrtError(f"{label} is a corrupted SQLite file ({' '.join(str(exc).split())[:120]})") from None
+        raise _unreadable(exc, path, label) from None
     if not tables and version == 0:
         return "empty"
     if not row or row[0] != APP_ID:
@@ -312,6 +311,25 @@ def _definition(sql: str | None) -> str | None:
 def _pragma(con: sqlite3.Connection, pragma: str, columns: str, name: str) -> tuple:
     return tuple(sorted(map(tuple, con.execute(f"SELECT {columns} FROM pragma_{pragma}(?)", (name,)).fetchall()),
                         key=repr))
+
+
+SQLITE_READONLY_ROLLBACK = 776  # a hot journal a read-only connection cannot roll back
+
+
+def _unreadable(exc: sqlite3.DatabaseError, path: Path, label: Path) -> Exception:
+    """Why SQLite could not read the file at ``path``, named as what it is: a full disk (exit 75), a hot rollback
+    journal (a writer stopped mid-transaction), no permission, or damage."""
+    if is_disk_full(exc, path):
+        return disk_full(label)
+    journal = Path(f"{path}-journal")
+    if getattr(exc, "sqlite_errorcode", None) == SQLITE_READONLY_ROLLBACK or (
+            journal.is_file() and journal.stat().st_size > 0 and "readonly" in str(exc)):
+        return CmrtError(f"{label} has a hot rollback journal ({label}-journal): a process writing it stopped "
+                         "mid-transaction; cmrt writes no store before checking it: let SQLite roll it back "
+                         f"(sqlite3 {label} 'PRAGMA integrity_check') and run this again")
+    if isinstance(exc, sqlite3.OperationalError) and "unable to open" in str(exc):
+        return CmrtError(f"cannot open store {label} (permissions?)")
+    return CmrtError(f"{label} is a corrupted SQLite file ({' '.join(str(exc).split())[:120]})")
 
 
 def _schema(con: sqlite3.Connection) -> dict:
@@ -378,10 +396,21 @@ class Store:
         self.path = path
         self.readonly = readonly
         self._scratch: tempfile.TemporaryDirectory | None = None  # a private copy read instead (open_store)
+        self._reserve: int | None = None  # a descriptor holding RESERVE_BYTES beside the store, from the first claim
         if readonly:
             conn = _connect_readonly(read_from or path)
         else:
             conn = sqlite3.connect(str(path), timeout=BUSY_TIMEOUT_MS / 1000)
+        try:
+            self._configure(conn)
+        except BaseException:
+            conn.close()  # a failed open (a full disk) leaves no -wal or -shm open behind it
+            raise
+        conn.row_factory = sqlite3.Row
+        self.conn = conn
+        self.db = sqlite_utils.Database(conn)
+
+    def _configure(self, conn: sqlite3.Connection) -> None:
         conn.execute(f"PRAGMA busy_timeout = {BUSY_TIMEOUT_MS}")
         conn.execute("PRAGMA trusted_schema = OFF")  # schema checked by _inspect; this is the second line
         # Python runs a signal handler only between bytecodes: without a callback, SIGTERM waits for a long
@@ -389,19 +418,17 @@ class Store:
         # CLI and the worker then stop as the signal asked: cmrt.errors.pending_termination)
         conn.set_progress_handler(_let_signals_in, PROGRESS_EVERY_OPS)
         _defensive(conn)
-        if not readonly:
+        if not self.readonly:
             if conn.execute("PRAGMA journal_mode").fetchone()[0] != "wal":
                 conn.execute("PRAGMA journal_mode = WAL")
             conn.execute("PRAGMA synchronous = NORMAL")  # WAL + NORMAL: safe against process crashes
             conn.execute(f"PRAGMA wal_autocheckpoint = {WAL_AUTOCHECKPOINT_PAGES}")
             conn.execute("PRAGMA foreign_keys = ON")
-        conn.row_factory = sqlite3.Row
-        self.conn = conn
-        self.db = sqlite_utils.Database(conn)
 
     def close(self) -> None:
         """Close the connection (``with open_store(...)`` does it) and delete a private copy read instead."""
         self.conn.close()
+        self._release_reserve()
         if self._scratch is not None:
             self._scratch.cleanup()
             self._scratch = None
@@ -429,8 +456,8 @@ class Store:
         except BaseException as exc:
             with contextlib.suppress(sqlite3.Error):
                 self.conn.rollback()
-            if isinstance(exc, sqlite3.OperationalError) and _is_full(exc):
-                raise TransientFault(f"store {self.path}: {exc}") from exc
+            if isinstance(exc, sqlite3.Error) and is_disk_full(exc, self.path):
+                raise disk_full(self.path) from exc
             raise
 
     @contextlib.contextmanager
@@ -448,7 +475,7 @@ class Store:
         try:
             rows = [r[0] for r in self.conn.execute("PRAGMA integrity_check(5)")]
         except sqlite3.DatabaseError as exc:
-            raise CmrtError(f"{self.path} is a corrupted store ({exc})") from None
+            raise _unreadable(exc, self.path, self.path) from None
         if rows != ["ok"]:
             first = " ".join(str(rows[0]).split())[:120]  # SQLite's report spans lines: keep the error one line
             raise CmrtError(f"{self.path} is a corrupted store (integrity check: {first})")
@@ -501,6 +528,7 @@ class Store:
         instead (a run that kills its worker every time must not take the queue down with it). ``on_failure(run_id,
         reason)`` is told of each run failed so, once that is committed."""
         failed: list[tuple[int, str]] = []
+        self._hold_reserve()
         try:
             return self._claim(worker, stale_after_s, run_id, failed)
         finally:
@@ -595,18 +623,54 @@ class Store:
         with contextlib.suppress(LostClaim), self.transaction() as conn:
             _fenced_update(conn, claim, "status = 'queued', worker = NULL", ())
 
-    def retry_later(self, claim: Claim, message: str) -> None:
+    def retry_later(self, claim: Claim, message: str) -> bool:
         """After a transient fault: give the run back to the queue (it resumes from its last checkpoint), or
-        fail it once it has been retried MAX_RETRIES times. If the store cannot be written now (a full disk),
-        nothing changes and the run's heartbeat goes stale: the next worker takes it over, counted too."""
-        with contextlib.suppress(LostClaim, TransientFault), self.transaction() as conn:
+        fail it once it has been retried MAX_RETRIES times; True once that is written (or the claim was lost
+        meanwhile). On a full disk the space held since the claim (:data:`RESERVE_BYTES`) is given up for this
+        write, which is then tried again for a few seconds (a file system may reuse freed blocks only after its
+        journal commits); False if it still cannot be written: the run's heartbeat then goes stale and the next
+        worker takes it over, counted too."""
+        for attempt in range(GIVE_BACK_TRIES):
+            try:
+                with self.transaction() as conn:
+                    self._retry_or_fail(conn, claim, message)
+                return True
+            except LostClaim:
+                return True
+            except TransientFault:
+                self._release_reserve()
+                time.sleep(0.1 * 2**attempt)
+        return False
+
+    def _retry_or_fail(self, conn: sqlite3.Connection, claim: Claim, message: str) -> None:
+        try:
             retries = (self._run_in(conn, claim.run_id).retries or 0) + 1
-            if retries > MAX_RETRIES:
-                _fenced_update(conn, claim, "status = 'failed', error = ?, finished_at = ?",
-                               (f"gave up after {MAX_RETRIES} retries; last: {message}", time.time()))
-            else:
-                _fenced_update(conn, claim, "status = 'queued', worker = NULL, retries = ?, error = ?",
-                               (retries, f"retry {retries}/{MAX_RETRIES} after: {message}"))
+        except CmrtError as exc:  # its row no longer decodes: that is its end
+            _fenced_update(conn, claim, "status = 'failed', error = ?, finished_at = ?",
+                           (f"refused: {exc}", time.time()))
+            return
+        if retries > MAX_RETRIES:
+            _fenced_update(conn, claim, "status = 'failed', error = ?, finished_at = ?",
+                           (f"gave up after {MAX_RETRIES} retries; last: {message}", time.time()))
+        else:
+            _fenced_update(conn, claim, "status = 'queued', worker = NULL, retries = ?, error = ?",
+                           (retries, f"retry {retries}/{MAX_RETRIES} after: {message}"))
+
+    def _hold_reserve(self) -> None:
+        """Hold :data:`RESERVE_BYTES` beside the store (once per connection, before the first claim): a full
+        disk then still lets the run be given back. No room for it is a full disk: nothing is claimed."""
+        if self._reserve is None and not self.readonly:
+            try:
+                self._reserve = _hold_space(self.path.absolute().parent)
+            except OSError:
+                raise disk_full(self.path, ": no run claimed") from None
+
+    def _release_reserve(self) -> None:
+        if self._reserve is not None:
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._reserve, 0)
+            os.close(self._reserve)
+            self._reserve = None
 
     def requeue(self, run_id: int) -> Run:
         """Put a failed run back in the queue (``cmrt requeue``): it resumes from its last checkpoint, its
@@ -748,8 +812,7 @@ def _fenced_update(conn: sqlite3.Connection, claim: Claim, sets: str, args: tupl
         raise LostClaim(f"run {claim.run_id} was taken over by another worker")
 
 
-def _is_full(exc: BaseException) -> bool:
-    return "full" in str(exc) or getattr(exc, "errno", None) in (errno.ENOSPC, errno.EDQUOT)
+SQLITE_IOERR, SQLITE_FULL = 10, 13  # SQLite's primary result codes (the low byte of an extended one)
 
 
 def _nearly_full(directory: Path, margin_bytes: int = 1 << 20) -> bool:
@@ -759,6 +822,53 @@ def _nearly_full(directory: Path, margin_bytes: int = 1 << 20) -> bool:
     except OSError:
         return False
     return st.f_bavail * st.f_frsize < margin_bytes
+
+
+def is_disk_full(exc: BaseException, path: Path) -> bool:
+    """Whether ``exc`` means the disk is full where store ``path`` writes (beside it, or in the temporary directory
+    for a private copy): ENOSPC or EDQUOT, SQLite's SQLITE_FULL, or one of SQLite's I/O errors while under 1 MB is
+    free there (SQLite says "disk I/O error" when its ``-shm`` cannot grow, with 16-48 kB free)."""
+    if getattr(exc, "errno", None) in (errno.ENOSPC, errno.EDQUOT):
+        return True
+    code = (getattr(exc, "sqlite_errorcode", None) or 0) & 0xFF
+    if code == SQLITE_FULL or (isinstance(exc, sqlite3.Error) and "database or disk is full" in str(exc)):
+        return True
+    return code == SQLITE_IOERR and (_nearly_full(Path(path).absolute().parent)
+                                     or _nearly_full(Path(tempfile.gettempdir())))
+
+
+def disk_full(path: Path, then: str = "") -> DiskFull:
+    """The one way a full disk is said: ``store PATH: disk full`` and what that left, exit 75."""
+    return DiskFull(f"store {path}: disk full{then} (free some space and run it again)")
+
+
+#: disk space a writer holds from its first claim for the write that gives its run back when the disk fills up
+#: (a few pages of the WAL: the run's row and its status index)
+RESERVE_BYTES = 256 * 1024
+
+
+def _hold_space(directory: Path, size: int = RESERVE_BYTES) -> int | None:
+    """A descriptor of an unlinked file holding ``size`` bytes of ``directory``'s file system, or None where none
+    can be made (a file system without fallocate or O_TMPFILE and no temporary file: no reserve). Unlinked, it is
+    never left behind: the kernel frees its space when the descriptor closes, however the process ends."""
+    try:
+        fd = os.open(directory, os.O_TMPFILE | os.O_RDWR, 0o600)
+    except (OSError, AttributeError):
+        try:
+            fd, name = tempfile.mkstemp(dir=directory, prefix=".cmrt-reserve-")
+            os.unlink(name)
+        except OSError as exc:
+            if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+                raise
+            return None
+    try:
+        os.posix_fallocate(fd, 0, size)
+    except OSError as exc:
+        os.close(fd)
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            raise
+        return None
+    return fd
 
 
 def _check_replaceable(path: Path) -> None:
@@ -798,8 +908,8 @@ def _create(path: Path, replace: bool) -> None:
             with contextlib.suppress(FileExistsError):
                 os.link(tmp, path)
     except (sqlite3.Error, OSError, TransientFault) as exc:
-        if _is_full(exc) or _nearly_full(path.parent):  # SQLite says "disk I/O error" when its -shm cannot grow
-            raise TransientFault(f"cannot create store {path}: disk full (free some space and run it again)") from None
+        if isinstance(exc, DiskFull) or is_disk_full(exc, path) or _nearly_full(path.parent):
+            raise DiskFull(f"cannot create store {path}: disk full (free some space and run it again)") from None
         raise CmrtError(f"cannot create store {path}: {getattr(exc, 'strerror', None) or exc}") from None
     finally:
         if tmp is not None:
@@ -820,7 +930,7 @@ def _open_readonly(p: Path) -> Store:
         try:
             store = Store(p, readonly=True, read_from=source)
         except sqlite3.Error as exc:
-            raise CmrtError(f"cannot open store {p}: {exc}") from None
+            raise _cannot(exc, p, "open") from None
     except BaseException:
         if scratch is not None:
             scratch.cleanup()
@@ -870,7 +980,7 @@ def open_store(path: str | os.PathLike | None = None, *, create: bool = True, re
     try:
         store = Store(p, readonly=readonly)
     except sqlite3.Error as exc:
-        raise CmrtError(f"cannot open store {p}: {exc}") from None
+        raise _cannot(exc, p, "open") from None
     try:
         if not readonly:
             store.check_integrity()
@@ -879,7 +989,13 @@ def open_store(path: str | os.PathLike | None = None, *, create: bool = True, re
     except BaseException as exc:
         store.close()
         if isinstance(exc, sqlite3.Error):
-            reason = "read-only" if "readonly" in str(exc) else str(exc)
-            raise CmrtError(f"cannot write store {p}: {reason}") from None
+            raise _cannot(exc, p, "write") from None
         raise
     return store
+
+
+def _cannot(exc: sqlite3.Error, path: Path, what: str) -> Exception:
+    """A failure to open or write store ``path``, named: a full disk (exit 75), read-only, or SQLite's words."""
+    if is_disk_full(exc, path):
+        return disk_full(path)
+    return CmrtError(f"cannot {what} store {path}: {'read-only' if 'readonly' in str(exc) else exc}")
