@@ -171,9 +171,7 @@ def clip(request: Request, store: Store) -> Response:
     config: DashboardConfig = request.app.state.dashboard.config
     try:
         video = data.clip(store, run_id, config.clip_fps, config.cache_dir or clipcache.default_dir())
-    except data.NotFound:
-        raise
-    except (CmrtError, DiskFull) as exc:
+    except (clipcache.Unavailable, DiskFull) as exc:  # a damaged store's CmrtError stays a 422
         return _error(request, 503, str(exc))
     return Response(video, media_type="video/mp4")
 

@@ -29,6 +29,11 @@ from cmrt.errors import CmrtError, DiskFull
 MAX_CLIP_BYTES = 512 * 1024 * 1024  # a cached clip larger than this is not one the dashboard rendered
 
 
+class Unavailable(CmrtError):
+    """A clip that cannot be rendered or kept here (no OpenGL backend, a cache that is not this user's): a 503, not a
+    damaged store."""
+
+
 def default_dir() -> Path:
     """``$XDG_CACHE_HOME/cmrt/dashboard-clips``, else ``~/.cache/cmrt/dashboard-clips``."""
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
@@ -42,9 +47,9 @@ def owned_dir(path: Path) -> Path:
         os.makedirs(path, mode=0o700, exist_ok=True)
         st = os.lstat(path)
     except OSError as exc:
-        raise CmrtError(f"cannot make the clip cache {path}: {exc.strerror or exc}") from None
+        raise Unavailable(f"cannot make the clip cache {path}: {exc.strerror or exc}") from None
     if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.geteuid() or st.st_mode & 0o022:
-        raise CmrtError(f"the clip cache {path} is not a directory of this user's that only it may write "
+        raise Unavailable(f"the clip cache {path} is not a directory of this user's that only it may write "
                         "(a symlink, another user's, or open to others): not used")
     return path
 
@@ -69,8 +74,8 @@ def read_owned(path: Path) -> bytes | None:
 
 def cached(directory: Path, name: str, make: Callable[[Path], None]) -> bytes:
     """The clip ``name`` of cache ``directory``: read back if this dashboard wrote it, else made by ``make(tmp)``
-    into a new file of the cache and renamed onto ``name``. CmrtError if the cache is not one this user owns or the
-    clip cannot be stored; DiskFull on a full disk."""
+    into a new file of the cache and renamed onto ``name``. :class:`Unavailable` if the cache is not one this user
+    owns or the clip cannot be made or stored; DiskFull on a full disk."""
     directory = owned_dir(directory)
     path = directory / name
     if (data := read_owned(path)) is not None:
@@ -85,15 +90,17 @@ def cached(directory: Path, name: str, make: Callable[[Path], None]) -> bytes:
         os.replace(tmp, path)
     except OSError as exc:
         raise _store_error(directory, exc) from None
+    except CmrtError as exc:  # the renderer's own refusal: no OpenGL backend here
+        raise Unavailable(str(exc)) from None
     finally:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
     if (data := read_owned(path)) is None:
-        raise CmrtError(f"the clip {path} changed under the dashboard: not served")
+        raise Unavailable(f"the clip {path} changed under the dashboard: not served")
     return data
 
 
 def _store_error(directory: Path, exc: OSError) -> Exception:
     if exc.errno in (errno.ENOSPC, errno.EDQUOT):
         return DiskFull(f"cannot cache a clip in {directory}: disk full (free some space and ask again)")
-    return CmrtError(f"cannot cache a clip in {directory}: {exc.strerror or exc}")
+    return Unavailable(f"cannot cache a clip in {directory}: {exc.strerror or exc}")

@@ -288,6 +288,7 @@ _SQL_TOKENS = re.compile(r"""'(?:[^']|'')*'|"(?:[^"]|"")*"|\[[^\]]*\]|`(?:[^`]|`
                          r"""|[0-9.]+(?:[eE][+-]?[0-9]+)?|--[^\n]*|/\*.*?(?:\*/|$)|\S""", re.DOTALL)
 
 
+@functools.lru_cache(maxsize=256)  # every store holds the same few definitions: each is tokenized once
 def _definition(sql: str | None) -> str | None:
     """An object's SQL as SQLite reads it, written one way: tokens separated by one space, identifiers unquoted
     and in lower case (SQLite's are case-insensitive), comments dropped, string literals kept as written. Two
