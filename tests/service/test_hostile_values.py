@@ -139,3 +139,25 @@ def test_every_column_of_every_table_has_its_check():
                            ("evaluations", records.EVALUATIONS), ("meta", records.META)):
         assert sorted(c[1] for c in schema[("table", table)][1]) == sorted(columns), table
     assert records.CMRT_PARAMS == 2 * N_KNOTS
+
+
+def test_a_run_of_an_older_schema_reads_without_its_later_columns(tmp_path, capsys):
+    """A read verb does not migrate: columns added after schema 1 read as NULL (their default)."""
+    import sqlite_utils
+
+    from cmrt.motion.taskfile import load_task
+    from cmrt.service.store import MIGRATIONS
+
+    path, task = tmp_path / "old.sqlite", load_task("bend")
+    con = sqlite3.connect(path)
+    MIGRATIONS[0](sqlite_utils.Database(con))
+    con.execute("INSERT INTO meta VALUES ('app', 'cmrt')")
+    con.execute("INSERT INTO runs (task, params, task_hash, task_source, seed, max_evals, popsize, sigma0, min_evals, "
+                "created_at) VALUES (?, ?, ?, ?, 1, 10, 10, 0.5, 0, 1.0)",
+                (task.name, json.dumps(task.params), task.content_hash(), json.dumps(task.to_dict())))
+    con.execute("PRAGMA user_version = 1")
+    con.commit()
+    con.close()
+    before = snapshot(path)
+    r = call(capsys, ["show", "1", "--json", "--store", path])
+    assert r.rc == 0 and json.loads(r.out)["reference"] == "center" and snapshot(path) == before, r.err
