@@ -391,7 +391,22 @@ class Claim:
 
 
 class Store:
-    """One connection to a CMRT store; open with :func:`open_store`."""
+    """One connection to a CMRT store; open with :func:`open_store`. What a caller can rely on:
+
+    * **Only a store cmrt wrote is opened.** Its whole schema - every object, definition by definition - is
+      compared with cmrt's before any statement runs on it; anything else is a one-line CmrtError, the file
+      untouched. A read-only store writes no byte (a store at rest is read from a private copy).
+    * **Values are decoded, never trusted.** Reads return frozen records (``Run``, ``Generation``,
+      ``StoredEvaluation``) decoded by ``records.decode``; a value outside its column's type or range raises a
+      CmrtError naming the run and the column. :meth:`claim` fails such a run with that reason instead.
+    * **One writer per run**, fenced on (worker, attempt) from :meth:`claim`: a write under a lost claim raises
+      LostClaim and changes nothing. A generation's evaluations, checkpoint and progress commit together, so a
+      killed worker leaves the run at a generation boundary. Readers see committed transactions only;
+      :meth:`snapshot` holds one state across several reads.
+    * **Faults of the machine**: a full disk raises DiskFull from any open, read or write and changes nothing;
+      after a claim, :meth:`retry_later` can still give the run back (the space held since the claim).
+    * A connection is used by one thread (the heartbeat thread opens its own).
+    """
 
     def __init__(self, path: Path, readonly: bool = False, read_from: Path | None = None):
         self.path = path
