@@ -158,12 +158,19 @@ class Asgi:
                  "root_path": "", "headers": [(b"host", b"127.0.0.1:8080")], "client": ("127.0.0.1", 5000),
                  "server": ("127.0.0.1", 8080)}
         sent: list[dict] = []
+        requested, done = [False], asyncio.Event()
 
-        async def receive():
-            return {"type": "http.request", "body": b"", "more_body": False}
+        async def receive():  # the request once; then, as a client does, nothing until the response is sent
+            if not requested[0]:
+                requested[0] = True
+                return {"type": "http.request", "body": b"", "more_body": False}
+            await done.wait()
+            return {"type": "http.disconnect"}
 
         async def send(message):
             sent.append(message)
+            if message["type"] == "http.response.body" and not message.get("more_body", False):
+                done.set()
 
         self.loop.run_until_complete(self.app(scope, receive, send))
         return sent[0]["status"], b"".join(m.get("body", b"") for m in sent[1:])
