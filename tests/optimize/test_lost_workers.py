@@ -103,9 +103,11 @@ def test_kill_9_of_a_worker_ends_its_loky_children(tmp_path):
         while time.time() < deadline and _alive(children):
             time.sleep(0.1)
         assert _alive(children) == set()
-    finally:
-        for pid in _alive(children) if "children" in locals() else ():
-            os.kill(pid, signal.SIGKILL)
+    finally:  # survivors (a failed run): SIGTERM first, so that loky's trackers still clean /dev/shm
+        for sig in (signal.SIGTERM, signal.SIGKILL):
+            for pid in _alive(children) if "children" in locals() else ():
+                os.kill(pid, sig)
+            time.sleep(1.0 if sig == signal.SIGTERM and "children" in locals() and _alive(children) else 0.0)
         if worker.poll() is None:
             worker.kill()
         worker.communicate()
