@@ -29,12 +29,14 @@ from pathlib import Path
 import plotly
 import uvicorn
 from starlette.applications import Starlette
+from starlette.datastructures import Headers
 from starlette.exceptions import HTTPException
 from starlette.middleware import Middleware
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.requests import Request
 from starlette.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from starlette.routing import Route
+from starlette.types import ASGIApp, Receive, Scope, Send
 
 from cmrt import inputs
 from cmrt.dashboard import clipcache, data
@@ -211,9 +213,27 @@ def create_app(config: DashboardConfig) -> Starlette:
         Route("/static/{name}", static),
     ]
     app = Starlette(routes=routes, exception_handlers={HTTPException: _http_error, Exception: _server_error},
-                    middleware=[Middleware(TrustedHostMiddleware, allowed_hosts=allowed_hosts(config.host))])
+                    middleware=[Middleware(ServedHostMiddleware, allowed_hosts=allowed_hosts(config.host))])
     app.state.dashboard = _State(config)
     return app
+
+
+class ServedHostMiddleware:
+    """Starlette's TrustedHostMiddleware over :func:`allowed_hosts`, that also lets in a ``Host`` naming the very
+    address the connection came in on (``scope["server"]``): a server on 0.0.0.0 reached at one of this machine's
+    LAN addresses that its name does not resolve to. A DNS-rebinding page sends its own name, never an address."""
+
+    def __init__(self, app: ASGIApp, allowed_hosts: list[str]):
+        self.app, self.trusted = app, TrustedHostMiddleware(app, allowed_hosts=allowed_hosts)
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        server = scope.get("server") if scope["type"] in ("http", "websocket") else None
+        host = Headers(scope=scope).get("host", "") if server else ""
+        name = host[1:].partition("]")[0] if host.startswith("[") else host.rpartition(":")[0] or host
+        if server and name and name.lower() == str(server[0]).lower():
+            await self.app(scope, receive, send)
+        else:
+            await self.trusted(scope, receive, send)
 
 
 LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
