@@ -15,6 +15,11 @@ class TransientFault(RuntimeError):
     ``cmrt.service.store.MAX_RETRIES`` times, then marks it failed with the reason."""
 
 
+class DiskFull(TransientFault):
+    """The disk holding the store (or a file cmrt writes) is full: said as "disk full" everywhere, exit 75; a
+    worker gives its run back to the queue before it stops."""
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM, SIGHUP or SIGQUIT, turned into an exception so that a worker gives its run back before exiting
     (like Ctrl-C); ``signum`` is the signal (the exit status is 128 + it)."""

@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import json
 import math
 import os
@@ -59,7 +60,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from cmrt.errors import CmrtError
+from cmrt.errors import CmrtError, DiskFull
 
 MAX_SHOWN = 80  # characters of a user's value quoted in an error message
 MAX_MESSAGE = 300  # characters of a whole error line
@@ -518,6 +519,13 @@ def _mode_for(target: Path) -> int:
         return 0o666 & ~umask
 
 
+def _write_error(where: str, exc: OSError) -> Exception:
+    """A failed write of an output: a full disk is a fault of the machine (DiskFull, exit 75), else bad input."""
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return DiskFull(f"cannot write {where}: disk full (free some space and run it again)")
+    return CmrtError(f"cannot write {where}: {exc.strerror or exc}")
+
+
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike, flag: str, suffixes: tuple[str, ...] = ()) -> Iterator[Path]:
     """Yield a temporary path next to ``path``'s target (same suffix, so writers pick the right format);
@@ -529,7 +537,7 @@ def atomic_output(path: str | os.PathLike, flag: str, suffixes: tuple[str, ...] 
         fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name[:40]}.", suffix=target.suffix)
         os.close(fd)
     except OSError as exc:
-        raise CmrtError(f"cannot write {where}: {exc.strerror or exc}") from None
+        raise _write_error(where, exc) from None
     try:
         yield Path(tmp)
         if os.path.getsize(tmp) == 0:
@@ -539,7 +547,7 @@ def atomic_output(path: str | os.PathLike, flag: str, suffixes: tuple[str, ...] 
         os.chmod(tmp, _mode_for(target))
         os.replace(tmp, target)
     except OSError as exc:
-        raise CmrtError(f"cannot write {where}: {exc.strerror or exc}") from None
+        raise _write_error(where, exc) from None
     finally:
         with contextlib.suppress(OSError):
             os.unlink(tmp)

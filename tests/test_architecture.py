@@ -168,8 +168,9 @@ def test_modes_are_constants_and_the_controller_reads_no_user_input_checks():
             assert "inputs" not in {t for t, _, _ in _imports(path)}, module
 
 
-def test_the_store_depends_on_nothing_but_errors():
-    assert {t for t, _, _ in _imports(MODULES["service.store"])} <= {"errors"}
+def test_the_store_depends_on_nothing_but_errors_and_its_records():
+    assert {t for t, _, _ in _imports(MODULES["service.store"])} <= {"errors", "service.records"}
+    assert {t for t, _, _ in _imports(MODULES["service.records"])} <= {"errors", "inputs", "modes"}
 
 
 def test_only_the_shell_imports_the_job_queue():

@@ -35,7 +35,8 @@ from cmrt.errors import CmrtError, Terminated, TransientFault, clear_signals, no
 from cmrt.inputs import escape, shown
 from cmrt.modes import BACKENDS, REFERENCE_MODES
 from cmrt.optimize.settings import FAMILY_SIGMA0, STALE_AFTER_S, OptimizeSettings
-from cmrt.service.store import DEFAULT_STORE, RUN_STATUSES, Run, Store, open_store, resolve_path
+from cmrt.service.records import RUN_STATUSES, Run
+from cmrt.service.store import DEFAULT_STORE, Store, disk_full, is_disk_full, open_store, resolve_path
 
 # Start-up: a verb imports what it uses (MuJoCo, numba, scipy, pycma, dask: ~4 s in all) when it runs, so
 # that `cmrt --help`, `cmrt runs` or `cmrt show` answer at once. Building the parser imports none of them:
@@ -255,11 +256,12 @@ def _result_text(r: dict) -> str:
     speed = f" --speed {r['speed']:g}" if r["speed"] is not None else ""
     kind = "robust CMRT:   " if r["robust"] else "optimized CMRT:"
     lines = [
-        f"run {r['run_id']} {escape(r['task'])}{speed}: {r['status']} ({r['stop_reason']}) after "
-        f"{r['evaluations']} evaluations, {r['restarts']} restarts, {r['wall_s']:.1f} s; start: {escape(r['init'])}",
-        f"  zero CMRT:      objective {r['baseline_objective']:.4f}  "
+        f"run {r['run_id']} {escape(r['task'])}{speed}: {r['status']} ({escape(str(r['stop_reason']))}) after "
+        f"{r['evaluations']} evaluations, {r['restarts']} restarts, {_n(r['wall_s'], '.1f')} s; start: "
+        f"{escape(r['init'])}",
+        f"  zero CMRT:      objective {_n(r['baseline_objective'], '.4f')}  "
         f"{_outcome_word(r['baseline_success'], r['baseline_fell'])}",
-        f"  {kind} objective {r['best_objective']:.4f}  {_outcome_word(r['success'], r['fell'])}"
+        f"  {kind} objective {_n(r['best_objective'], '.4f')}  {_outcome_word(r['success'], r['fell'])}"
         + ("" if r.get("improvement_over_zero") is None else
            f"  ({r['improvement_over_zero']:.4f} better than no CMRT)" if r["improvement_over_zero"] > 0 else
            "  (no better than no CMRT: the zero CMRT is the best known)"),
@@ -347,6 +349,15 @@ def _store(path: str | None, readonly: bool = False, create: bool = True) -> Sto
     if new:
         print(f"cmrt: created a new store at {escape(str(p))}", file=sys.stderr, flush=True)  # whole: to copy
     return store
+
+
+def _store_arg(text: str) -> str:
+    """``--store``: any path but an empty one (which named the default store, silently)."""
+    try:
+        resolve_path(text)
+    except CmrtError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
 
 
 def _init_arg(value: str) -> str | int:
@@ -1070,7 +1081,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="cmrt", description="Anticipatory balance: center-of-mass reference trajectories.")
     sub = p.add_subparsers(dest="verb", required=True, parser_class=_Parser)
     common = _Parser(add_help=False)
-    common.add_argument("--store", metavar="PATH", help=f"SQLite store (default $CMRT_STORE or {DEFAULT_STORE})")
+    common.add_argument("--store", metavar="PATH", type=_store_arg,
+                        help=f"SQLite store (default $CMRT_STORE or {DEFAULT_STORE})")
     for command in COMMANDS:
         sp = sub.add_parser(command.name, help=command.help, parents=[common])
         if command.json_flag:
@@ -1132,11 +1144,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cmrt: error: {inputs.one_line(str(exc))}", file=sys.stderr)  # one line, control characters escaped
         return EXIT_BAD_INPUT
     except sqlite3.DatabaseError as exc:  # a damaged store (store.py refuses foreign files; damage shows in a query)
-        store = shown(str(resolve_path(getattr(args, "store", None))))
-        print(f"cmrt: error: {inputs.one_line(f'store {store} is damaged: {exc}')}", file=sys.stderr)
+        path = resolve_path(getattr(args, "store", None))
+        if is_disk_full(exc, path):  # a read that needed room beside the store (its -shm) and found none
+            print(f"cmrt: error: {inputs.one_line(str(disk_full(path)))}", file=sys.stderr)
+            return EXIT_TEMPFAIL
+        print(f"cmrt: error: {inputs.one_line(f'store {shown(str(path))} is damaged: {exc}')}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except TransientFault as exc:
-        print(f"cmrt: error: {exc}", file=sys.stderr)
+        print(f"cmrt: error: {inputs.one_line(str(exc))}", file=sys.stderr)
         return EXIT_TEMPFAIL
     except Terminated as exc:
         print(f"cmrt: terminated ({signal.Signals(exc.signum).name}){_resume_hint(exc, args)}", file=sys.stderr)

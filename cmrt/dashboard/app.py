@@ -2,17 +2,21 @@
 
 Read-only: every request opens the store as the read verbs do (``open_store(path, readonly=True)``: a
 read-only SQLite URI, or a private copy of a store at rest) and closes it, so a worker's progress shows on the
-next request and nothing is ever written into the store. The one write is a rendered clip, cached in a folder
-beside the store (``<store>.dashboard-cache/``). Files are served from a fixed list (the package's static files
-and plotly's bundled ``plotly.min.js``), never from a path taken from the URL. Bad input is a 4xx page (JSON
-under ``/api/``) with one line, never a traceback: an unknown run or route 404, a bad query 400, a damaged store
-422; a clip that cannot be rendered here (no OpenGL backend) 503.
+next request and nothing is ever written into the store. The one write is a rendered clip, cached in a directory
+of this user's that the dashboard owns (:mod:`cmrt.dashboard.clipcache`), never beside the store, and read back
+only as a regular file it wrote. Other files are served from a fixed list (the package's static files and
+plotly's bundled ``plotly.min.js``), never from a path taken from the URL. A request whose ``Host`` is not the
+address served (a DNS-rebinding page's name) is refused (400) before any route runs. Bad input is a 4xx page
+(JSON under ``/api/``) with one line, never a traceback: an unknown run or route 404, a bad query 400, a damaged
+store 422; a clip that cannot be rendered or cached here (no OpenGL backend, a full disk) 503.
 """
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import html
+import ipaddress
 import socket
 import sqlite3
 import string
@@ -25,14 +29,18 @@ from pathlib import Path
 import plotly
 import uvicorn
 from starlette.applications import Starlette
+from starlette.datastructures import Headers
 from starlette.exceptions import HTTPException
+from starlette.middleware import Middleware
+from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.requests import Request
 from starlette.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from starlette.routing import Route
+from starlette.types import ASGIApp, Receive, Scope, Send
 
 from cmrt import inputs
-from cmrt.dashboard import data
-from cmrt.errors import CmrtError
+from cmrt.dashboard import clipcache, data
+from cmrt.errors import CmrtError, DiskFull
 from cmrt.service.store import Store, open_store
 
 PACKAGE = resources.files("cmrt.dashboard")
@@ -55,6 +63,7 @@ class DashboardConfig:
     host: str = "127.0.0.1"
     port: int = 8080  # 0: any free port (the URL printed names it)
     clip_fps: int = 30  # frame rate of rendered clips
+    cache_dir: Path | None = None  # where rendered clips are kept (None: clipcache.default_dir(), this user's)
 
 
 @dataclass
@@ -82,6 +91,8 @@ def _status_of(exc: Exception) -> tuple[int, str]:
         return 404, str(exc)
     if isinstance(exc, CmrtError):
         return 422, str(exc)
+    if isinstance(exc, DiskFull):
+        return 503, str(exc)
     if isinstance(exc, sqlite3.DatabaseError):
         return 422, f"the store is damaged: {exc}"
     return 500, f"{type(exc).__name__}: {exc}"
@@ -116,7 +127,7 @@ def _with_store(handler: Callable[[Request, Store], Response]) -> Callable[[Requ
                 return handler(request, store)
         except HTTPException:
             raise
-        except (CmrtError, sqlite3.DatabaseError) as exc:
+        except (CmrtError, DiskFull, sqlite3.DatabaseError) as exc:
             return _error(request, *_status_of(exc))
 
     endpoint.__name__ = handler.__name__
@@ -159,13 +170,12 @@ def clip(request: Request, store: Store) -> Response:
     """The run's MP4, rendered on the first request; 503 with the reason where no OpenGL backend loads."""
     run_id = _run_id(request)
     data.find_run(store, run_id)
+    config: DashboardConfig = request.app.state.dashboard.config
     try:
-        path = data.clip(store, run_id, request.app.state.dashboard.config.clip_fps)
-    except data.NotFound:
-        raise
-    except CmrtError as exc:
+        video = data.clip(store, run_id, config.clip_fps, config.cache_dir or clipcache.default_dir())
+    except (clipcache.Unavailable, DiskFull) as exc:  # a damaged store's CmrtError stays a 422
         return _error(request, 503, str(exc))
-    return FileResponse(path, media_type="video/mp4")
+    return Response(video, media_type="video/mp4")
 
 
 def static(request: Request) -> Response:
@@ -202,9 +212,56 @@ def create_app(config: DashboardConfig) -> Starlette:
         Route("/clips/run{run_id:int}.mp4", _with_store(clip)),
         Route("/static/{name}", static),
     ]
-    app = Starlette(routes=routes, exception_handlers={HTTPException: _http_error, Exception: _server_error})
+    app = Starlette(routes=routes, exception_handlers={HTTPException: _http_error, Exception: _server_error},
+                    middleware=[Middleware(ServedHostMiddleware, allowed_hosts=allowed_hosts(config.host))])
     app.state.dashboard = _State(config)
     return app
+
+
+class ServedHostMiddleware:
+    """Starlette's TrustedHostMiddleware over :func:`allowed_hosts`, that also lets in a ``Host`` naming the very
+    address the connection came in on (``scope["server"]``): a server on 0.0.0.0 reached at one of this machine's
+    LAN addresses that its name does not resolve to. A DNS-rebinding page sends its own name, never an address."""
+
+    def __init__(self, app: ASGIApp, allowed_hosts: list[str]):
+        self.app, self.trusted = app, TrustedHostMiddleware(app, allowed_hosts=allowed_hosts)
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        server = scope.get("server") if scope["type"] in ("http", "websocket") else None
+        host = Headers(scope=scope).get("host", "") if server else ""
+        name = host[1:].partition("]")[0] if host.startswith("[") else host.rpartition(":")[0] or host
+        if server and name and name.lower() == str(server[0]).lower():
+            await self.app(scope, receive, send)
+        else:
+            await self.trusted(scope, receive, send)
+
+
+LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
+
+
+def allowed_hosts(host: str) -> list[str]:
+    """The ``Host`` names a request may carry: the address served (as given and as it resolves) and, for the
+    loopback, ``localhost`` and its addresses; for a wildcard address (0.0.0.0, ::) also this machine's names
+    and their addresses. Any other name - a page's own, pointed at this address by DNS rebinding - is refused:
+    the browser would otherwise hand that page the store."""
+    names = {host}
+    with contextlib.suppress(OSError, UnicodeError, ValueError):
+        names |= {info[4][0] for info in socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)}
+    if any(_is(name, "is_loopback") for name in names) or host == "localhost":
+        names |= set(LOOPBACK_NAMES)
+    if any(_is(name, "is_unspecified") for name in names):
+        names |= {*LOOPBACK_NAMES, socket.gethostname(), socket.getfqdn()}
+        with contextlib.suppress(OSError, UnicodeError, ValueError):
+            names |= {info[4][0] for info in socket.getaddrinfo(socket.gethostname(), None, type=socket.SOCK_STREAM)}
+    names = {name.lower().split("%")[0] for name in names if name}
+    return sorted(names | {f"[{name}]" for name in names if ":" in name})  # an IPv6 address in a Host: [::1]
+
+
+def _is(name: str, kind: str) -> bool:
+    try:
+        return getattr(ipaddress.ip_address(name.split("%")[0]), kind)
+    except ValueError:
+        return False
 
 
 def bind(config: DashboardConfig) -> socket.socket:

@@ -20,11 +20,12 @@ from pathlib import Path
 import numpy as np
 
 from cmrt import inputs
+from cmrt.dashboard import clipcache
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.task import Task
 from cmrt.service.interpolate import blend
-from cmrt.service.query import run_details, run_summary, task_of
+from cmrt.service.query import run_details, run_summary, stored_curve, task_of
 from cmrt.service.store import Run, Store, StoredEvaluation
 from cmrt.sim.objective import evaluate
 from cmrt.sim.report import evaluation_dict
@@ -175,7 +176,7 @@ def run_page(store: Store, run_id: int) -> dict:
         details = run_details(store, run_id)
         evaluations = store.evaluations(run_id)
     task = task_of(run)
-    best = curve_points(Cmrt.from_dict(run.best_cmrt)) if run.best_cmrt else None
+    best = curve_points(stored_curve(run)) if run.best_cmrt else None
     return inputs.json_safe({
         "run": run_row(run), "details": details, "task": _task_info(task), "task_definition": run.task_definition,
         "convergence": _convergence(run, evaluations), "best_cmrt": best,
@@ -211,7 +212,7 @@ def run_traces(store: Store, run_id: int, cache: SimCache) -> dict:
 
     def make() -> dict:
         task = task_of(run)
-        best = Cmrt.from_dict(run.best_cmrt)
+        best = stored_curve(run)
         clips = [_trace(task, Cmrt.zero(task.clip_s), "zero CMRT"), _trace(task, best, f"run {run_id} best CMRT")]
         return {"run_id": run_id, "task": _task_info(task), "clips": clips,
                 "plausibility_fields": [{"key": k, "label": lab, "limit": clips[0]["limits"][k]}
@@ -252,7 +253,7 @@ def compare(store: Store, run_ids: list[int], cache: SimCache) -> dict:
     members, shown_runs = [], []
     for run in runs:
         task = task_of(run)
-        curve = Cmrt.from_dict(run.best_cmrt) if run.best_cmrt else None
+        curve = stored_curve(run) if run.best_cmrt else None
         shown_runs.append({**run_row(run), "label": f"run {run.id}: {task_label(task)}",
                            "curve": curve_points(curve) if curve else None})
         if curve is not None and run.task == runs[0].task:
@@ -262,30 +263,26 @@ def compare(store: Store, run_ids: list[int], cache: SimCache) -> dict:
     return inputs.json_safe({"runs": shown_runs, "interpolated": between})
 
 
-def clip_path(store_path: Path, run: Run, fps: int) -> Path:
-    """Where a run's rendered clip is cached: ``<store>.dashboard-cache/run<id>-<key>.mp4``, beside the store
-    (never inside it), named by what decides its pixels so a changed best CMRT is rendered anew."""
-    return Path(f"{store_path}.dashboard-cache") / f"run{run.id}-{_key(run.task_definition, run.best_cmrt, fps)}.mp4"
+def clip_name(run: Run, fps: int) -> str:
+    """A run's clip in the cache: ``run<id>-<key>.mp4``, named by what decides its pixels, so that a changed best
+    CMRT is rendered anew."""
+    return f"run{run.id}-{_key(run.task_definition, run.best_cmrt, fps)}.mp4"
 
 
 _render_lock = threading.Lock()  # one render at a time: OpenGL context and CPU
 
 
-def clip(store: Store, run_id: int, fps: int) -> Path:
-    """The run's MP4 (zero CMRT beside its best), rendered on first request and cached beside the store.
-    CmrtError (one line) where no OpenGL backend loads or the cache folder cannot be written."""
+def clip(store: Store, run_id: int, fps: int, cache_dir: Path) -> bytes:
+    """The run's MP4 (zero CMRT beside its best), rendered on first request into the dashboard's own cache
+    (:mod:`cmrt.dashboard.clipcache`: read back only as a file it wrote). CmrtError (one line) where no OpenGL
+    backend loads or the cache is not one this user owns."""
     run = find_run(store, run_id)
     if not run.best_cmrt:
         raise NotFound(f"run {run_id} has no result to render yet (status {run.status})")
-    out = clip_path(store.path, run, fps)
+    task, best = task_of(run), stored_curve(run)
+
+    def make(out: Path) -> None:
+        render(task, best, out, Cmrt.zero(task.clip_s), (f"run {run_id} best CMRT", "zero CMRT"), fps=fps)
+
     with _render_lock:
-        if out.is_file():
-            return out
-        try:
-            out.parent.mkdir(exist_ok=True)
-        except OSError as exc:
-            raise CmrtError(f"cannot cache the clip beside the store ({out.parent}): {exc.strerror}") from None
-        task = task_of(run)
-        render(task, Cmrt.from_dict(run.best_cmrt), out, Cmrt.zero(task.clip_s),
-               (f"run {run_id} best CMRT", "zero CMRT"), fps=fps)
-    return out
+        return clipcache.cached(cache_dir, clip_name(run, fps), make)

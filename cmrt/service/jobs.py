@@ -21,10 +21,9 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 
 from cmrt import inputs
-from cmrt.errors import CmrtError, TransientFault, pending_termination
+from cmrt.errors import CmrtError, DiskFull, TransientFault, pending_termination
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.task import Task
-from cmrt.motion.taskfile import task_from_dict
 from cmrt.optimize.driver import (
     ZERO_X,
     CmaState,
@@ -37,6 +36,8 @@ from cmrt.optimize.driver import (
 )
 from cmrt.optimize.parallel import Evaluator
 from cmrt.optimize.settings import FAMILY_SIGMA0, STALE_AFTER_S, OptimizeSettings
+from cmrt.service.known import start_point
+from cmrt.service.query import task_of
 from cmrt.service.store import Claim, Generation, LostClaim, Run, RunProgress, RunSpec, Store, StoredEvaluation
 from cmrt.service.warmstart import resolve_init
 from cmrt.sim.objective import evaluate
@@ -58,6 +59,14 @@ def released(exc: KeyboardInterrupt, run_id: int) -> KeyboardInterrupt:
     CLI can say which run is queued and how to resume it."""
     exc.released_run = run_id  # type: ignore[attr-defined]
     return exc
+
+
+def given_back(fault: TransientFault, run_id: int, back: bool) -> TransientFault:
+    """``fault`` (a full disk, a lost worker process) said with what became of the run: back in the queue, or
+    (its give-back could not be written) left to be taken over once its heartbeat is stale."""
+    where = (f"run {run_id} is back in the queue, its last checkpoint kept ('cmrt worker' resumes it)" if back else
+             f"run {run_id} could not be given back: a worker takes it over once its heartbeat is stale")
+    return type(fault)(f"{fault}; {where}")
 
 
 def check_settings(*, seed: int, max_evals: int, popsize: int, sigma0: float, min_evals: int,
@@ -105,10 +114,11 @@ def submit(
     ))
 
 
-def claim(store: Store, worker: str, stale_after_s: float = STALE_AFTER_S,
-          run_id: int | None = None) -> Claim | None:
-    """Take the oldest queued run, else an orphaned running one; None if there is none."""
-    return store.claim(worker, stale_after_s, run_id)
+def claim(store: Store, worker: str, stale_after_s: float = STALE_AFTER_S, run_id: int | None = None,
+          on_failure: Callable[[int, str], None] | None = None) -> Claim | None:
+    """Take the oldest queued run, else an orphaned running one; None if there is none. A run whose row does not
+    decode is failed with the reason (told to ``on_failure``) and the next one is taken."""
+    return store.claim(worker, stale_after_s, run_id, on_failure)
 
 
 def settings_for(run: Run, x0: tuple[float, ...] | None = None) -> OptimizeSettings:
@@ -150,10 +160,12 @@ def run_claimed(
 
 def _run_claimed(store: Store, claim: Claim, evaluator: Evaluator, on_generation: ProgressFn | None) -> Run:
     run = store.run(claim.run_id)
-    task = task_from_dict(run.task_definition, source=f"run {run.id}")
+    task = task_of(run)  # the definition must be the task the run names
     x0 = run.init_params
     if x0 is None and run.init_run is not None:  # queued by a cmrt before schema 3
         x0 = store.run(run.init_run).best_params
+    if x0 is not None:  # a start copied from the store: checked like user input
+        x0 = start_point(x0, task.clip_s, f"run {run.id}'s start point")
     settings = settings_for(run, x0)
     checkpoint = store.last_checkpoint(claim.run_id)
     state = CmaState.loads(checkpoint[1], settings, run_id=run.id) if checkpoint else new_state(settings)
@@ -216,8 +228,7 @@ def optimize_now(
             store.release(c)
             raise released(exc, run_id) from None
         except TransientFault as exc:
-            store.retry_later(c, str(exc))
-            raise TransientFault(f"run {run_id} is back in the queue ('cmrt worker' resumes it): {exc}") from exc
+            raise given_back(exc, run_id, store.retry_later(c, str(exc))) from exc
         except Exception as exc:  # never leave the run 'running' until its heartbeat goes stale
             if (terminated := pending_termination()) is not None:  # a signal inside an SQLite step
                 store.release(c)
@@ -300,7 +311,7 @@ def work(
     waiting = False
     with _evaluator(evaluator) as ev:
         while True:
-            c = claim(store, me, stale_after_s)
+            c = claim(store, me, stale_after_s, on_failure=on_failure)
             if c is None:
                 if until_idle or once:
                     return finished
@@ -323,7 +334,9 @@ def work(
                 store.release(c)
                 raise released(exc, c.run_id) from None
             except TransientFault as exc:
-                store.retry_later(c, str(exc))
+                back = store.retry_later(c, str(exc))
+                if isinstance(exc, DiskFull):  # the next run could not be written either: stop, exit 75
+                    raise given_back(exc, c.run_id, back) from exc
                 if on_failure:
                     on_failure(c.run_id, f"transient fault, back in the queue: {exc}")
             except Exception as exc:  # a bug or a bad stored run must not take the worker (and the queue) down

@@ -17,24 +17,44 @@ import numpy as np
 from cmrt import inputs
 from cmrt.errors import CmrtError
 from cmrt.inputs import shown
-from cmrt.motion.curve import Cmrt
+from cmrt.motion.curve import N_KNOTS, VALUE_M, Cmrt
 from cmrt.motion.footsteps import steps_from_tables
 from cmrt.motion.library import KnownCmrt, library_cmrts, library_curve
 from cmrt.motion.task import Task
-from cmrt.service.query import run_curve, task_of
+from cmrt.service.query import run_curve, stored_curve, task_of
 from cmrt.service.store import Run, Store, open_store
 
 CLIP_TOLERANCE_S = 1e-9
 SOURCES = ("store", "library")
 
 
+#: each of the 8 CMA-ES parameters a start point may have: displacements within +-1 m are +-20 of them, and a
+#: knot-gap logit beyond 100 only makes a gap vanish (exp(-100)); 1e308 or NaN would make CMA-ES's samples overflow
+START_PARAM = inputs.Range(-100.0, 100.0)
+
+
+def start_point(params: tuple[float, ...], clip_s: float, where: str) -> tuple[float, ...]:
+    """Stored CMA-ES parameters to start a search from (a run's best copied into a new run, or a queued run's own
+    start), held to what a user may give: 8 numbers in ``START_PARAM`` whose CMRT a curve file may hold
+    (``VALUE_M``). CmrtError naming ``where`` otherwise."""
+    if len(params) != 2 * N_KNOTS:
+        raise CmrtError(f"{where}: expected {2 * N_KNOTS} CMRT parameters, got {len(params)}")
+    checked = tuple(inputs.number(p, where, START_PARAM, text=False) for p in params)
+    Cmrt.from_dict(Cmrt.from_params(np.asarray(checked), clip_s).to_dict(), where, VALUE_M)
+    return checked
+
+
 def run_cmrt(run: Run) -> KnownCmrt:
-    """A finished run's best CMRT as a record (its optimizer parameters as stored, bit for bit; the curve as
-    stored, else made from them)."""
-    curve = (Cmrt.from_dict(run.best_cmrt, f"run {run.id}'s best CMRT") if run.best_cmrt is not None
-             else Cmrt.from_params(np.asarray(run.best_params, dtype=float), run.params["clip_s"]))
+    """A finished run's best CMRT as a record (its optimizer parameters as stored, bit for bit, and checked as a
+    start point; the curve as stored, else made from them)."""
+    where = f"run {run.id}'s best CMRT"
+    if run.best_params is None or run.best_objective is None:
+        raise CmrtError(f"the store is damaged: run {run.id} is done without a best CMRT and objective")
+    cma_params = start_point(run.best_params, run.params["clip_s"], where)
+    curve = (stored_curve(run) if run.best_cmrt is not None
+             else Cmrt.from_params(np.asarray(cma_params), run.params["clip_s"]))
     return KnownCmrt(task=run.task, params=run.params, reference=run.reference, robust=run.robust is not None,
-                     curve=curve, cma_params=tuple(run.best_params),
+                     curve=curve, cma_params=cma_params,
                      objective=run.best_objective, success=bool(run.best_success), source=f"run {run.id}",
                      speed=run.speed, steps=steps_from_tables(run.task_definition.get("steps") or [], f"run {run.id}"),
                      motion=task_of(run).motion_hash())

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 from cmrt import inputs
 from cmrt.errors import CmrtError
+from cmrt.inputs import shown
 from cmrt.service.store import Run, Store
 
 if TYPE_CHECKING:
@@ -46,20 +47,31 @@ def best_run(store: Store, task: Task) -> Run:
 
 
 def task_of(run: Run) -> Task:
-    """The task exactly as the run was queued with (not the task file as it is now)."""
+    """The task exactly as the run was queued with (not the task file as it is now), checked like a task file
+    and against the run: a definition that is not the task named by the run's name and physics hash (``{}``,
+    another task's) is refused, so a worker never optimizes something else than the run says."""
     from cmrt.motion.taskfile import task_from_dict  # MuJoCo: listing and showing runs do not load it
 
-    return task_from_dict(run.task_definition, source=f"run {run.id}")
+    task = task_from_dict(run.task_definition, source=f"run {run.id}")
+    if task.name != run.task or task.content_hash() != run.task_hash:
+        raise CmrtError(f"the store is damaged: run {run.id}: its task definition is not the task {shown(run.task)} "
+                        "it was queued as (another name or physics hash)")
+    return task
+
+
+def stored_curve(run: Run) -> Cmrt:
+    """A run's best CMRT, held to what a CMRT file may hold (knots inside the clip, displacements within
+    ``cmrt.motion.curve.VALUE_M``); CmrtError if it has none yet."""
+    if not run.best_cmrt:
+        raise CmrtError(f"run {run.id} has no result yet (status {run.status})")
+    from cmrt.motion.curve import VALUE_M, Cmrt  # scipy: listing and showing runs do not load it
+
+    return Cmrt.from_dict(run.best_cmrt, f"run {run.id}'s best CMRT", VALUE_M)
 
 
 def run_curve(store: Store, run_id: int) -> Cmrt:
     """The best CMRT a stored run found so far."""
-    run = store.run(run_id)
-    if not run.best_cmrt:
-        raise CmrtError(f"run {run_id} has no result yet (status {run.status})")
-    from cmrt.motion.curve import Cmrt  # scipy: listing and showing runs do not load it
-
-    return Cmrt.from_dict(run.best_cmrt)
+    return stored_curve(store.run(run_id))
 
 
 def export_run(store: Store, run_id: int, fmt: str) -> str:

@@ -24,9 +24,9 @@ import contextlib
 import errno
 import functools
 import json
-import math
 import os
 import random
+import re
 import shutil
 import sqlite3
 import stat
@@ -35,12 +35,22 @@ import threading
 import time
 import urllib.parse
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import sqlite_utils
 
-from cmrt.errors import CmrtError, TransientFault
+from cmrt.errors import CmrtError, DiskFull, TransientFault
+from cmrt.service.records import (
+    EVALUATIONS,
+    GENERATIONS,
+    Generation,
+    Run,
+    RunProgress,
+    RunSpec,
+    StoredEvaluation,
+    decode,
+)
 
 DEFAULT_STORE = Path("store") / "cmrt.sqlite"
 BUSY_TIMEOUT_MS = 30_000
@@ -51,10 +61,10 @@ WAL_AUTOCHECKPOINT_PAGES = 100
 # A heartbeat is written at most this often, however short --stale-after is (a quarter of it otherwise).
 MIN_HEARTBEAT_S = 0.05
 BEGIN_RETRIES = 20
+GIVE_BACK_TRIES = 6  # a run is given back after a transient fault within 0.1 + 0.2 + ... + 3.2 s of waiting
 SQLITE_MAGIC = b"SQLite format 3\x00"
 APP_ID = "cmrt"
 
-RUN_STATUSES = ("queued", "running", "done", "failed")
 #: a run is given back to the queue after a transient fault (or taken over after its worker died) at most
 #: this many times; then it is failed with the reason (as optuna's RetryFailedTrialCallback bounds retries)
 MAX_RETRIES = 10
@@ -127,7 +137,11 @@ SCHEMA_VERSION = len(MIGRATIONS)
 
 
 def resolve_path(path: str | os.PathLike | None) -> Path:
-    """The store path: as given, else ``$CMRT_STORE``, else ``store/cmrt.sqlite``."""
+    """The store path: as given, else ``$CMRT_STORE``, else ``store/cmrt.sqlite``. An empty path given names no
+    store (it once meant the default store, silently); an empty ``$CMRT_STORE`` is unset."""
+    if path is not None and os.fspath(path) in ("", b""):
+        raise CmrtError("an empty store path names no store (leave --store out for $CMRT_STORE or "
+                        f"{DEFAULT_STORE})")
     return Path(path or os.environ.get("CMRT_STORE") or DEFAULT_STORE)
 
 
@@ -257,9 +271,7 @@ def _inspect(path: Path, label: Path | None = None) -> str:
             if not was:
                 with contextlib.suppress(OSError):
                     p.unlink()
-        if isinstance(exc, sqlite3.OperationalError) and "unable to open" in str(exc):
-            raise CmrtError(f"cannot open store {label} (permissions?)") from None
-        raise CmrtError(f"{label} is a corrupted SQLite file ({' '.join(str(exc).split())[:120]})") from None
+        raise _unreadable(exc, path, label) from None
     if not tables and version == 0:
         return "empty"
     if not row or row[0] != APP_ID:
@@ -271,19 +283,74 @@ def _inspect(path: Path, label: Path | None = None) -> str:
     return "store"
 
 
+#: the tokens of an SQL definition: strings, quoted identifiers ("x", [x], `x`), words, numbers, comments, symbols
+_SQL_TOKENS = re.compile(r"""'(?:[^']|'')*'|"(?:[^"]|"")*"|\[[^\]]*\]|`(?:[^`]|``)*`|[A-Za-z_][A-Za-z0-9_$]*"""
+                         r"""|[0-9.]+(?:[eE][+-]?[0-9]+)?|--[^\n]*|/\*.*?(?:\*/|$)|\S""", re.DOTALL)
+
+
+@functools.lru_cache(maxsize=256)  # every store holds the same few definitions: each is tokenized once
+def _definition(sql: str | None) -> str | None:
+    """An object's SQL as SQLite reads it, written one way: tokens separated by one space, identifiers unquoted
+    and in lower case (SQLite's are case-insensitive), comments dropped, string literals kept as written. Two
+    definitions are the same object exactly when these are equal: a CHECK, a COLLATE, an expression or a
+    WHERE that cmrt did not write is a difference, quoting and line breaks are not."""
+    if sql is None:
+        return None
+    out = []
+    for token in _SQL_TOKENS.findall(sql):
+        if token.startswith(("--", "/*")):
+            continue
+        if token[0] in "\"[`":
+            token = token[1:-1].replace(token[0] * 2, token[0]) if token[0] != "[" else token[1:-1]
+            token = token.lower()
+        elif token[0] != "'":
+            token = token.lower()
+        out.append(token)
+    return " ".join(out)
+
+
+def _pragma(con: sqlite3.Connection, pragma: str, columns: str, name: str) -> tuple:
+    return tuple(sorted(map(tuple, con.execute(f"SELECT {columns} FROM pragma_{pragma}(?)", (name,)).fetchall()),
+                        key=repr))
+
+
+SQLITE_READONLY_ROLLBACK = 776  # a hot journal a read-only connection cannot roll back
+
+
+def _unreadable(exc: sqlite3.DatabaseError, path: Path, label: Path) -> Exception:
+    """Why SQLite could not read the file at ``path``, named as what it is: a full disk (exit 75), a hot rollback
+    journal (a writer stopped mid-transaction), no permission, or damage."""
+    if is_disk_full(exc, path):
+        return disk_full(label)
+    journal = Path(f"{path}-journal")
+    if getattr(exc, "sqlite_errorcode", None) == SQLITE_READONLY_ROLLBACK or (
+            journal.is_file() and journal.stat().st_size > 0 and "readonly" in str(exc)):
+        return CmrtError(f"{label} has a hot rollback journal ({label}-journal): a process writing it stopped "
+                         "mid-transaction; cmrt writes no store before checking it: let SQLite roll it back "
+                         f"(sqlite3 {label} 'PRAGMA integrity_check') and run this again")
+    if isinstance(exc, sqlite3.OperationalError) and "unable to open" in str(exc):
+        return CmrtError(f"cannot open store {label} (permissions?)")
+    return CmrtError(f"{label} is a corrupted SQLite file ({' '.join(str(exc).split())[:120]})")
+
+
 def _schema(con: sqlite3.Connection) -> dict:
-    """Every schema object of a database - (type, name) -> its table and, for a table, its columns as
-    ``PRAGMA table_xinfo`` gives them (hidden = generated) and its foreign keys - read from ``sqlite_master``
-    and pragmas only, so a hostile view or trigger is listed, never run."""
+    """Every schema object of a database - (type, name) -> its table, for a table its columns as ``PRAGMA
+    table_xinfo`` gives them (hidden = generated), its foreign keys and its indexes, for an index its columns
+    and expressions (``index_xinfo``), and for every object its definition (:func:`_definition` of its SQL:
+    CHECK constraints, index expressions, partial-index WHEREs, trigger and view bodies) - read from
+    ``sqlite_master`` and pragmas only, so a hostile view, trigger or index expression is listed, never run."""
     out = {}
-    for kind, name, table in con.execute("SELECT type, name, tbl_name FROM sqlite_master").fetchall():
-        entry: tuple = (table,)
+    for kind, name, table, sql in con.execute("SELECT type, name, tbl_name, sql FROM sqlite_master").fetchall():
         if kind == "table":
-            cols = con.execute("SELECT name, type, \"notnull\", dflt_value, pk, hidden FROM pragma_table_xinfo(?)",
-                               (name,)).fetchall()
-            fks = con.execute('SELECT "table", "from", "to" FROM pragma_foreign_key_list(?)', (name,)).fetchall()
-            entry = (table, tuple(map(tuple, cols)), tuple(sorted(map(tuple, fks))))
-        out[(kind, name)] = entry
+            entry: tuple = (
+                table, _pragma(con, "table_xinfo", 'cid, name, type, "notnull", dflt_value, pk, hidden', name),
+                _pragma(con, "foreign_key_list", '"table", "from", "to", on_update, on_delete, "match"', name),
+                _pragma(con, "index_list", 'name, "unique", origin, partial', name))
+        elif kind == "index":
+            entry = (table, _pragma(con, "index_xinfo", 'seqno, cid, name, "desc", coll, "key"', name))
+        else:
+            entry = (table,)
+        out[(kind, name)] = (*entry, _definition(sql))
     return out
 
 
@@ -306,19 +373,8 @@ def _schema_difference(have: dict, want: dict) -> str:
     missing = sorted(f"{k} {n}" for k, n in set(want) - set(have))
     changed = sorted(f"{k} {n}" for k, n in set(have) & set(want) if have[(k, n)] != want[(k, n)])
     parts = [f"unexpected {', '.join(extra)}"] * bool(extra) + [f"missing {', '.join(missing)}"] * bool(missing)
-    parts += [f"different columns or keys in {', '.join(changed)}"] * bool(changed)
+    parts += [f"a different definition of {', '.join(changed)}"] * bool(changed)
     return "; ".join(parts)[:200]
-
-
-def _json(text, where: str, kind: type = object):
-    """A JSON column's value; CmrtError if the stored text is damaged (not JSON, or not a ``kind``)."""
-    try:
-        value = json.loads(text)
-    except (TypeError, ValueError, RecursionError):
-        raise CmrtError(f"the store is damaged: {where} is not valid JSON") from None
-    if not isinstance(value, kind):
-        raise CmrtError(f"the store is damaged: {where} is not a {kind.__name__}")
-    return value
 
 
 class LostClaim(RuntimeError):
@@ -334,191 +390,43 @@ class Claim:
     attempt: int
 
 
-@dataclass(frozen=True)
-class RunSpec:
-    """Everything that defines a run, written in one INSERT when it is queued."""
-
-    task: str
-    speed: float | None
-    params: dict[str, float]
-    task_hash: str  # Task.content_hash(): the physics and the score, not the name
-    task_definition: dict  # Task.to_dict(): later edits of the task file do not change a queued run
-    seed: int
-    max_evals: int
-    popsize: int
-    sigma0: float
-    min_evals: int
-    stop_threshold: float
-    stall_generations: int
-    backend: str
-    init_source: str  # where the start point came from: "none", "run 12", "library (speed 0.4)"
-    init_params: tuple[float, ...] | None  # the start point itself (a resume never re-resolves it)
-    init_run: int | None = None  # the run id given as --init, if one was
-    robust: dict | None = None  # the training ensemble's [robust] table (None: a plain run)
-    reference: str = "center"  # the controller's reference mode: "center" or "yu" (cmrt.control.references)
-
-
-@dataclass(frozen=True)
-class Run:
-    """One row of ``runs``, decoded (JSON columns as Python values, flags as bools)."""
-
-    id: int
-    task: str
-    speed: float | None
-    params: dict[str, float]
-    task_hash: str
-    task_definition: dict
-    seed: int
-    max_evals: int
-    popsize: int
-    sigma0: float
-    min_evals: int
-    stop_threshold: float | None
-    init_run: int | None
-    backend: str | None
-    status: str  # one of RUN_STATUSES
-    worker: str | None
-    attempt: int
-    heartbeat_at: float | None  # unix time of the last write of the worker holding it
-    created_at: float
-    started_at: float | None
-    finished_at: float | None
-    best_objective: float | None
-    best_params: tuple[float, ...] | None
-    best_fell: bool | None
-    best_success: bool | None
-    best_cmrt: dict | None  # Cmrt.to_dict() of the best candidate
-    baseline_objective: float | None  # the zero CMRT's score
-    baseline_fell: bool | None
-    baseline_success: bool | None
-    evaluations: int
-    generations: int
-    stop_reason: str | None
-    wall_s: float | None
-    eval_s: float | None  # summed simulation time of the evaluations
-    error: str | None
-    init_source: str | None
-    init_params: tuple[float, ...] | None
-    restarts: int | None
-    stall_generations: int | None  # None: the default (OptimizeSettings)
-    robust: dict | None
-    robustness: dict | None  # cmrt.sim.validate.robustness of the best CMRT
-    retries: int | None = None  # transient faults and take-overs so far (NULL before schema 4: none)
-    reference: str = "center"  # the controller's reference mode the run was optimized with (NULL: "center")
-
-    @classmethod
-    def from_row(cls, row: sqlite3.Row) -> Run:
-        """Decode a ``runs`` row (JSON columns, 0/1 flags); a damaged row is a CmrtError naming it."""
-        d = dict(row)
-        where = f"run {d.get('id')}"
-        d["task_definition"] = _json(d.pop("task_source"), f"{where}: task_source")
-        for key in ("params", "best_cmrt", "robust", "robustness"):
-            d[key] = _json(d[key], f"{where}: {key}") if d[key] else None
-        for key in ("best_params", "init_params"):
-            d[key] = tuple(_json(d[key], f"{where}: {key}", list)) if d[key] else None
-        _check_run_types(d, where)
-        for key in ("best_fell", "baseline_fell", "best_success", "baseline_success"):
-            d[key] = None if d[key] is None else bool(d[key])
-        d["reference"] = d.get("reference") or "center"
-        return cls(**d)
-
-    def to_dict(self) -> dict:
-        """The run as JSON-ready values (what ``cmrt show --json`` prints, with derived figures)."""
-        return asdict(self)
-
-
-#: The Python types a ``runs`` column may hold (SQLite stores any value in any column: a store from someone
-#: else may hold text where a number belongs). NULL is allowed where the schema allows it.
-_RUN_INTS = ("id", "seed", "max_evals", "popsize", "min_evals", "init_run", "attempt", "evaluations", "generations",
-             "restarts", "stall_generations", "retries")
-_RUN_FLOATS = ("speed", "sigma0", "stop_threshold", "heartbeat_at", "created_at", "started_at", "finished_at",
-               "best_objective", "baseline_objective", "wall_s", "eval_s")
-_RUN_TEXTS = ("task", "task_hash", "backend", "status", "worker", "stop_reason", "error", "init_source",
-              "reference")
-_RUN_FLAGS = ("best_fell", "baseline_fell", "best_success", "baseline_success")
-_RUN_NOT_NULL = ("id", "task", "seed", "status", "created_at")
-
-
-def _check_run_types(d: dict, where: str) -> None:
-    """Refuse (one-line CmrtError) a run row whose values are not of their column's kind, or a status cmrt
-    never writes: every read decodes through here, so a hostile value is a message, not a traceback."""
-    def bad(key: str, kind: str) -> CmrtError:
-        return CmrtError(f"the store is damaged: {where}: {key} is not {kind}")
-
-    for key in _RUN_NOT_NULL:
-        if d.get(key) is None:
-            raise bad(key, "set")
-    for key in _RUN_INTS:
-        v = d.get(key)
-        if v is not None and (type(v) is not int or v < 0):
-            raise bad(key, "a non-negative integer")
-    for key in _RUN_FLOATS:
-        v = d.get(key)
-        if v is not None and (type(v) not in (int, float) or not math.isfinite(v)):
-            raise bad(key, "a finite number")
-    for key in _RUN_TEXTS:
-        if d.get(key) is not None and type(d[key]) is not str:
-            raise bad(key, "text")
-    for key in _RUN_FLAGS:
-        if d.get(key) not in (None, 0, 1):
-            raise bad(key, "0 or 1")
-    if d["status"] not in RUN_STATUSES:
-        raise bad("status", "one of " + ", ".join(RUN_STATUSES))
-
-
-@dataclass(frozen=True)
-class Generation:
-    """One CMA-ES generation of a run (its checkpoint blob stays in the store)."""
-
-    gen: int
-    sigma: float
-    best_objective: float  # best so far in the run
-    gen_best_objective: float  # best of this generation
-    mean: tuple[float, ...]
-    evaluations: int  # so far in the run
-    created_at: float
-
-
-@dataclass(frozen=True)
-class StoredEvaluation:
-    """One candidate's score as stored (``idx``: its place in the generation)."""
-
-    gen: int
-    idx: int
-    params: tuple[float, ...]
-    objective: float
-    fell: bool
-    success: bool | None  # None: stored by a cmrt before schema 2
-    seconds: float
-
-
-@dataclass(frozen=True)
-class RunProgress:
-    """What a run's row says after a generation."""
-
-    evaluations: int
-    generations: int
-    restarts: int
-    best_objective: float
-    best_params: tuple[float, ...]
-    best_fell: bool
-    best_success: bool
-    best_cmrt: dict
-    wall_s: float
-    eval_s_added: float  # simulation seconds of this generation's evaluations
-
-
 class Store:
-    """One connection to a CMRT store; open with :func:`open_store`."""
+    """One connection to a CMRT store; open with :func:`open_store`. What a caller can rely on:
+
+    * **Only a store cmrt wrote is opened.** Its whole schema - every object, definition by definition - is
+      compared with cmrt's before any statement runs on it; anything else is a one-line CmrtError, the file
+      untouched. A read-only store writes no byte (a store at rest is read from a private copy).
+    * **Values are decoded, never trusted.** Reads return frozen records (``Run``, ``Generation``,
+      ``StoredEvaluation``) decoded by ``records.decode``; a value outside its column's type or range raises a
+      CmrtError naming the run and the column. :meth:`claim` fails such a run with that reason instead.
+    * **One writer per run**, fenced on (worker, attempt) from :meth:`claim`: a write under a lost claim raises
+      LostClaim and changes nothing. A generation's evaluations, checkpoint and progress commit together, so a
+      killed worker leaves the run at a generation boundary. Readers see committed transactions only;
+      :meth:`snapshot` holds one state across several reads.
+    * **Faults of the machine**: a full disk raises DiskFull from any open, read or write and changes nothing;
+      after a claim, :meth:`retry_later` can still give the run back (the space held since the claim).
+    * A connection is used by one thread (the heartbeat thread opens its own).
+    """
 
     def __init__(self, path: Path, readonly: bool = False, read_from: Path | None = None):
         self.path = path
         self.readonly = readonly
         self._scratch: tempfile.TemporaryDirectory | None = None  # a private copy read instead (open_store)
+        self._reserve: int | None = None  # a descriptor holding RESERVE_BYTES beside the store, from the first claim
         if readonly:
             conn = _connect_readonly(read_from or path)
         else:
             conn = sqlite3.connect(str(path), timeout=BUSY_TIMEOUT_MS / 1000)
+        try:
+            self._configure(conn)
+        except BaseException:
+            conn.close()  # a failed open (a full disk) leaves no -wal or -shm open behind it
+            raise
+        conn.row_factory = sqlite3.Row
+        self.conn = conn
+        self.db = sqlite_utils.Database(conn)
+
+    def _configure(self, conn: sqlite3.Connection) -> None:
         conn.execute(f"PRAGMA busy_timeout = {BUSY_TIMEOUT_MS}")
         conn.execute("PRAGMA trusted_schema = OFF")  # schema checked by _inspect; this is the second line
         # Python runs a signal handler only between bytecodes: without a callback, SIGTERM waits for a long
@@ -526,19 +434,17 @@ class Store:
         # CLI and the worker then stop as the signal asked: cmrt.errors.pending_termination)
         conn.set_progress_handler(_let_signals_in, PROGRESS_EVERY_OPS)
         _defensive(conn)
-        if not readonly:
+        if not self.readonly:
             if conn.execute("PRAGMA journal_mode").fetchone()[0] != "wal":
                 conn.execute("PRAGMA journal_mode = WAL")
             conn.execute("PRAGMA synchronous = NORMAL")  # WAL + NORMAL: safe against process crashes
             conn.execute(f"PRAGMA wal_autocheckpoint = {WAL_AUTOCHECKPOINT_PAGES}")
             conn.execute("PRAGMA foreign_keys = ON")
-        conn.row_factory = sqlite3.Row
-        self.conn = conn
-        self.db = sqlite_utils.Database(conn)
 
     def close(self) -> None:
         """Close the connection (``with open_store(...)`` does it) and delete a private copy read instead."""
         self.conn.close()
+        self._release_reserve()
         if self._scratch is not None:
             self._scratch.cleanup()
             self._scratch = None
@@ -566,8 +472,8 @@ class Store:
         except BaseException as exc:
             with contextlib.suppress(sqlite3.Error):
                 self.conn.rollback()
-            if isinstance(exc, sqlite3.OperationalError) and _is_full(exc):
-                raise TransientFault(f"store {self.path}: {exc}") from exc
+            if isinstance(exc, sqlite3.Error) and is_disk_full(exc, self.path):
+                raise disk_full(self.path) from exc
             raise
 
     @contextlib.contextmanager
@@ -585,7 +491,7 @@ class Store:
         try:
             rows = [r[0] for r in self.conn.execute("PRAGMA integrity_check(5)")]
         except sqlite3.DatabaseError as exc:
-            raise CmrtError(f"{self.path} is a corrupted store ({exc})") from None
+            raise _unreadable(exc, self.path, self.path) from None
         if rows != ["ok"]:
             first = " ".join(str(rows[0]).split())[:120]  # SQLite's report spans lines: keep the error one line
             raise CmrtError(f"{self.path} is a corrupted store (integrity check: {first})")
@@ -627,51 +533,60 @@ class Store:
             )
             return int(cur.lastrowid)
 
-    def claim(self, worker: str, stale_after_s: float, run_id: int | None = None) -> Claim | None:
-        """Take run ``run_id`` (if claimable), else the oldest queued run, else an orphaned running one
-        (heartbeat older than ``stale_after_s``); None if there is none. The claim bumps the run's attempt:
-        the (worker, attempt) pair fences every later write. Taking over an orphan counts as a retry; an
-        orphan already retried ``MAX_RETRIES`` times is failed instead (a run that kills its worker every
-        time must not take the queue down with it)."""
+    def claim(self, worker: str, stale_after_s: float, run_id: int | None = None,
+              on_failure: Callable[[int, str], None] | None = None) -> Claim | None:
+        """Take run ``run_id`` (if claimable), else the oldest queued run, else an orphaned running one (its
+        heartbeat older than ``stale_after_s``, missing, or more than ``stale_after_s`` in the future: a clock
+        that went back, or a hostile value, must not hold a run for ever); None if there is none. The claim
+        bumps the run's attempt: the (worker, attempt) pair fences every later write. A row that does not
+        decode (a hostile or damaged value) fails that run with the reason, never the worker or the queue.
+        Taking over an orphan counts as a retry; an orphan already retried ``MAX_RETRIES`` times is failed
+        instead (a run that kills its worker every time must not take the queue down with it). ``on_failure(run_id,
+        reason)`` is told of each run failed so, once that is committed."""
+        failed: list[tuple[int, str]] = []
+        self._hold_reserve()
+        try:
+            return self._claim(worker, stale_after_s, run_id, failed)
+        finally:
+            for rid, why in failed if on_failure else ():
+                on_failure(rid, why)
+
+    def _claim(self, worker: str, stale_after_s: float, run_id: int | None, failed: list) -> Claim | None:
         now = time.time()
+        stale = "(status = 'running' AND (heartbeat_at IS NULL OR heartbeat_at < ? OR heartbeat_at > ?))"
+        window = (now - stale_after_s, now + stale_after_s)
         with self.transaction() as conn:
             while True:
-                stale = "(status = 'running' AND heartbeat_at < ?)"
                 if run_id is not None:
-                    row = conn.execute(f"SELECT id, status, retries, error FROM runs WHERE id = ? AND "
-                                       f"(status = 'queued' OR {stale})", (run_id, now - stale_after_s)).fetchone()
+                    row = conn.execute(f"SELECT * FROM runs WHERE id = ? AND (status = 'queued' OR {stale})",
+                                       (run_id, *window)).fetchone()
                 else:
-                    row = conn.execute("SELECT id, status, retries, error FROM runs WHERE status = 'queued' "
-                                       "ORDER BY id LIMIT 1").fetchone()
+                    row = conn.execute("SELECT * FROM runs WHERE status = 'queued' ORDER BY id LIMIT 1").fetchone()
                     if row is None:
-                        row = conn.execute(f"SELECT id, status, retries, error FROM runs WHERE {stale} "
-                                           "ORDER BY id LIMIT 1", (now - stale_after_s,)).fetchone()
+                        row = conn.execute(f"SELECT * FROM runs WHERE {stale} ORDER BY id LIMIT 1", window).fetchone()
                 if row is None:
                     return None
-                rid = row[0]
-                full = conn.execute("SELECT * FROM runs WHERE id = ?", (rid,)).fetchone()
-                try:  # one bad row (a hostile or damaged value) fails that run, never the worker or the queue
-                    Run.from_row(full)
+                rid, why = row["id"], None
+                try:
+                    run = Run.from_row(row)
                 except CmrtError as exc:
-                    conn.execute("UPDATE runs SET status = 'failed', finished_at = ?, error = ? WHERE id = ?",
-                                 (now, f"refused: {exc}"[:500], rid))
-                    if run_id is not None:
-                        return None
-                    continue
-                retries = (row[2] or 0) + (row[1] == "running")
-                if retries <= MAX_RETRIES:
-                    break
+                    why = f"refused: {exc}"[:500]
+                else:
+                    retries = (run.retries or 0) + (run.status == "running")
+                    if retries <= MAX_RETRIES:
+                        break
+                    why = f"gave up after {MAX_RETRIES} retries; last: {run.error or 'its worker died'}"
                 conn.execute("UPDATE runs SET status = 'failed', finished_at = ?, error = ? WHERE id = ?",
-                             (now, f"gave up after {MAX_RETRIES} retries; last: {row[3] or 'its worker died'}", rid))
+                             (now, why, rid))
+                failed.append((rid, why))
                 if run_id is not None:
                     return None
             conn.execute(
-                "UPDATE runs SET status = 'running', worker = ?, attempt = attempt + 1, heartbeat_at = ?, "
+                "UPDATE runs SET status = 'running', worker = ?, attempt = ?, heartbeat_at = ?, "
                 "started_at = COALESCE(started_at, ?), retries = ? WHERE id = ?",
-                (worker, now, now, retries, rid),
+                (worker, run.attempt + 1, now, now, retries, rid),
             )
-            attempt = conn.execute("SELECT attempt FROM runs WHERE id = ?", (rid,)).fetchone()[0]
-        return Claim(rid, worker, int(attempt))
+        return Claim(rid, worker, run.attempt + 1)
 
     def heartbeat(self, claim: Claim, every_s: float) -> Heartbeat:
         """``with store.heartbeat(claim, every_s):`` keeps the claimed run's heartbeat fresh meanwhile."""
@@ -724,28 +639,62 @@ class Store:
         with contextlib.suppress(LostClaim), self.transaction() as conn:
             _fenced_update(conn, claim, "status = 'queued', worker = NULL", ())
 
-    def retry_later(self, claim: Claim, message: str) -> None:
+    def retry_later(self, claim: Claim, message: str) -> bool:
         """After a transient fault: give the run back to the queue (it resumes from its last checkpoint), or
-        fail it once it has been retried MAX_RETRIES times. If the store cannot be written now (a full disk),
-        nothing changes and the run's heartbeat goes stale: the next worker takes it over, counted too."""
-        with contextlib.suppress(LostClaim, TransientFault), self.transaction() as conn:
-            retries = (conn.execute("SELECT retries FROM runs WHERE id = ?", (claim.run_id,)).fetchone()[0] or 0) + 1
-            if retries > MAX_RETRIES:
-                _fenced_update(conn, claim, "status = 'failed', error = ?, finished_at = ?",
-                               (f"gave up after {MAX_RETRIES} retries; last: {message}", time.time()))
-            else:
-                _fenced_update(conn, claim, "status = 'queued', worker = NULL, retries = ?, error = ?",
-                               (retries, f"retry {retries}/{MAX_RETRIES} after: {message}"))
+        fail it once it has been retried MAX_RETRIES times; True once that is written (or the claim was lost
+        meanwhile). On a full disk the space held since the claim (:data:`RESERVE_BYTES`) is given up for this
+        write, which is then tried again for a few seconds (a file system may reuse freed blocks only after its
+        journal commits); False if it still cannot be written: the run's heartbeat then goes stale and the next
+        worker takes it over, counted too."""
+        for attempt in range(GIVE_BACK_TRIES):
+            try:
+                with self.transaction() as conn:
+                    self._retry_or_fail(conn, claim, message)
+                return True
+            except LostClaim:
+                return True
+            except TransientFault:
+                self._release_reserve()
+                time.sleep(0.1 * 2**attempt)
+        return False
+
+    def _retry_or_fail(self, conn: sqlite3.Connection, claim: Claim, message: str) -> None:
+        try:
+            retries = (self._run_in(conn, claim.run_id).retries or 0) + 1
+        except CmrtError as exc:  # its row no longer decodes: that is its end
+            _fenced_update(conn, claim, "status = 'failed', error = ?, finished_at = ?",
+                           (f"refused: {exc}", time.time()))
+            return
+        if retries > MAX_RETRIES:
+            _fenced_update(conn, claim, "status = 'failed', error = ?, finished_at = ?",
+                           (f"gave up after {MAX_RETRIES} retries; last: {message}", time.time()))
+        else:
+            _fenced_update(conn, claim, "status = 'queued', worker = NULL, retries = ?, error = ?",
+                           (retries, f"retry {retries}/{MAX_RETRIES} after: {message}"))
+
+    def _hold_reserve(self) -> None:
+        """Hold :data:`RESERVE_BYTES` beside the store (once per connection, before the first claim): a full
+        disk then still lets the run be given back. No room for it is a full disk: nothing is claimed."""
+        if self._reserve is None and not self.readonly:
+            try:
+                self._reserve = _hold_space(self.path.absolute().parent)
+            except OSError:
+                raise disk_full(self.path, ": no run claimed") from None
+
+    def _release_reserve(self) -> None:
+        if self._reserve is not None:
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._reserve, 0)
+            os.close(self._reserve)
+            self._reserve = None
 
     def requeue(self, run_id: int) -> Run:
         """Put a failed run back in the queue (``cmrt requeue``): it resumes from its last checkpoint, its
-        retry count starts over."""
+        retry count starts over. A run whose row does not decode is refused before anything is written."""
         with self.transaction() as conn:
-            row = conn.execute("SELECT status FROM runs WHERE id = ?", (run_id,)).fetchone()
-            if row is None:
-                raise CmrtError(f"no run {run_id} in {self.path}")
-            if row[0] != "failed":
-                raise CmrtError(f"run {run_id} is {row[0]}: only a failed run can be requeued")
+            run = self._run_in(conn, run_id)
+            if run.status != "failed":
+                raise CmrtError(f"run {run_id} is {run.status}: only a failed run can be requeued")
             conn.execute("UPDATE runs SET status = 'queued', worker = NULL, retries = 0, error = NULL, "
                          "finished_at = NULL WHERE id = ?", (run_id,))
         return self.run(run_id)
@@ -758,7 +707,10 @@ class Store:
     # --- reads -----------------------------------------------------------------------
     def run(self, run_id: int) -> Run:
         """The run ``run_id``; CmrtError if there is none."""
-        row = self.conn.execute("SELECT * FROM runs WHERE id = ?", (run_id,)).fetchone()
+        return self._run_in(self.conn, run_id)
+
+    def _run_in(self, conn: sqlite3.Connection, run_id: int) -> Run:
+        row = conn.execute("SELECT * FROM runs WHERE id = ?", (run_id,)).fetchone()
         if row is None:
             raise CmrtError(f"no run {run_id} in {self.path}")
         return Run.from_row(row)
@@ -788,10 +740,7 @@ class Store:
             "ORDER BY gen, idx",
             (run_id,),
         )
-        return [StoredEvaluation(gen=r["gen"], idx=r["idx"], params=tuple(_json(r["params"], "an evaluation", list)),
-                                 objective=r["objective"], fell=bool(r["fell"]),
-                                 success=None if r["success"] is None else bool(r["success"]), seconds=r["seconds"])
-                for r in rows]
+        return [StoredEvaluation(**decode(EVALUATIONS, r, f"run {run_id}: an evaluation")) for r in rows]
 
     def generations(self, run_id: int) -> list[Generation]:
         """A run's generations (CMA-ES step size, mean, best so far), in order."""
@@ -800,10 +749,7 @@ class Store:
             "FROM generations WHERE run_id = ? ORDER BY gen",
             (run_id,),
         )
-        return [Generation(gen=r["gen"], sigma=r["sigma"], best_objective=r["best_objective"],
-                           gen_best_objective=r["gen_best_objective"],
-                           mean=tuple(_json(r["mean"], "a generation", list)), evaluations=r["evaluations"],
-                           created_at=r["created_at"]) for r in rows]
+        return [Generation(**decode(GENERATIONS, r, f"run {run_id}: a generation")) for r in rows]
 
     def successful_runs(self, task_name: str, reference: str = "center") -> list[Run]:
         """Finished runs of a task with this reference mode whose best CMRT is a success (warm-start candidates),
@@ -828,7 +774,10 @@ class Store:
         row = self.conn.execute(
             "SELECT gen, checkpoint FROM generations WHERE run_id = ? ORDER BY gen DESC LIMIT 1", (run_id,)
         ).fetchone()
-        return (int(row["gen"]), bytes(row["checkpoint"])) if row else None
+        if row is None:
+            return None
+        values = decode(GENERATIONS, row, f"run {run_id}: its last generation")
+        return values["gen"], values["checkpoint"]
 
 
 class Heartbeat:
@@ -879,8 +828,7 @@ def _fenced_update(conn: sqlite3.Connection, claim: Claim, sets: str, args: tupl
         raise LostClaim(f"run {claim.run_id} was taken over by another worker")
 
 
-def _is_full(exc: BaseException) -> bool:
-    return "full" in str(exc) or getattr(exc, "errno", None) in (errno.ENOSPC, errno.EDQUOT)
+SQLITE_IOERR, SQLITE_FULL = 10, 13  # SQLite's primary result codes (the low byte of an extended one)
 
 
 def _nearly_full(directory: Path, margin_bytes: int = 1 << 20) -> bool:
@@ -890,6 +838,53 @@ def _nearly_full(directory: Path, margin_bytes: int = 1 << 20) -> bool:
     except OSError:
         return False
     return st.f_bavail * st.f_frsize < margin_bytes
+
+
+def is_disk_full(exc: BaseException, path: Path) -> bool:
+    """Whether ``exc`` means the disk is full where store ``path`` writes (beside it, or in the temporary directory
+    for a private copy): ENOSPC or EDQUOT, SQLite's SQLITE_FULL, or one of SQLite's I/O errors while under 1 MB is
+    free there (SQLite says "disk I/O error" when its ``-shm`` cannot grow, with 16-48 kB free)."""
+    if getattr(exc, "errno", None) in (errno.ENOSPC, errno.EDQUOT):
+        return True
+    code = (getattr(exc, "sqlite_errorcode", None) or 0) & 0xFF
+    if code == SQLITE_FULL or (isinstance(exc, sqlite3.Error) and "database or disk is full" in str(exc)):
+        return True
+    return code == SQLITE_IOERR and (_nearly_full(Path(path).absolute().parent)
+                                     or _nearly_full(Path(tempfile.gettempdir())))
+
+
+def disk_full(path: Path, then: str = "") -> DiskFull:
+    """The one way a full disk is said: ``store PATH: disk full`` and what that left, exit 75."""
+    return DiskFull(f"store {path}: disk full{then} (free some space and run it again)")
+
+
+#: disk space a writer holds from its first claim for the write that gives its run back when the disk fills up
+#: (a few pages of the WAL: the run's row and its status index)
+RESERVE_BYTES = 256 * 1024
+
+
+def _hold_space(directory: Path, size: int = RESERVE_BYTES) -> int | None:
+    """A descriptor of an unlinked file holding ``size`` bytes of ``directory``'s file system, or None where none
+    can be made (a file system without fallocate or O_TMPFILE and no temporary file: no reserve). Unlinked, it is
+    never left behind: the kernel frees its space when the descriptor closes, however the process ends."""
+    try:
+        fd = os.open(directory, os.O_TMPFILE | os.O_RDWR, 0o600)
+    except (OSError, AttributeError):
+        try:
+            fd, name = tempfile.mkstemp(dir=directory, prefix=".cmrt-reserve-")
+            os.unlink(name)
+        except OSError as exc:
+            if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+                raise
+            return None
+    try:
+        os.posix_fallocate(fd, 0, size)
+    except OSError as exc:
+        os.close(fd)
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            raise
+        return None
+    return fd
 
 
 def _check_replaceable(path: Path) -> None:
@@ -929,8 +924,8 @@ def _create(path: Path, replace: bool) -> None:
             with contextlib.suppress(FileExistsError):
                 os.link(tmp, path)
     except (sqlite3.Error, OSError, TransientFault) as exc:
-        if _is_full(exc) or _nearly_full(path.parent):  # SQLite says "disk I/O error" when its -shm cannot grow
-            raise TransientFault(f"cannot create store {path}: disk full (free some space and run it again)") from None
+        if isinstance(exc, DiskFull) or is_disk_full(exc, path) or _nearly_full(path.parent):
+            raise DiskFull(f"cannot create store {path}: disk full (free some space and run it again)") from None
         raise CmrtError(f"cannot create store {path}: {getattr(exc, 'strerror', None) or exc}") from None
     finally:
         if tmp is not None:
@@ -951,7 +946,7 @@ def _open_readonly(p: Path) -> Store:
         try:
             store = Store(p, readonly=True, read_from=source)
         except sqlite3.Error as exc:
-            raise CmrtError(f"cannot open store {p}: {exc}") from None
+            raise _cannot(exc, p, "open") from None
     except BaseException:
         if scratch is not None:
             scratch.cleanup()
@@ -1001,7 +996,7 @@ def open_store(path: str | os.PathLike | None = None, *, create: bool = True, re
     try:
         store = Store(p, readonly=readonly)
     except sqlite3.Error as exc:
-        raise CmrtError(f"cannot open store {p}: {exc}") from None
+        raise _cannot(exc, p, "open") from None
     try:
         if not readonly:
             store.check_integrity()
@@ -1010,7 +1005,13 @@ def open_store(path: str | os.PathLike | None = None, *, create: bool = True, re
     except BaseException as exc:
         store.close()
         if isinstance(exc, sqlite3.Error):
-            reason = "read-only" if "readonly" in str(exc) else str(exc)
-            raise CmrtError(f"cannot write store {p}: {reason}") from None
+            raise _cannot(exc, p, "write") from None
         raise
     return store
+
+
+def _cannot(exc: sqlite3.Error, path: Path, what: str) -> Exception:
+    """A failure to open or write store ``path``, named: a full disk (exit 75), read-only, or SQLite's words."""
+    if is_disk_full(exc, path):
+        return disk_full(path)
+    return CmrtError(f"cannot {what} store {path}: {'read-only' if 'readonly' in str(exc) else exc}")

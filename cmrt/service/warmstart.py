@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 from cmrt.errors import CmrtError
 from cmrt.motion.task import Task
-from cmrt.service.known import CLIP_TOLERANCE_S, known_cmrts
+from cmrt.service.known import CLIP_TOLERANCE_S, known_cmrts, start_point
 from cmrt.service.store import Store
 
 IGNORED_PARAMS = frozenset({"stop_threshold"})  # optimizer settings, not physics
@@ -84,4 +84,5 @@ def resolve_init(store: Store | None, task: Task, init: str | int | None) -> Sta
         raise CmrtError(f"run {init} has no result to start from")
     if abs(src.params["clip_s"] - task.clip_s) > CLIP_TOLERANCE_S:
         raise CmrtError(f"run {init} is for a {src.params['clip_s']:g} s clip, not {task.clip_s:g} s")
-    return Start(src.best_params, f"run {init}", task_distance(task, src.params))
+    params = start_point(src.best_params, task.clip_s, f"run {init}'s best CMRT")  # checked like user input
+    return Start(params, f"run {init}", task_distance(task, src.params))

@@ -29,7 +29,7 @@ from cmrt.motion.sequence import load_sequence  # noqa: E402
 from cmrt.motion.task import Task
 from cmrt.motion.taskfile import load_task  # noqa: E402
 from cmrt.service.interpolate import candidates, interpolate, superpose  # noqa: E402
-from cmrt.service.query import task_of  # noqa: E402
+from cmrt.service.query import stored_curve, task_of  # noqa: E402
 from cmrt.service.store import Store, StoredEvaluation  # noqa: E402
 from cmrt.sim.objective import evaluate  # noqa: E402
 from cmrt.sim.simulate import simulate  # noqa: E402
@@ -155,7 +155,7 @@ def plot_run(store: Store, run_id: int, out_dir: str | Path) -> list[Path]:
         raise CmrtError(f"run {run_id} has no result to plot yet (status {run.status})")
     out = inputs.output_dir(out_dir, "--out")
     task = task_of(run)
-    best = Cmrt.from_dict(run.best_cmrt)
+    best = stored_curve(run)
     speed = f" T = {task.speed:g} s" if task.speed is not None else ""
     cop_path, cmrt_path, convergence_path = run_figure_paths(run_id, out)
     return [

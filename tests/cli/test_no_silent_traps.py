@@ -13,6 +13,7 @@ import time
 import pytest
 
 from cmrt.cli.commands import main
+from cmrt.errors import CmrtError
 from cmrt.motion.taskfile import load_task
 from cmrt.service.jobs import submit
 from cmrt.service.store import open_store
@@ -32,6 +33,20 @@ def test_worker_and_requeue_refuse_a_missing_store(tmp_path, capsys, verb):
     err = capsys.readouterr().err
     assert one_line(err) and "no CMRT store" in err and "cmrt submit" in err, err
     assert not path.exists() and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("verb", [["runs"], ["submit", "bend"], ["worker", "--until-idle"], ["show", "1"],
+                                  ["dashboard", "--port", "0"]])
+def test_an_empty_store_path_is_bad_input_not_the_default_store(tmp_path, capsys, monkeypatch, verb):
+    """``--store ''`` used store/cmrt.sqlite in silence on 1d2cd70 (a submit created it)."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("CMRT_STORE", "")
+    assert main([*verb, "--store", ""]) == 2
+    err = capsys.readouterr().err
+    assert one_line(err) and "an empty store path names no store" in err, err
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(CmrtError, match="empty store path"):
+        open_store("")
 
 
 def test_a_write_verb_says_when_it_creates_a_store(tmp_path, capsys):

@@ -98,6 +98,6 @@ class Server:
 
 
 @pytest.fixture
-def server(store_path):
-    with Server(DashboardConfig(store_path=store_path, port=0, clip_fps=5)) as s:
+def server(store_path, tmp_path):
+    with Server(DashboardConfig(store_path=store_path, port=0, clip_fps=5, cache_dir=tmp_path / "clips")) as s:
         yield s

@@ -14,12 +14,12 @@ from pathlib import Path
 import pytest
 
 from cmrt.cli.commands import main
-from cmrt.errors import CmrtError
+from cmrt.errors import CmrtError, DiskFull
 from cmrt.motion.taskfile import load_task
 from cmrt.optimize.parallel import Evaluator
 from cmrt.service.jobs import claim, run_claimed, submit, work
 from cmrt.service.store import MAX_RETRIES, open_store
-from tests.service_helpers import as_in_a_terminal, cmrt, spawn_worker
+from tests.service_helpers import as_in_a_terminal, cmrt, fill, spawn_worker, tiny_disk
 
 TASK = load_task("bend").with_speed(0.4)
 SMALL = dict(seed=5, max_evals=20, popsize=5, init="none")
@@ -27,29 +27,6 @@ SMALL = dict(seed=5, max_evals=20, popsize=5, init="none")
 
 def digest(path):
     return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-@contextlib.contextmanager
-def tiny_disk(tmp_path, size="160k"):
-    """A tmpfs of ``size`` (a real full disk); skipped where mounting is not allowed."""
-    mnt = tmp_path / "disk"
-    mnt.mkdir()
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mnt)], capture_output=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here ({r.stderr.decode().strip() or 'not root'})")
-    try:
-        yield mnt
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
-
-
-def fill(directory, leave_bytes: int) -> None:
-    """Fill the file system of ``directory`` up to ``leave_bytes`` free."""
-    st = os.statvfs(directory)
-    free = st.f_bavail * st.f_frsize
-    with open(directory / "filler", "wb") as fh:
-        with contextlib.suppress(OSError):
-            fh.write(b"\0" * max(0, free - leave_bytes))
 
 
 @pytest.mark.slow  # cmrt processes or two optimizations
@@ -170,15 +147,13 @@ def test_a_full_disk_mid_run_puts_the_run_back_and_it_resumes_bit_identical(tmp_
                 if state.generation == 2:
                     fill(disk, 0)  # the disk is full from here on
 
-            failures = []
-            assert work(store, until_idle=True, once=True, on_generation=after_generation,
-                        on_failure=lambda r, m: failures.append(m)) == []
-            assert failures and "full" in failures[0]
+            with pytest.raises(DiskFull, match=rf"disk full \(.*\); run {rid} is back in the queue"):
+                work(store, until_idle=True, on_generation=after_generation)
             stuck = store.run(rid)
-            assert stuck.status in ("queued", "running") and stuck.generations == 2  # the checkpoint is intact
+            assert stuck.status == "queued" and stuck.generations == 2  # given back, its checkpoint intact
         (disk / "filler").unlink()
         with open_store(path) as store:
-            assert work(store, until_idle=True, stale_after_s=0.01) == [rid]
+            assert work(store, until_idle=True) == [rid]
             run, evals = store.run(rid), store.evaluations(rid)
     assert run.status == "done" and run.retries == 1
     assert run.best_params == reference.best_params

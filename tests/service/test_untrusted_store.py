@@ -27,6 +27,22 @@ PLANTS = {
     "extra table": "CREATE TABLE notes (x)",
     "extra index": "CREATE INDEX idx_evil ON evaluations (objective)",
     "missing column": "ALTER TABLE runs DROP COLUMN error",
+    # issue 46: objects under cmrt's own names whose definitions are not cmrt's
+    "expression index under cmrt's name": "DROP INDEX idx_runs_status_id; CREATE INDEX idx_runs_status_id ON "
+                                          "runs (status, length(printf('%.*c', 500000000, 'x')))",
+    "unique index under cmrt's name": "DROP INDEX idx_runs_task_speed; CREATE UNIQUE INDEX idx_runs_task_speed "
+                                      "ON runs (task)",
+    "partial index under cmrt's name": "DROP INDEX idx_runs_task_speed; CREATE INDEX idx_runs_task_speed "
+                                       "ON runs (task, speed) WHERE status = 'done'",
+    "descending index under cmrt's name": "DROP INDEX idx_runs_status_id; CREATE INDEX idx_runs_status_id "
+                                          "ON runs (status DESC, id)",
+    "CHECK through writable_schema": "PRAGMA writable_schema = ON; UPDATE sqlite_master SET sql = replace(sql, "
+                                     "'\"reference\" TEXT)', "
+                                     "'\"reference\" TEXT, CHECK (status <> ''done'' OR id = 1))') "
+                                     "WHERE name = 'runs'; PRAGMA writable_schema = OFF",
+    "COLLATE through writable_schema": "PRAGMA writable_schema = ON; UPDATE sqlite_master SET sql = replace(sql, "
+                                       "'\"task\" TEXT NOT NULL', '\"task\" TEXT NOT NULL COLLATE NOCASE') "
+                                       "WHERE name = 'runs'; PRAGMA writable_schema = OFF",
 }
 VERBS = [["runs"], ["show", "1"], ["best", "bend", "--speed", "0.4"], ["export", "1"], ["jobs"],
          ["submit", "bend"], ["worker", "--until-idle"], ["requeue", "1"]]
@@ -76,6 +92,24 @@ def test_every_verb_refuses_a_planted_store_in_one_line_within_5_s(store, plant)
         assert time.perf_counter() - t0 < 5 + 3  # 5 s, plus the interpreter's start on a loaded machine
         assert r.returncode == 2, (verb, r.stderr)
         assert len(r.stderr.strip().splitlines()) == 1 and "not a store cmrt wrote" in r.stderr, (verb, r.stderr)
+    assert digest(store) == before
+
+
+@pytest.mark.parametrize("plant", ["expression index under cmrt's name", "unique index under cmrt's name",
+                                   "CHECK through writable_schema"])
+def test_cmrt_runs_refuses_a_redefined_object_in_one_line_within_a_second(store, plant):
+    """On 1d2cd70 the schema check compared names: ``cmrt runs`` read these stores (exit 0), and a submit into the
+    first spent 8-19 s and 690 MB in the index expression."""
+    _plant(store, PLANTS[plant])
+    before = digest(store)
+    seconds = []
+    for _ in range(3):  # the best of three: the bound is cmrt's, not the loaded machine's
+        t0 = time.perf_counter()
+        r = cmrt("runs", "--store", str(store))
+        seconds.append(time.perf_counter() - t0)
+        assert r.returncode == 2, r.stderr
+        assert r.stderr.count("\n") == 1 and "not a store cmrt wrote: a different definition of" in r.stderr, r.stderr
+    assert min(seconds) < 1.0, seconds
     assert digest(store) == before
 
 
