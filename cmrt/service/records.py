@@ -90,14 +90,20 @@ def _task_params(value: object, where: str) -> dict[str, float]:
 ROBUSTNESS_COUNTS = ("validation_total", "validation_survived", "validation_fell")
 
 
+ROBUSTNESS_MARGINS = ("min_cop_margin_m", "survived_min_cop_margin_m")  # the second since issue 44 (older: absent)
+
+
 def _robustness(value: object, where: str) -> dict:
-    """``cmrt.sim.validate.robustness``: three counts and the smallest CoP margin (m, or null)."""
+    """``cmrt.sim.validate.robustness``: three counts and the smallest CoP margins, over every clip and over the
+    successes (m, or null; a run stored before issue 44 has only the first)."""
     table = _table(value, where)
-    if set(table) != {*ROBUSTNESS_COUNTS, "min_cop_margin_m"}:
-        raise CmrtError(f"{where} does not have exactly {', '.join(ROBUSTNESS_COUNTS)}, min_cop_margin_m")
+    keys = {*ROBUSTNESS_COUNTS, *ROBUSTNESS_MARGINS}
+    if not {*ROBUSTNESS_COUNTS, ROBUSTNESS_MARGINS[0]} <= set(table) <= keys:
+        raise CmrtError(f"{where} does not have exactly {', '.join(ROBUSTNESS_COUNTS + ROBUSTNESS_MARGINS)}")
     out = {k: int(COUNT.check(table[k], where, text=False)) for k in ROBUSTNESS_COUNTS}
-    margin = table["min_cop_margin_m"]
-    out["min_cop_margin_m"] = None if margin is None else inputs.number(margin, where, text=False)
+    for key in ROBUSTNESS_MARGINS:
+        margin = table.get(key)
+        out[key] = None if margin is None else inputs.number(margin, where, text=False)
     return out
 
 
