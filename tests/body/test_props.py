@@ -20,6 +20,7 @@ from cmrt.body.props import (
     prop_class,
     strike_success,
 )
+from cmrt.control.controller import ControllerConfig
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.taskfile import task_from_dict
 from cmrt.sim.simulate import simulate_batch
@@ -135,14 +136,16 @@ def test_the_grip_is_made_at_contact_with_the_hand_and_a_balanced_load_is_then_c
     assert np.hypot(*(ball_v - held_v)) < 0.1 * np.hypot(*ball_v) + 0.05
 
 
-def test_the_balls_weight_alone_can_be_held_without_anticipation():
-    """Set into the hands at 1 m/s the 7 kg ball is held by the reactive controller: at 0.77 m in front of the
-    support centre it moves the CoM of body and ball 7.0 cm forward and the CoP to +0.13 m, short of the +0.155 m
-    the feet take with 40 N on each heel point. The shipped catch's drop (3 m/s) is what needs anticipation."""
+def test_the_balls_weight_alone_takes_the_reactive_controller_over_slowly():
+    """Set into the hands at 1 m/s the 7 kg ball still takes the reactive controller over forward: 0.77 m in front
+    of the support centre it moves the CoM of body and ball 7.0 cm forward and asks the CoP for +0.13 m, against the
+    +0.148 m the feet take with 50 N on each heel point (controller v0.4) - 1.8 cm to stop anything with. But slowly:
+    the arms give first (the hands 0.29 m low, not held) and the body goes over a second later. The shipped catch's
+    drop (3 m/s) is the gentlest whose fall comes with the ball held (the next test)."""
     task = load_task("catch").with_params(ball_speed_m_s=1.0, ball_flight_s=0.35)
     ev = evaluate(task, simulate(task, record=False))
-    assert ev.success and ev.failed_rules == () and ev.ball_held_s >= task.params["ball_hold_s"]
-    assert_plausible(ev)
+    assert ev.fell and ev.fall_direction == "forward" and ev.fall_time_s > task.params["ball_arrival_s"] + 0.8
+    assert ev.ball_max_sag_m > task.params["max_ball_sag_m"]
 
 
 def test_the_7_kg_ball_is_held_and_pulls_the_reactive_controller_over(catch):
@@ -165,7 +168,9 @@ def test_the_7_kg_ball_is_held_and_pulls_the_reactive_controller_over(catch):
     toes = traj.support_hi_x_m[k]
     assert traj.fall_capture_point_x_m > toes + 0.01 > traj.capture_point_x_m[k] + 0.05
     after = (traj.time_s > grip + 0.03) & (traj.time_s < ev.fall_time_s)
-    assert np.nanmin(traj.cop_x_m[after]) > toes - 0.035  # the CoP at the front of the feet all the while
+    heels, fz = traj.support_lo_x_m[k], traj.normal_force_n[after]
+    band_edge = toes - 2 * ControllerConfig().min_point_force_n * (toes - heels) / fz  # the toe end the plan can use
+    assert np.nanmax(band_edge - traj.cop_x_m[after]) < 0.01  # the CoP pinned at the front of the feet all the while
     assert ev.peak_normal_force_bw <= 2.5 and ev.airborne_s <= 0.01 and ev.max_joint_speed_rad_s <= 25.0
 
 
