@@ -24,7 +24,11 @@ index and the controller works on the leading slices of the batch arrays.
   stays a load on the hands to the end: felt, not balanced (ABC's reactive controller).
 * ``slab``: a free block (planar joints: it can slide and tip) standing on the floor in
   front of the character; floor friction 1.0 (MuJoCo takes the larger of the two geoms').
-  Toppled when it has rotated past its balance angle and is falling (``TOPPLED_DEG``).
+  Toppled when it has rotated past its balance angle and is falling (``TOPPLED_DEG``), by a push: first
+  touched inside the task window and never struck harder than ``max_push_force_n`` (``MAX_PUSH_FORCE_N``).
+  The controller plans with the slab's measured push-back on the hands (``Slab.hand_load``: contact
+  sensors, normal and friction), as with a held ball: the tracked arms hold against the slab instead of
+  folding under it, and the plan's CoP carries the push's reaction.
 * ``wall``: a fixed pad (a punching target); its contact stiffness is ``wall_timeconst_s``.
 
 Each kind is one class (``Ball``, ``Slab``, ``Pad``) behind the interface of ``Prop`` (the
@@ -64,8 +68,11 @@ BALL_HOLD_S = 0.3  # a catch is held when the hands have stayed this long within
 GRIP_SETTLED_M_S = 0.05  # ... or as soon as the ball moves with the point it is held at to within this
 BALL_RESIDUAL_MASS_KG = 0.05  # what the ball body keeps once its mass is in the forearms
 CONTACT_FORCE_N = 1.0  # a hand-prop force above this counts as contact
+MAX_PUSH_FORCE_N = 1000.0  # a push, not a strike: the hands' peak force on a slab (1.5 body weights)
 TOPPLED_DEG = 30.0  # a slab rotated this far has passed its balance angle and is falling
 SLAB_WIDTH_M = 0.6
+SLAB_PUSH_DATA = 2 | 16  # a contact sensor's data: force (3) and position (3), in the world frame
+SLAB_PUSH_REDUCE = 3  # ... summed over the contacts it matches (MuJoCo's reduce="netforce")
 BAG_LENGTH_M = 1.0  # a 100 cm heavy bag
 BAG_THICKNESS_M = 0.35  # 35 cm across
 BAG_DAMPING_RATIO = 0.05  # of critical: a bag swings several times before it hangs still
@@ -456,10 +463,12 @@ class Slab(Prop):
     """A free-standing slab on the floor in front of the character, to be pushed over."""
 
     kind = "slab"
-    PARAMS = {"slab_mass_kg": 140.0, "slab_x_m": 0.62, "slab_thickness_m": 0.25, "slab_height_m": 1.8}
+    PARAMS = {"slab_mass_kg": 140.0, "slab_x_m": 0.62, "slab_thickness_m": 0.25, "slab_height_m": 1.8,
+              "max_push_force_n": MAX_PUSH_FORCE_N}
     MODEL_PARAMS = ("slab_mass_kg", "slab_x_m", "slab_thickness_m", "slab_height_m")
     LIMITS = {"slab_mass_kg": Range(1.0, 10_000.0, unit="kg"), "slab_x_m": Range(0.2, 5.0, unit="m"),
-              "slab_thickness_m": Range(0.01, 2.0, unit="m"), "slab_height_m": Range(0.05, 5.0, unit="m")}
+              "slab_thickness_m": Range(0.01, 2.0, unit="m"), "slab_height_m": Range(0.05, 5.0, unit="m"),
+              "max_push_force_n": Range(0.0, 1e6, unit="N")}
     mass_body = "slab"
 
     @classmethod
@@ -471,18 +480,47 @@ class Slab(Prop):
                       mass=p["slab_mass_kg"], contype=1, conaffinity=1, friction=[1.0, 0.005, 0.0001],
                       rgba=[0.5, 0.5, 0.6, 1])
         _hand_touch_sensors(spec)
+        for side in ("r", "l"):  # the full force (normal and friction) each forearm puts on the slab, and where
+            sensor = spec.add_sensor(name=f"slab_push_{side}", type=mujoco.mjtSensor.mjSENS_CONTACT,
+                                     objtype=mujoco.mjtObj.mjOBJ_BODY, objname=f"forearm_{side}",
+                                     reftype=mujoco.mjtObj.mjOBJ_GEOM, refname="slab")
+            sensor.intprm = [SLAB_PUSH_DATA, SLAB_PUSH_REDUCE, 1]
 
     def __init__(self, model, params):
         super().__init__(model, params)
         self.pitch = model.joint("slab_pitch").qposadr[0]
+        self.push = [model.sensor(f"slab_push_{side}").adr[0] for side in ("r", "l")]
+        self.forearms = (model.body("forearm_r").id, model.body("forearm_l").id)
+
+    def fields(self):
+        return {"xpos"}
+
+    def hand_load(self, b, rows):
+        """The slab's push back on the hands, (force (n, 2) x/z N, point (n, 3), the forearms): minus what the
+        forearms put on it over the last physics step (MuJoCo's contact sensors: normal and friction), acting
+        where they touch it. The controller plans with it as with a held ball: the arms hold their pose against
+        the slab instead of folding under it, and the plan's CoP carries the push's reaction."""
+        data = b["sensordata"][rows]
+        r, left = (data[:, a: a + 6] for a in self.push)
+        force = r[:, :3] + left[:, :3]
+        weight = np.abs(r[:, 0]) + np.abs(left[:, 0])
+        point = np.ascontiguousarray(b["xpos"][rows, self.forearms[0]])
+        touching = weight > 0.0
+        if touching.any():
+            w_r = np.abs(r[touching, 0]) / weight[touching]
+            point[touching] = w_r[:, None] * r[touching, 3:6] + (1.0 - w_r[:, None]) * left[touching, 3:6]
+        return np.ascontiguousarray(-force[:, [0, 2]]), point, np.array(self.forearms, np.int64)
 
     def success(self, b, rows, contact_force_n, times, window):
         """Toppled (rotated away past its balance angle) by a push: the hands did not touch the slab before the
         task window - leaning on it from the preparation on is not a push (the optimizer finds that lean
-        whenever the hands start within reach of it)."""
-        touching = np.nan_to_num(contact_force_n) > CONTACT_FORCE_N
+        whenever the hands start within reach of it) - and never struck it harder than ``max_push_force_n``
+        (a blow that knocks it over is a strike, not the push asked for)."""
+        force = np.nan_to_num(contact_force_n)
+        touching = force > CONTACT_FORCE_N
         early = (touching & (times < window[0] - 1e-9)).any(axis=1)
-        return (b["qpos"][rows, self.pitch] > math.radians(TOPPLED_DEG)) & ~early
+        struck = force.max(axis=1, initial=0.0) > self.params["max_push_force_n"]
+        return (b["qpos"][rows, self.pitch] > math.radians(TOPPLED_DEG)) & ~early & ~struck
 
 
 class Pad(Prop):
