@@ -6,7 +6,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from cmrt import CmrtError, evaluate, library_curve, load_model, load_task, simulate
+from cmrt import CmrtError, evaluate, load_model, load_task, simulate
 from cmrt.body.props import (
     BAG_DAMPING_RATIO,
     BALL_RADIUS_M,
