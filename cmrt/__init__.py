@@ -4,6 +4,7 @@ The public API for scripts; the CLI (``cmrt``) is a thin layer over it::
 
     import cmrt
     task = cmrt.load_task("bend").with_speed(0.4)
+    print(cmrt.check_reference(task).feasible)   # can its keyed motion be done at all?
     zero = cmrt.evaluate(task, cmrt.simulate(task))
     lib = cmrt.evaluate(task, cmrt.simulate(task, cmrt.library_curve(task)))
     with cmrt.open_store("store/cmrt.sqlite") as store:
@@ -37,6 +38,7 @@ if TYPE_CHECKING:
     from cmrt.errors import CmrtError
     from cmrt.motion.curve import Cmrt
     from cmrt.motion.ensemble import Perturbation, RobustSpec
+    from cmrt.motion.feasibility import Feasibility, check_reference
     from cmrt.motion.library import KnownCmrt, library_curve
     from cmrt.motion.sequence import load_sequence
     from cmrt.motion.task import Task
@@ -62,6 +64,7 @@ _API = {
     "ControllerConfig": "cmrt.control",
     "Evaluation": "cmrt.sim.objective",
     "Evaluator": "cmrt.optimize.parallel",
+    "Feasibility": "cmrt.motion.feasibility",
     "FallReason": "cmrt.sim.balance",
     "Generation": "cmrt.service.store",
     "KnownCmrt": "cmrt.motion.library",
@@ -77,6 +80,7 @@ _API = {
     "available_tasks": "cmrt.motion.taskfile",
     "best_run": "cmrt.service.query",
     "character": "cmrt.body.character",
+    "check_reference": "cmrt.motion.feasibility",
     "claim": "cmrt.service.jobs",
     "evaluate": "cmrt.sim.objective",
     "evaluation_dict": "cmrt.sim.report",
@@ -130,6 +134,7 @@ __all__ = [
     "ControllerConfig",
     "Evaluation",
     "Evaluator",
+    "Feasibility",
     "FallReason",
     "Generation",
     "KnownCmrt",
@@ -145,6 +150,7 @@ __all__ = [
     "available_tasks",
     "best_run",
     "character",
+    "check_reference",
     "claim",
     "evaluate",
     "evaluation_dict",

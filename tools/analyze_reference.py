@@ -36,14 +36,12 @@ from __future__ import annotations
 import argparse
 import json
 
-import mujoco
 import numpy as np
 from scipy.optimize import linprog
 
 from cmrt import character, load_task
-from cmrt.body.character import feet_flat_qpos, support_interval_x
 from cmrt.control.controller import ControllerConfig
-from cmrt.control.momentum import centroidal_momentum_matrix
+from cmrt.motion.loads import keyed_motion, loads
 
 DT_S = 0.002
 LP_STEP = 5  # the shifts' grid: every 5th 2 ms sample (10 ms)
@@ -52,31 +50,16 @@ MAX_SHIFT_M = 0.3
 
 def analyze(task) -> dict:
     ch = character()
-    m = ch.model
-    d = mujoco.MjData(m)
-    t = np.arange(0.0, task.clip_s, DT_S)
-    q_ref = task.reference(t)[0]
-    names = ch.dof_names
-    q = np.array(
-        [feet_flat_qpos({n: qr[i] for i, n in enumerate(names) if i >= 3}, balance_joint=None) for qr in q_ref]
-    )
-    qd = np.gradient(q, DT_S, axis=0)
-    mom, com = [], []
-    for k in range(len(t)):
-        d.qpos[:] = q[k]
-        mujoco.mj_kinematics(m, d)
-        mujoco.mj_comPos(m, d)
-        mom.append(centroidal_momentum_matrix(m, d) @ qd[k])
-        com.append(d.subtree_com[1, [0, 2]].copy())
-    lo, hi = support_interval_x(d)
-    mom, com = np.array(mom), np.array(com)
-    rate = np.gradient(mom, DT_S, axis=0)
-    fx, fz = rate[:, 0], rate[:, 1] + ch.mass_kg * 9.81
-    cop = com[:, 0] - (rate[:, 2] + com[:, 1] * fx) / fz
+    motion = keyed_motion(task, DT_S)
+    ld = loads(motion)
+    t, com, qd = motion.t_s, ld.com_m, motion.qvel
+    lo, hi = ld.heel_x_m, ld.toe_x_m
+    fx, fz = ld.force_n[:, 0], ld.force_n[:, 1]
+    cop = lo + ld.heel_moment_nm / fz  # as the formula gives it, also where the ground would have to pull
     band_lo, band_hi = cop_band(fz, lo, hi, ControllerConfig().min_point_force_n)
-    xi = com[:, 0] + mom[:, 0] / ch.mass_kg / np.sqrt(9.81 / com[:, 1])
+    xi = com[:, 0] + motion.com_vel_m_s[:, 0] / np.sqrt(9.81 / com[:, 1])
     p0, p1 = task.preparation_s, task.preparation_s + task.duration_s
-    motion = (t >= p0) & (t <= p1)
+    moving = (t >= p0) & (t <= p1)
     sub = slice(None, None, LP_STEP)
     arm = ch.mass_kg * com[sub, 1] / np.where(fz[sub] > 0, fz[sub], np.inf)
     mu = ControllerConfig().friction_coef
@@ -97,7 +80,7 @@ def analyze(task) -> dict:
         "possible": bool(fz.min() > 0),
         "required_cop_range_m": [float(cop.min()), float(cop.max())],
         "com_projection_range_m": [float(com[:, 0].min()), float(com[:, 0].max())],
-        "capture_point_range_m": [float(xi[motion].min()), float(xi[motion].max())],
+        "capture_point_range_m": [float(xi[moving].min()), float(xi[moving].max())],
         "cop_leaves_support": bool(cop.min() < lo or cop.max() > hi),
         "com_leaves_support": bool(com[:, 0].min() < lo or com[:, 0].max() > hi),
         "max_joint_speed_rad_s": float(np.abs(qd[:, 3:]).max()),

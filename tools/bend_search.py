@@ -1,6 +1,7 @@
 """Which fast bends need anticipation? Random end poses and timings of the bend, checked two ways.
 
-    python tools/bend_search.py [--speed 0.4] [--samples 300] [--seed 1] [--commit K] [--min-force-bw F] [--json]
+    python tools/bend_search.py [--speed 0.4] [--samples 300] [--seed 1] [--commit K] [--min-force-bw F]
+                                [--feasible-only] [--json]
 
 Each sample is the shipped bend task with a random end pose (lumbar 0-45, hip -110 to -40, knee 0-90,
 neck -20 to 10, shoulders -150 to 40 deg; the ankle solved for balance, as always) and random easing
@@ -8,7 +9,9 @@ windows for the trunk (hip, lumbar, neck), the legs (knee, ankle) and the arms (
 [0, 0.3] and end in [0.7, 1] of T. For every sample:
 
 * the inverse-dynamics check of ``tools/analyze_reference.py`` (the reference's minimum vertical ground
-  force, its CoP excess beyond the QP's band);
+  force, its CoP excess beyond the QP's band) and ``cmrt check``'s verdict (``cmrt.check_reference``: feasible -
+  CoP in the feet, torques within their limits, friction, >= 0.25 BW - with the best ankle path; whether it needs
+  one that starts before a 0.1 s reaction; its first violation);
 * if its joints stay at or below 25 rad/s, the zero CMRT simulated on the shipped controller
   (``cmrt.simulate``, recorded, ``cmrt.sim.objective.evaluate``): success, fall and direction, tracking error
   against its bound, timing lag, planned-vs-executed CoP gap.
@@ -17,7 +20,8 @@ windows for the trunk (hip, lumbar, neck), the legs (knee, ankle) and the arms (
 shoulders; not the ankle, which balances) by K: a controller committed to doing the motion on time, as a
 person asked to bend fast does, instead of one that keeps its CoM by slowing the motion (the shipped
 controller's momentum objectives outweigh tracking ~500:1 per unit). ``--min-force-bw F`` simulates only
-references whose minimum vertical ground force is at least F body weights (the physically possible ones).
+references whose minimum vertical ground force is at least F body weights; ``--feasible-only`` only those
+``cmrt check`` finds feasible (the physically possible ones).
 
 The summary bins the samples by the reference's minimum vertical force (body weights) and counts the
 zero-CMRT failures and falls per bin: a bend that needs anticipation (fails without a CMRT) but does not
@@ -40,11 +44,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import analyze_reference  # noqa: E402  (a sibling tool)
 
-from cmrt import (
+from cmrt import (  # noqa: E402
     CmrtError,
     ControllerConfig,
+    check_reference,
     evaluate,
-    evaluation_dict,  # noqa: E402
+    evaluation_dict,
     simulate,
 )
 from cmrt.motion.taskfile import TASKS_DIR, task_from_dict  # noqa: E402
@@ -91,18 +96,21 @@ def bend_task(end: dict, timing: dict, speed: float):
     return task_from_dict(raw, "bend_search", "bend").with_speed(speed)
 
 
-def check(end: dict, timing: dict, speed: float, commit: float = 1.0, min_force_bw: float = -np.inf
-          ) -> dict | None:
-    """The reference check and, for human-speed references, the zero-CMRT run. None: pose not possible."""
+def check(end: dict, timing: dict, speed: float, commit: float = 1.0, min_force_bw: float = -np.inf,
+          feasible_only: bool = False) -> dict | None:
+    """The reference checks and, for human-speed references, the zero-CMRT run. None: pose not possible."""
     try:
         task = bend_task(end, timing, speed)
         ref = analyze_reference.analyze(task)
+        verdict = check_reference(task)
     except CmrtError:
         return None  # e.g. a pose the ankle cannot balance, or outside the joint ranges
     row = {"end_pose_deg": end, "timing": timing, "ref_min_vertical_force_bw": ref["min_vertical_force_bw"],
            "ref_max_joint_speed_rad_s": ref["max_joint_speed_rad_s"], "ref_cop_excess_m": ref["cop_excess_m"],
-           "ref_com_drop_m": ref["com_drop_m"]}
-    if ref["max_joint_speed_rad_s"] <= MAX_JOINT_SPEED and ref["min_vertical_force_bw"] >= min_force_bw:
+           "ref_com_drop_m": ref["com_drop_m"], "ref_feasible": verdict.feasible,
+           "ref_needs_anticipation": verdict.needs_anticipation, "ref_first_violation": verdict.first_violation}
+    if (ref["max_joint_speed_rad_s"] <= MAX_JOINT_SPEED and ref["min_vertical_force_bw"] >= min_force_bw
+            and (verdict.feasible or not feasible_only)):
         config = ControllerConfig() if commit == 1.0 else CommittedConfig(commit=commit)
         ev = evaluation_dict(evaluate(task, simulate(task, None, config, record=True)))
         row.update({k: ev.get(k) for k in SIM_KEYS})
@@ -119,6 +127,8 @@ def summary(rows: list[dict]) -> list[dict]:
         ratio = [r["tracking_error_rad"] / r["tracking_bound_rad"] for r in b if r["tracking_error_rad"] is not None]
         plan = [r["max_plan_cop_error_m"] for r in b if r["max_plan_cop_error_m"] is not None]
         out.append({"ref_min_vertical_force_bw": [float(lo), float(hi)], "n": len(b),
+                    "feasible": sum(r["ref_feasible"] for r in b),
+                    "needs_anticipation": sum(r["ref_needs_anticipation"] for r in b),
                     "zero_failures": sum(not r["success"] for r in b), "zero_falls": sum(bool(r["fell"]) for r in b),
                     "falls_forward": sum(r["fall_direction"] == "forward" for r in b),
                     "max_tracking_over_bound": max(ratio) if ratio else None,
@@ -133,6 +143,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--commit", type=float, default=1.0, help="factor on the driving joints' tracking weight")
     ap.add_argument("--min-force-bw", type=float, default=-np.inf, help="simulate only references at least this")
+    ap.add_argument("--feasible-only", action="store_true", help="simulate only references cmrt check finds feasible")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     if args.samples < 1 or args.seed < 0 or not 0 < args.commit < 1e6:
@@ -140,23 +151,28 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     t0 = time.perf_counter()
     rng = np.random.default_rng(args.seed)
-    rows = [r for r in (check(*draw(rng), args.speed, args.commit, args.min_force_bw) for _ in range(args.samples))
-            if r is not None]
+    rows = [r for r in (check(*draw(rng), args.speed, args.commit, args.min_force_bw, args.feasible_only)
+                        for _ in range(args.samples)) if r is not None]
     result = {"speed": args.speed, "samples": args.samples, "seed": args.seed, "commit": args.commit,
-              "min_force_bw": args.min_force_bw if np.isfinite(args.min_force_bw) else None, "possible": len(rows),
+              "min_force_bw": args.min_force_bw if np.isfinite(args.min_force_bw) else None,
+              "feasible_only": args.feasible_only, "possible": len(rows),
+              "feasible": sum(r["ref_feasible"] for r in rows),
               "simulated": sum("success" in r for r in rows), "bins": summary(rows), "rows": rows,
               "wall_s": round(time.perf_counter() - t0, 1)}
     if args.json:
         print(json.dumps(result, indent=1))
         return 0
     print(f"bend T = {args.speed} s: {args.samples} samples, {result['possible']} possible poses, "
-          f"{result['simulated']} simulated (joints <= {MAX_JOINT_SPEED:g} rad/s)")
-    print(" reference min F_z (BW)     n   zero fails  falls (forward)  max tracking/bound  median plan CoP gap (m)")
+          f"{result['feasible']} feasible (cmrt check), {result['simulated']} simulated (joints <= "
+          f"{MAX_JOINT_SPEED:g} rad/s)")
+    print(" reference min F_z (BW)     n  feasible (anticip.)  zero fails  falls (forward)  max tracking/bound  "
+          "median plan CoP gap (m)")
     for b in result["bins"]:
         lo, hi = b["ref_min_vertical_force_bw"]
         trk = "-" if b["max_tracking_over_bound"] is None else f"{b['max_tracking_over_bound']:.2f}"
         gap = "-" if b["median_plan_cop_error_m"] is None else f"{b['median_plan_cop_error_m']:.3f}"
-        print(f" [{lo:+6.2f}, {hi:+6.2f})      {b['n']:4d}   {b['zero_failures']:4d}        {b['zero_falls']:3d} "
+        print(f" [{lo:+6.2f}, {hi:+6.2f})      {b['n']:4d}  {b['feasible']:4d} ({b['needs_anticipation']:4d})      "
+              f"{b['zero_failures']:4d}        {b['zero_falls']:3d} "
               f"({b['falls_forward']})          {trk:>5}               {gap}")
     return 0
 

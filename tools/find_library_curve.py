@@ -79,7 +79,7 @@ def record(task, run, curve, args, wall_s: float) -> None:
         "evaluations": run.evaluations, "stop_reason": run.stop_reason, "seed": args.seed,
         "stop_threshold": task.stop_threshold, "wall_s": round(wall_s, 1), "init_run": run.init_run is not None,
         "params": task.params, "robust": task.robust.enabled, "init": run.init_source,
-        "restarts": run.restarts, "robustness": run.robustness,
+        "restarts": run.restarts, "robustness": run.robustness, "motion": task.motion_hash(),
     }
     if task.reference_mode != "center":  # entries without the key are the center mode's
         entry["reference"] = task.reference_mode

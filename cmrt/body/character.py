@@ -22,6 +22,7 @@ MODEL_PATH = Path(__file__).parent / "humanoid.xml"
 POSE_JOINTS = ("lumbar", "neck", "shoulder", "elbow", "hip", "knee", "ankle")
 SIDED_JOINTS = ("shoulder", "elbow", "hip", "knee", "ankle")
 FOOT_POINT_RADIUS_M = 0.01
+STANCE_HEEL_X_M = -0.06  # where a standing pose puts the right heel point (feet_flat_qpos): the feet's settled place
 #: Gravity (m/s^2, pointing down), the MJCF's ``<option gravity>`` (tests/body/test_character.py checks they
 #: agree): the one value the controller, the fall monitor, the props and the objective use. numba compiles it
 #: into its cached functions (sim/balance.py), so it is a constant, never changed at run time.
@@ -145,7 +146,7 @@ def feet_flat_qpos(angles_rad: dict[str, float], balance_joint: str | None = "an
         d.qpos[2] = -(a["hip_r"] + a["knee_r"] + a["ankle_r"])
         mujoco.mj_kinematics(m, d)
         heel = d.geom_xpos[ch.foot_points[0][0]]
-        d.qpos[0] += -0.06 - heel[0]
+        d.qpos[0] += STANCE_HEEL_X_M - heel[0]
         d.qpos[1] += FOOT_POINT_RADIUS_M - heel[2]
         mujoco.mj_kinematics(m, d)
         mujoco.mj_comPos(m, d)

@@ -29,8 +29,8 @@ from numba import njit
 FLAT, HEEL, TOE, AIR = 0, 1, 2, 3
 # Indices into the parameter vector (built by controller.MomentumBalanceController).
 (P_KL, P_DL, P_KT, P_DT, P_BL, P_BH, P_BT, P_EPS, P_G, P_MU, P_FMIN, P_DAMP, P_RW, P_RK, P_RD,
- P_RADIUS, P_DUALREG, P_SW, P_SK, P_SD, P_SWT, P_JK, P_JD, P_LIMITS, P_WARM) = range(25)
-N_PARAMS = 25
+ P_RADIUS, P_DUALREG, P_SW, P_SK, P_SD, P_SWT, P_JK, P_JD, P_LIMITS, P_WARM, P_FZMIN) = range(26)
+N_PARAMS = 26
 # The swing foot's task-space target (cmrt.control.stepping): heel point x, z, foot pitch; their rates
 # and accelerations; then the bend added to the stance knee's reference while the foot swings (rad).
 # ``swing_foot`` per simulation: -1 (both feet support), 0 (right swings), 1 (left).
@@ -411,7 +411,7 @@ def _ground_rows(A, a_g, pts, com, mg, params, support, nrow, E, e, ne, low_load
     R = np.zeros((N_INEQ, 3))
     r0 = np.zeros(N_INEQ)
     R[0, 1] = 1.0
-    r0[0] = mg - fmin * n_points
+    r0[0] = mg - params[P_FZMIN] * n_points
     R[1, 0], R[1, 1], r0[1] = -1.0, mu, mu * mg
     R[2, 0], R[2, 1], r0[2] = 1.0, mu, mu * mg
     R[3, 0], R[3, 1], R[3, 2], r0[3] = arm, com[0] - lo - band, -1.0, (com[0] - lo - band) * mg - edge

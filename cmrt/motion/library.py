@@ -40,6 +40,7 @@ class KnownCmrt:
     source: str  # "library" or "run 12"
     speed: float | None = None  # the task's speed parameter's value (None: the task has none)
     steps: tuple = ()  # the footstep plan it was optimized for (cmrt.motion.footsteps; () without one)
+    motion: str | None = None  # Task.motion_hash of the motion it was optimized for (None: not known)
 
     @property
     def clip_s(self) -> float:
@@ -65,7 +66,7 @@ def library_cmrts(path: Path = LIBRARY_PATH) -> list[KnownCmrt]:
                              robust=e.get("robust", False), curve=curve,
                              cma_params=tuple(map(float, curve.to_params())), objective=e["objective"],
                              success=bool(e.get("success")), source="library", speed=e["speed"],
-                             steps=parse_steps(e["steps"]) if e.get("steps") else ()))
+                             steps=parse_steps(e["steps"]) if e.get("steps") else (), motion=e.get("motion")))
     return out
 
 
@@ -85,7 +86,8 @@ def library_curve(task: Task, path: Path = LIBRARY_PATH, robust: bool = False) -
     """
     entries = [e for e in library_cmrts(path) if e.robust == robust
                and e.reference == task.reference_mode  # a CMRT belongs to its reference mode
-               and e.steps == task.steps]  # and to its footstep plan
+               and e.steps == task.steps  # and to its footstep plan
+               and e.motion == task.motion_hash()]  # and to its motion (not a re-authored task's old one)
     try:
         return _lookup(entries, task)
     except CmrtError as exc:
@@ -116,14 +118,18 @@ def _lookup(entries: list[KnownCmrt], task: Task) -> Cmrt:
 
 
 def save_entry(entry: dict, path: Path = LIBRARY_PATH) -> None:
-    """Insert or replace the entry for (task, parameters), keeping the file sorted."""
+    """Insert or replace the entry for (task, motion, parameters), keeping the file sorted; the task's entries
+    for another motion (the task re-authored since) are dropped: nothing can use them."""
 
     def key(e: dict):
         params = e.get("params") or load_task(e["task"]).with_speed(e["speed"]).params  # older entries: defaults
         return (e["task"], e["speed"], json.dumps(_physics(params, bool(e.get("steps"))), sort_keys=True),
                 e.get("robust", False), e.get("reference", DEFAULT_REFERENCE_MODE), e.get("steps", ""))
 
-    entries = [e for e in load_entries(path) if key(e) != key(entry)]
+    def stale(e: dict) -> bool:
+        return e["task"] == entry["task"] and e.get("motion") != entry.get("motion")
+
+    entries = [e for e in load_entries(path) if key(e) != key(entry) and not stale(e)]
     entries.append(entry)
     entries.sort(key=lambda e: (e["task"], e["speed"], json.dumps(e.get("params", {}), sort_keys=True),
                                 e.get("robust", False), e.get("reference", DEFAULT_REFERENCE_MODE)))

@@ -421,6 +421,15 @@ class Task:
         body["params"] = active_params(body["params"], planned=bool(self.steps))
         return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()[:16]
 
+    def motion_hash(self) -> str:
+        """Hash of the motion itself - its poses, their timing, the balance joint, the prop - without the
+        parameters (speed, clip, ...), which a known CMRT's record compares on their own: a CMRT optimized for
+        another motion under the same task name (a task file edited, a shipped task re-authored) is not this
+        motion's, whatever its speed."""
+        keep = ("start_pose_deg", "end_pose_deg", "via_pose_deg", "timing", "balance_joint", "prop")
+        body = {k: v for k, v in self.to_dict().items() if k in keep}
+        return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()[:16]
+
     def task_window_s(self) -> tuple[float, float]:
         """[P, P + T]: where the motion happens (the whole clip for a task without one)."""
         if self.duration_s > 0:

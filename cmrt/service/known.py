@@ -2,8 +2,9 @@
 
 Warm starts (``service.warmstart``) and interpolation (``service.interpolate``) both ask "which CMRTs do we
 have for this task?"; they ask it here, so that a CMRT counts as the same task's by one rule: the same task
-name and the same controller reference mode (a CMRT belongs to its mode), optionally of one kind (plain or
-robust), only successes, only for the same clip length (a CMRT's knots are placed on its clip).
+name, the same motion (``Task.motion_hash``: not the old motion of a task re-authored since) and the same
+controller reference mode (a CMRT belongs to its mode), optionally of one kind (plain or robust), only
+successes, only for the same clip length (a CMRT's knots are placed on its clip).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from cmrt.motion.curve import Cmrt
 from cmrt.motion.footsteps import steps_from_tables
 from cmrt.motion.library import KnownCmrt, library_cmrts, library_curve
 from cmrt.motion.task import Task
-from cmrt.service.query import run_curve
+from cmrt.service.query import run_curve, task_of
 from cmrt.service.store import Run, Store, open_store
 
 CLIP_TOLERANCE_S = 1e-9
@@ -35,7 +36,8 @@ def run_cmrt(run: Run) -> KnownCmrt:
     return KnownCmrt(task=run.task, params=run.params, reference=run.reference, robust=run.robust is not None,
                      curve=curve, cma_params=tuple(run.best_params),
                      objective=run.best_objective, success=bool(run.best_success), source=f"run {run.id}",
-                     speed=run.speed, steps=steps_from_tables(run.task_definition.get("steps") or [], f"run {run.id}"))
+                     speed=run.speed, steps=steps_from_tables(run.task_definition.get("steps") or [], f"run {run.id}"),
+                     motion=task_of(run).motion_hash())
 
 
 def known_cmrts(task: Task, store: Store | None = None, sources: tuple[str, ...] = SOURCES,
@@ -45,11 +47,16 @@ def known_cmrts(task: Task, store: Store | None = None, sources: tuple[str, ...]
     those for the task's clip length."""
     found: list[KnownCmrt] = []
     if "store" in sources and store is not None:
-        found += [run_cmrt(run) for run in store.successful_runs(task.name, task.reference_mode)]
+        for run in store.successful_runs(task.name, task.reference_mode):
+            try:
+                found.append(run_cmrt(run))
+            except CmrtError:  # a stored definition that no longer reads as a task: not a CMRT known for this one
+                continue
     if "library" in sources:
         found += [e for e in library_cmrts() if e.task == task.name and e.reference == task.reference_mode
                   and e.success]
-    return [k for k in found if (robust is None or k.robust == robust)
+    motion = task.motion_hash()  # a CMRT of another motion under this name (a re-authored task) is not its
+    return [k for k in found if (robust is None or k.robust == robust) and k.motion == motion
             and (not same_clip or abs(k.clip_s - task.clip_s) <= CLIP_TOLERANCE_S)]
 
 

@@ -40,6 +40,7 @@ import numpy as np
 
 from cmrt.body.character import GRAVITY_M_S2, character
 from cmrt.body.props import CONTACT_FORCE_N
+from cmrt.control.controller import ControllerConfig
 from cmrt.motion.task import Task
 from cmrt.sim.simulate import Trajectory
 
@@ -68,13 +69,21 @@ MAX_GROUND_FORCE_BW = 2.5  # peak vertical ground force, outside impact windows
 MAX_AIRBORNE_S = 0.01  # both feet off the ground (feet planted: no flight)
 MIN_COP_MARGIN_M = 0.0  # the measured CoP inside the feet
 NOT_PLAUSIBLE_PENALTY = 5.0  # x (1 + the worst excess over its bound, up to 1): CMA-ES keeps a slope
+
+
+def verdict_bounds() -> dict[str, float]:
+    """The fixed bounds of the verdict's rules, keyed by the figure each bounds (reports print them beside the
+    figures; the tracking and timing bounds depend on the task and are figures of each evaluation)."""
+    return {"max_plan_cop_error_m": MAX_PLAN_COP_ERROR_M, "peak_normal_force_bw": MAX_GROUND_FORCE_BW,
+            "airborne_s": MAX_AIRBORNE_S, "min_cop_margin_m": MIN_COP_MARGIN_M,
+            "final_pose_error_rad": FINAL_POSE_TOLERANCE_RAD, "final_com_speed_m_s": SETTLED_COM_SPEED_M_S}
 TIMING_FRACTION = 0.9  # a driving joint has arrived when it covers this fraction of the reference's excursion
 BODY_ON_FLOOR_Z_M = 0.0  # as the balance monitor's BODY_ON_FLOOR check: a non-foot body below the floor
 # Figures only a recorded run (traces, ``cmrt simulate``) has, or has differently (a topple played out): a scoring
 # run reports None (fall_direction from the capture point). Nothing the score depends on is among them.
 TRACE_ONLY_FIELDS = ("max_foot_slip_m", "fall_direction", "fall_direction_source",
                      "after_fall_max_joint_speed_rad_s", "after_fall_peak_foot_force_bw", "after_fall_max_foot_lift_m",
-                     "after_fall_floor_contact_s")
+                     "after_fall_floor_contact_s", "after_fall_airborne_s")
 
 
 @dataclass(frozen=True)
@@ -144,6 +153,7 @@ class Evaluation:
     after_fall_peak_foot_force_bw: float | None = None
     after_fall_max_foot_lift_m: float | None = None
     after_fall_floor_contact_s: float | None = None  # None: no body other than the feet reached the floor
+    after_fall_airborne_s: float | None = None  # from the fall to the end of the record: nothing on the floor (a hop)
     # the one verdict rule (``success_rule`` names what "performed" means for this task): the rules this clip
     # broke, in order - "balance", "performed", "on_time", "settled", "plan", "ground_force", "airborne",
     # "cop_margin", "final_pose" - empty for a success
@@ -244,7 +254,7 @@ def success_rule(task: Task) -> str:
     return "standing"
 
 
-def _excesses(ev: dict, fell: bool) -> dict[str, float]:
+def _excesses(ev: dict, fell: bool, pose_judged: bool) -> dict[str, float]:
     """Each plausibility rule's excess over its bound (> 0: broken), from the evaluation's figures. The final
     pose is a rule of its own where "performed" does not already judge it (standing, steps, props)."""
     out = {}
@@ -253,7 +263,7 @@ def _excesses(ev: dict, fell: bool) -> dict[str, float]:
     out["ground_force"] = ev["peak_normal_force_bw"] / MAX_GROUND_FORCE_BW - 1.0
     out["airborne"] = ev["airborne_s"] / MAX_AIRBORNE_S - 1.0 if ev["airborne_s"] > MAX_AIRBORNE_S else -1.0
     out["cop_margin"] = (MIN_COP_MARGIN_M - ev["min_cop_margin_m"]) / 0.01
-    if not fell:
+    if not fell and not pose_judged:
         out["final_pose"] = ev["final_pose_error_rad"] / FINAL_POSE_TOLERANCE_RAD - 1.0
     return out
 
@@ -271,7 +281,8 @@ def _verdict(task: Task, traj: Trajectory, settled: bool, performed: bool | None
         failed.append("on_time")
     if not traj.fell and not settled:
         failed.append("settled")
-    excess = _excesses(figures, traj.fell)
+    pose_change = task.end_pose_deg is not None and traj.task_success is None  # "performed" judged its end pose
+    excess = _excesses(figures, traj.fell, pose_change)
     failed += [rule for rule, x in excess.items() if x > 0.0]
     worst = max((x for x in excess.values() if x > 0.0), default=0.0)
     return tuple(failed), worst
@@ -486,7 +497,7 @@ def timing_lag_s(task: Task, traj: Trajectory) -> float | None:
     idx, t = idx[t >= start - 1e-9], t[t >= start - 1e-9]
     if idx.size == 0:
         return None
-    q_ref = task.reference(t)[0]
+    q_ref = _reachable(task.reference(t)[0])
     ch = character()
     skip = set()
     if task.balance_joint:
@@ -506,6 +517,19 @@ def timing_lag_s(task: Task, traj: Trajectory) -> float | None:
         done_at = _crossing_s(t, np.sign(target) * (traj.qpos[idx, j] - q_ref[0, j]), goal)
         lags.append((t[-1] if done_at is None else done_at) - ref_at)
     return max(0.0, float(max(lags))) if lags else None
+
+
+def _reachable(q_ref: np.ndarray) -> np.ndarray:
+    """The reference with each actuated joint kept ``stop_margin_rad`` inside its stops, as the controller keeps
+    it (a rise's straight knee ends 0.02 rad short of its 0 rad stop: 90 % of a 15 deg excursion would otherwise
+    leave it 0.35 deg to spare, and the stop's spring makes that last part slow)."""
+    ch = character()
+    lo, hi = ch.joint_range_rad()
+    margin = ControllerConfig.stop_margin_rad
+    q = np.array(q_ref, dtype=float)
+    dofs = list(ch.actuated_dofs)
+    q[:, dofs] = np.clip(q[:, dofs], lo + margin, hi - margin)
+    return q
 
 
 def timing_lag_bound_s(task: Task) -> float:
@@ -574,12 +598,15 @@ def after_fall(traj: Trajectory) -> dict:
     span = _after_fall_span(traj)
     if span is None:
         return {"after_fall_max_joint_speed_rad_s": None, "after_fall_peak_foot_force_bw": None,
-                "after_fall_max_foot_lift_m": None, "after_fall_floor_contact_s": None}
+                "after_fall_max_foot_lift_m": None, "after_fall_floor_contact_s": None, "after_fall_airborne_s": None}
     k, last, contact_s = span
     part = slice(k, last + 1)
     weight = character().mass_kg * GRAVITY_M_S2
     dofs = list(character().actuated_dofs)
+    # a hop after the fall: neither the feet nor any other body on the floor, to the end of the record
+    dt = float(traj.time_s[1] - traj.time_s[0])
+    flying = (traj.normal_force_n[k:] < AIRBORNE_FORCE_FRACTION * weight) & (traj.lowest_body_z_m[k:] > 0.0)
     return {"after_fall_max_joint_speed_rad_s": float(np.nanmax(np.abs(traj.qvel[part][:, dofs]))),
             "after_fall_peak_foot_force_bw": float(np.nanmax(traj.normal_force_n[part]) / weight),
             "after_fall_max_foot_lift_m": float(np.nanmax(traj.point_lift_m[part])),
-            "after_fall_floor_contact_s": contact_s}
+            "after_fall_floor_contact_s": contact_s, "after_fall_airborne_s": float(np.count_nonzero(flying) * dt)}

@@ -12,7 +12,7 @@ from cmrt import inputs
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.sequence import SequenceTask
 from cmrt.motion.task import Task
-from cmrt.sim.objective import ENFORCE_TIMING, Evaluation, evaluate
+from cmrt.sim.objective import ENFORCE_TIMING, Evaluation, evaluate, verdict_bounds
 from cmrt.sim.simulate import Trajectory, simulate
 
 
@@ -21,8 +21,8 @@ def _finite(x):
 
 
 def evaluation_dict(ev: Evaluation) -> dict:
-    """An Evaluation as JSON-safe values (non-finite floats become null)."""
-    return {f.name: _finite(getattr(ev, f.name)) for f in fields(ev)}
+    """An Evaluation as JSON-safe values (non-finite floats become null), with the verdict's fixed bounds."""
+    return {**{f.name: _finite(getattr(ev, f.name)) for f in fields(ev)}, "verdict_bounds": verdict_bounds()}
 
 
 def dof_names(task: Task | SequenceTask) -> np.ndarray:

@@ -18,17 +18,24 @@ from cmrt.sim.simulate import simulate_batch
 
 
 def robustness(task: Task, curve: Cmrt, threads: int | None = None) -> dict:
-    """``validation_total`` members, ``validation_survived`` of them a success (balance held, motion done,
-    settled, goal reached), ``validation_fell``, and the smallest CoP margin inside the feet over all of
-    them (``min_cop_margin_m``; negative: the CoP reached the edge and the foot rolled)."""
+    """``validation_total`` members, ``validation_survived`` of them a success (the one verdict rule:
+    balance held, motion done on time, plan carried out, settled, goal reached), ``validation_fell``, the
+    smallest CoP margin inside the feet over all of them (``min_cop_margin_m``; 0: the CoP reached an end of the
+    feet, as it does in every fall) and over the survivors alone (``survived_min_cop_margin_m``: how close a
+    success came to that edge)."""
     members = validation_members(task, task.robust, prop_class(task.prop).mass_body is not None)
     trajs = simulate_batch(task, [curve] * len(members), threads=threads, perturbations=members)
     scores = [evaluate(m.task_variant(task), tr) for m, tr in zip(members, trajs, strict=True)]
-    margins = [e.min_cop_margin_m for e in scores if e.min_cop_margin_m is not None
-               and math.isfinite(e.min_cop_margin_m)]
+
+    def smallest(evals) -> float | None:
+        margins = [e.min_cop_margin_m for e in evals if e.min_cop_margin_m is not None
+                   and math.isfinite(e.min_cop_margin_m)]
+        return min(margins) if margins else None
+
     return {
         "validation_total": len(members),
         "validation_survived": sum(bool(e.success) for e in scores),
         "validation_fell": sum(bool(e.fell) for e in scores),
-        "min_cop_margin_m": min(margins) if margins else None,
+        "min_cop_margin_m": smallest(scores),
+        "survived_min_cop_margin_m": smallest([e for e in scores if e.success]),
     }

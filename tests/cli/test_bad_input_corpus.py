@@ -240,12 +240,14 @@ def _cases() -> list[Case]:
         lambda f: ("interpolate", f, "--speed", "0.5"),
         lambda f: ("bench", "--task", f, "--backends", "batch"),
         lambda f: ("plot", "--family", f, "--out", "{d}/outdir"),
+        lambda f: ("check", f),
     ]
     names = list(TASK_FILES) + ["fifo.toml", "dir.toml", "big.toml", "missing.toml"]
     for i, name in enumerate(names):
         add(Case(task_verbs[i % len(task_verbs)]("{d}/" + name), words=name))
     add(Case(("simulate", "/dev/stdin.toml"), words="stdin"))
     add(Case(("submit", "nosuchtask"), words="unknown task"))
+    add(Case(("check", "walk"), words="cannot check"))
     add(Case(("submit", "bend\x1b[2J"), words="unknown task"))
     add(Case(("simulate", ""), words="task"))
     add(Case(("simulate", "bend", "--reference", "zmp"), words="--reference"))
@@ -398,7 +400,7 @@ def _param(c: Case):
 def test_the_corpus_is_big_and_covers_every_verb():
     verbs = {c.argv[0] for c in CASES}
     want = {"tasks", "simulate", "submit", "optimize", "worker", "jobs", "runs", "show", "best", "export",
-            "interpolate", "sequence", "plot", "render", "bench"}
+            "interpolate", "sequence", "plot", "render", "bench", "check"}
     assert want <= verbs, want - verbs
     kinds = {c.store for c in CASES}
     assert {"missing", "directory", "empty", "text", "foreign", "truncated", "flipped-page", "readonly"} <= kinds
