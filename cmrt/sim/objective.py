@@ -67,7 +67,8 @@ ENFORCE_TIMING = True
 MAX_PLAN_COP_ERROR_M = 0.005  # planned vs executed CoP, outside impact windows: the plan is what happens
 MAX_GROUND_FORCE_BW = 2.5  # peak vertical ground force, outside impact windows
 MAX_AIRBORNE_S = 0.01  # both feet off the ground (feet planted: no flight)
-MIN_COP_MARGIN_M = 0.0  # the measured CoP inside the feet
+MIN_COP_MARGIN_M = 0.001  # the measured CoP inside the feet: at an end, the other end carries nothing (a slack point,
+# the foot about to roll)
 NOT_PLAUSIBLE_PENALTY = 5.0  # x (1 + the worst excess over its bound, up to 1): CMA-ES keeps a slope
 
 

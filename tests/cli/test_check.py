@@ -3,12 +3,14 @@ task file that is not feasible gets when it is simulated or optimized."""
 
 import json
 import shutil
+from pathlib import Path
 
 import pytest
 
 from cmrt import CmrtError
 from cmrt.cli.commands import main
-from cmrt.motion.taskfile import TASKS_DIR
+
+V03_BEND = Path(__file__).parent.parent / "data" / "v03_bend.toml"
 
 KEYS = {"task", "speed", "feasible", "needs_anticipation", "from_onset_suffices", "first_violation",
         "min_vertical_force_bw", "friction_needed", "min_cop_margin_m", "peak_torque_nm", "torque_limit_nm",
@@ -30,12 +32,20 @@ def test_a_feasible_task_exits_0_with_its_figures(capsys):
     assert out["ignored"] == ["the slab's forces on the body (the motion is checked alone)"]
 
 
-def test_the_fast_bend_exits_1_and_says_why(capsys):
-    assert main(["check", "bend", "--speed", "0.4"]) == 1
+def test_the_v03_fast_bend_exits_1_and_says_why(capsys):
+    """The bend shipped until v0.3 (its reference asks the ground to pull): not feasible."""
+    assert main(["check", str(V03_BEND), "--speed", "0.4"]) == 1
     text = capsys.readouterr().out
-    assert text.startswith("bend --speed 0.4: NOT FEASIBLE: ")
+    assert text.startswith("v03-bend --speed 0.4: NOT FEASIBLE: ")
     for row in ("min vertical force (BW)", "lumbar torque (N m)", "from_reaction (t >= 1.10 s)"):
         assert row in text
+
+
+def test_the_shipped_fast_bend_is_feasible_and_needs_anticipation(capsys):
+    assert main(["check", "bend", "--speed", "0.4", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["feasible"] and out["needs_anticipation"] and out["from_onset_suffices"]
+    assert out["min_vertical_force_bw"] >= 0.25 and out["searches"]["from_reaction"]["worst_violation"] > 0
 
 
 @pytest.mark.parametrize("argv, words", [
@@ -53,9 +63,9 @@ def test_what_it_cannot_check_is_bad_input(capsys, argv, words):
 
 @pytest.fixture
 def fast_bend_file(tmp_path):
-    """A user's task file: the shipped fast bend, copied."""
+    """A user's task file: the v0.3 fast bend (its reference asks the ground to pull), copied."""
     path = tmp_path / "my_bend.toml"
-    shutil.copyfile(str(TASKS_DIR / "bend.toml"), path)
+    shutil.copyfile(str(V03_BEND), path)
     return path
 
 
@@ -65,7 +75,7 @@ def test_simulating_a_users_infeasible_task_file_warns_and_runs(fast_bend_file, 
     (line,) = captured.err.splitlines()
     assert line.startswith(f"cmrt: warning: {fast_bend_file}: its reference motion cannot be done on time")
     assert "behind the heels at t = " in line and line.endswith(f"(cmrt check {fast_bend_file})")
-    assert json.loads(captured.out)["task"] == "bend"  # the run went on
+    assert json.loads(captured.out)["task"] == "v03-bend"  # the run went on
     assert main(["simulate", str(fast_bend_file), "--speed", "1.2", "--json"]) == 0  # feasible: no warning
     assert capsys.readouterr().err == ""
 

@@ -1,5 +1,7 @@
 """The compiled controller arithmetic against MuJoCo's own functions."""
 
+from pathlib import Path
+
 import mujoco
 import numpy as np
 
@@ -139,31 +141,10 @@ def test_the_support_fields_load_is_mujocos_own_mapping_of_it(state):
     np.testing.assert_allclose(wrench, [field[1:, 0].sum(), field[1:, 1].sum(), moment], rtol=1e-12, atol=1e-9)
 
 
-TRUNK_FIRST_BEND = """
-name = "trunk-first"
-summary = "the v0.3 fast bend: trunk first, then the legs; its reference asks the ground to pull"
-balance_joint = "ankle"
-[params]
-clip_s = 2.0
-preparation_s = 1.0
-duration_s = 0.4
-[end_pose_deg]
-lumbar = 35
-hip = -80
-knee = 15
-neck = -10
-shoulder = -40
-[timing]
-hip = [0.0, 0.6]
-lumbar = [0.0, 0.6]
-neck = [0.0, 0.6]
-shoulder = [0.0, 0.6]
-knee = [0.4, 1.0]
-ankle = [0.4, 1.0]
-"""
+V03_BEND = Path(__file__).parent.parent / "data" / "v03_bend.toml"  # asks the ground to pull at 0.4 s
 
 
-def test_at_a_low_load_the_planned_cop_keeps_the_middle_half_of_the_feet(tmp_path):
+def test_at_a_low_load_the_planned_cop_keeps_the_middle_half_of_the_feet():
     """A motion that asks the ground to pull (the v0.3 trunk-first bend in 0.4 s) drives the plan to its vertical
     floor, 4 x 40 N. There a constant floor of 40 N per heel/toe point leaves exactly one CoP, the support centre,
     whatever the motion asks (the plan gap then read half a foot, 0.120 m, on every such clip: issue 44); the floor
@@ -173,9 +154,7 @@ def test_at_a_low_load_the_planned_cop_keeps_the_middle_half_of_the_feet(tmp_pat
     from cmrt.control.controller import ControllerConfig, MomentumBalanceController
     from cmrt.sim.simulate import CONTROL_FIELDS, _in_contact, simulate
 
-    path = tmp_path / "trunk_first.toml"
-    path.write_text(TRUNK_FIRST_BEND)
-    task = load_task(str(path))
+    task = load_task(str(V03_BEND)).with_speed(0.4)
     config = ControllerConfig(feedback_delay_s=0.0)
     traj = simulate(task, config=config)
     ch = character()

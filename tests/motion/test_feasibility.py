@@ -2,6 +2,7 @@
 controller, and its verdicts on the shipped tasks and the issue's hip hinge."""
 
 import dataclasses
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -15,6 +16,7 @@ from cmrt.motion.loads import Loads, generalized_forces, keyed_motion, loads, sh
 
 CH = character()
 WEIGHT_N = CH.mass_kg * GRAVITY_M_S2
+DATA = Path(__file__).parent.parent / "data"
 ACTUATED = [CH.dof_names[d] for d in CH.actuated_dofs]
 
 HIP_HINGE = """
@@ -89,8 +91,9 @@ def test_quiet_standing_carries_the_weight_over_the_com_with_static_torques():
 
 
 def test_the_ground_force_is_the_rate_of_the_momentum_on_a_moving_reference():
-    """mj_inverse's root forces (the ground's) against the centroidal momentum's rate A qdd + Adot qd."""
-    motion = keyed_motion(load_task("bend").with_speed(0.4))
+    """mj_inverse's root forces (the ground's) against the centroidal momentum's rate A qdd + Adot qd, on a motion
+    violent enough to ask the ground to pull (the v0.3 fast bend)."""
+    motion = keyed_motion(load_task(str(DATA / "v03_bend.toml")).with_speed(0.4))
     shift = _smooth_shift(motion.t_s)
     q, qd, qdd = shifted_state(motion, shift)
     ld = loads(motion, shift)
@@ -110,7 +113,7 @@ def test_the_ground_force_is_the_rate_of_the_momentum_on_a_moving_reference():
     heel_moment = (com[:, 0] - ld.heel_x_m) * fz_n - com[:, 1] * fx - rate[:, 2]  # the CoP from the momentum
     assert np.abs(heel_moment - ld.heel_moment_nm).max() < 1e-6 * WEIGHT_N * (ld.toe_x_m - ld.heel_x_m)
     assert np.allclose(com, ld.com_m, rtol=0, atol=1e-12)
-    assert ld.force_n[:, 1].min() < 0 < np.abs(fx).max()  # it moves: the fast bend asks the ground to pull
+    assert ld.force_n[:, 1].min() < 0 < np.abs(fx).max()  # it moves: the v0.3 fast bend asks the ground to pull
 
 
 def test_a_shift_turns_the_body_about_the_ankles_with_the_feet_flat():
@@ -156,10 +159,11 @@ def test_the_torques_split_the_ground_force_over_the_points_as_mj_jac_says():
 def test_the_torques_of_the_slow_bend_are_the_controllers():
     """The slow bend (T = 1.2 s, performed by the shipped controller with no CMRT): the check's torques for the
     keyed driving joints, with the ankle the controller used, against the torques it applied. Tolerance: the
-    controller lags the trunk by up to 0.12 rad (lumbar; hips 0.08) within its tracking bound, which moves the
-    upper body's gravity torque by ~35 kg x 9.81 x 0.3 m x 0.12 ~ 12 N m, 11 % of the ~110 N m peak: RMS within
-    15 % and the largest gap within 30 % of the peak over the motion (measured 13 %/29 % lumbar, 11 %/27 % hips).
-    Static torques (the keyed poses held still) miss by 27 %/56 %: the test sees the dynamics."""
+    controller tracks the trunk within ~0.013 rad RMS (up to ~0.03 rad at its worst), which moves the upper body's
+    gravity torque by ~35 kg x 9.81 x 0.3 m x 0.03 ~ 3 N m, 5 % of the ~65 N m peak, and the plan's own
+    acceleration errors add to it: RMS within 8 % and the largest gap within 15 % of the peak over the motion
+    (measured on controller v0.4: 5.3 %/9.5 % lumbar, 4.8 %/8.7 % hips). Static torques (the keyed poses held
+    still) miss by 17 %/27 % and 13 %/21 %: the test sees the dynamics."""
     task = load_task("bend").with_speed(1.2)
     run = simulate(task, None, record=True)
     assert evaluate(task, run).success
@@ -178,9 +182,9 @@ def test_the_torques_of_the_slow_bend_are_the_controllers():
         u = ACTUATED.index(joint)
         peak = np.abs(applied[:, u]).max()
         gap = applied[:, u] - ours[:, u]
-        assert np.sqrt(np.mean(gap**2)) < 0.15 * peak and np.abs(gap).max() < 0.3 * peak, joint
+        assert np.sqrt(np.mean(gap**2)) < 0.08 * peak and np.abs(gap).max() < 0.15 * peak, joint
         static_gap = applied[:, u] - still[:, u]
-        assert np.sqrt(np.mean(static_gap**2)) > 0.2 * peak, joint
+        assert np.sqrt(np.mean(static_gap**2)) > 0.12 * peak, joint
 
 
 # --- the search ----------------------------------------------------------------------------------
@@ -220,21 +224,26 @@ def test_more_freedom_never_ends_worse():
     assert found.search("from_reaction").com_shift_range_m[0] <= 0.0 <= found.search("any").com_shift_range_m[1]
 
 
-def test_the_fast_bend_and_rise_are_not_feasible_the_slow_bend_is():
-    """The issue's figures: the 0.4 s bend needs the ground to pull with 2.18 BW and lumbar 638 N m (300), the
-    0.5 s rise -1.04 BW; the 1.2 s bend, which the controller performs, is feasible."""
-    fast = check_reference(load_task("bend").with_speed(0.4))
+def test_the_v03_fast_bend_and_rise_are_not_feasible_the_shipped_ones_are():
+    """The issue's figures for the motions shipped until v0.3: the 0.4 s trunk-first bend needs the ground to pull
+    with 2.18 BW and lumbar 638 N m (300), the 0.5 s rise -1.04 BW. The re-authored bend and rise are feasible at
+    their fast speeds and need anticipation there (not with an ankle path that starts 0.1 s late), the slow bend
+    does not."""
+    fast = check_reference(load_task(str(DATA / "v03_bend.toml")).with_speed(0.4))
     assert not fast.feasible and fast.first_violation
     assert fast.keyed.min_vertical_force_bw == pytest.approx(-2.18, abs=0.02)
     assert fast.keyed.peak_torque_nm["lumbar"] == pytest.approx(638, abs=5)
     assert fast.best.min_vertical_force_bw < 0.25  # no ankle path lets the feet carry the motion
-    rise = check_reference(load_task("rise").with_speed(0.5))
+    rise = check_reference(load_task(str(DATA / "v03_rise.toml")).with_speed(0.5))
     assert not rise.feasible and rise.keyed.min_vertical_force_bw == pytest.approx(-1.04, abs=0.02)
+    for name, speed in (("bend", 0.4), ("rise", 0.35)):
+        shipped = check_reference(load_task(name).with_speed(speed))
+        assert shipped.feasible and shipped.needs_anticipation and shipped.first_violation is None
+        assert shipped.best.min_vertical_force_bw >= 0.25
     slow = check_reference(load_task("bend").with_speed(1.2))
-    assert slow.feasible and slow.first_violation is None
+    assert slow.feasible and slow.first_violation is None and not slow.needs_anticipation
     assert slow.best.min_cop_margin_m > 0 and slow.best.friction_needed < slow.floor_friction
     assert all(slow.best.peak_torque_nm[n] <= slow.torque_limit_nm[n] for n in ACTUATED)
-    assert slow.keyed.min_cop_margin_m < 0  # the keyed ankle, literally, would not do
 
 
 def test_the_hip_hinge_is_feasible_and_needs_anticipation(tmp_path):
