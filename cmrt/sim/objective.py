@@ -163,6 +163,9 @@ class Evaluation:
     # a struck prop (the bag): the speed of the fist that first touched it, at the state that contact step
     # started from (m/s; None: no contact before any fall, or a prop that does not measure it)
     fist_speed_at_contact_m_s: float | None = None
+    # ... and how extended that arm was then: the fist's distance from its shoulder over the arm's length (None: as
+    # for the speed)
+    fist_reach_at_contact: float | None = None
 
     def scored(self) -> Evaluation:
         """This evaluation without the trace-only figures: what a scoring run of the same clip gives."""
@@ -401,6 +404,7 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
         failed_rules=failed,
         success_rule=success_rule(task),
         fist_speed_at_contact_m_s=_finite_or_none(traj.prop_extras.get("fist_speed_at_contact_m_s")),
+        fist_reach_at_contact=_finite_or_none(traj.prop_extras.get("fist_reach_at_contact")),
     )
 
 
