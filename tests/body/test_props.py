@@ -221,15 +221,15 @@ def test_the_heavy_bag_is_a_lightly_damped_pendulum():
 
 
 #: A CMRT that leans the body into the punch: the CoM target 6 cm forward of the support centre at 1.0 s
-#: (the strike lands at ~1.04 s), back over the feet by 1.4 s.
+#: (the strike lands at ~1.08 s), back over the feet by 1.4 s.
 LEAN_IN = Cmrt(2.6, (0.5, 1.0, 1.4, 2.0), (0.0, 0.06, 0.0, 0.0))
 
 
 def test_punch_into_the_heavy_bag_knocks_the_body_over_without_anticipation():
-    """The strike is delivered (impulse above the task's 15 N s, no contact before P, none lasting); its reaction
+    """The strike is delivered (impulse above the task's 10 N s, no contact before P, none lasting); its reaction
     knocks the reactive controller over backward, and leaning into the punch beforehand keeps balance and puts
-    more weight behind it - the paper's anticipation. (Neither is on time: the bag stops the arm at 40 % of its
-    excursion - tests/sim/test_punch.py.)"""
+    more weight behind it - the paper's anticipation. (Neither is on time: the bag stops the arm about half way
+    through its excursion - tests/sim/test_punch.py.)"""
     task = load_task("punch")
     zero = evaluate(task, simulate(task, record=False))
     assert zero.task_success and zero.contact_impulse_n_s >= task.params["strike_impulse_n_s"]
