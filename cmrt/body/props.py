@@ -109,6 +109,25 @@ def _hand_touch_sensors(spec: mujoco.MjSpec) -> None:
                         objtype=mujoco.mjtObj.mjOBJ_SITE, objname=f"hand_touch_{side}")
 
 
+def fist_velocity(b: dict, rows: np.ndarray, hands: np.ndarray, root: int) -> np.ndarray:
+    """(rows, hands, 2) x/z velocity (m/s) of the fist points (``HAND_OFFSET_M`` in each forearm's frame) of
+    simulations ``rows``, from the batch's ``cvel`` (rotation, then the translation of the point at the subtree
+    CoM of ``root``, the body the hands' chain hangs from) - what ``mj_objectVelocity`` gives at the fist."""
+    R = b["xmat"][rows][:, hands].reshape(rows.size, hands.size, 3, 3)
+    fist = b["xpos"][rows][:, hands] + R @ HAND_OFFSET_M
+    cvel = b["cvel"][rows][:, hands]
+    v = cvel[..., 3:] + np.cross(cvel[..., :3], fist - b["subtree_com"][rows, root][:, None])
+    return v[..., [0, 2]]
+
+
+def fist_reach(b: dict, rows: np.ndarray, hands: np.ndarray, shoulders: np.ndarray, arm_m: float) -> np.ndarray:
+    """(rows, hands) how far each fist point is from its shoulder in the sagittal plane, as a fraction of the arm's
+    length ``arm_m`` (1: the arm straight): how extended the arm is, whatever the elbow and shoulder angles."""
+    R = b["xmat"][rows][:, hands].reshape(rows.size, hands.size, 3, 3)
+    reach = (b["xpos"][rows][:, hands] + R @ HAND_OFFSET_M - b["xpos"][rows][:, shoulders])[..., [0, 2]]
+    return np.hypot(reach[..., 0], reach[..., 1]) / arm_m
+
+
 def fingertip_z(model: mujoco.MjModel, qpos: np.ndarray) -> float:
     """Height of the right fingertip in pose ``qpos`` (the humanoid's coordinates)."""
     d = mujoco.MjData(model)
@@ -559,15 +578,18 @@ class Bag(Prop):
 
     kind = "bag"
     PARAMS = {"bag_mass_kg": 40.0, "bag_x_m": 0.79, "bag_center_z_m": 1.2, "bag_rope_m": 1.0,
-              "bag_timeconst_s": 0.01, "strike_impulse_n_s": 3.0, "max_contact_s": 0.3}
+              "bag_timeconst_s": 0.01, "strike_impulse_n_s": 3.0, "max_contact_s": 0.3, "min_fist_speed_m_s": 0.0,
+              "min_fist_reach": 0.0}
     MODEL_PARAMS = ("bag_mass_kg", "bag_x_m", "bag_center_z_m", "bag_rope_m", "bag_timeconst_s")
     LIMITS = {"bag_mass_kg": Range(0.5, 1000.0, unit="kg"), "bag_x_m": Range(0.2, 5.0, unit="m"),
               # the bag (half its length below its centre) clears the floor; the pivot is above the bag's top
               "bag_center_z_m": Range(BAG_LENGTH_M / 2 + 0.01, 5.0, unit="m"),
               "bag_rope_m": Range(BAG_LENGTH_M / 2, 10.0, unit="m"),
               "bag_timeconst_s": Range(0.004, 1.0, unit="s"),  # at least 2 x the 2 ms physics step
-              "strike_impulse_n_s": Range(0.0, 1e4, unit="N s"), "max_contact_s": Range(0.0, 60.0, unit="s")}
+              "strike_impulse_n_s": Range(0.0, 1e4, unit="N s"), "max_contact_s": Range(0.0, 60.0, unit="s"),
+              "min_fist_speed_m_s": Range(0.0, 100.0, unit="m/s"), "min_fist_reach": Range(0.0, 1.0)}
     mass_body = "bag"
+    every_step = True  # the fist's speed and reach are read at the physics step the contact starts
 
     @classmethod
     def add_to_spec(cls, spec, p):
@@ -588,18 +610,64 @@ class Bag(Prop):
         super().__init__(model, params)
         joint = model.joint("bag_swing")
         self.qpos, self.dof = joint.qposadr[0], joint.dofadr[0]
+        self.hands = np.array([model.body(f"forearm_{side}").id for side in ("r", "l")])
+        self.root = int(model.body_rootid[self.hands[0]])  # cvel is given at this body's subtree CoM
+        self.shoulders = np.array([model.body(f"upper_arm_{side}").id for side in ("r", "l")])  # at the shoulder joint
+        self.arm_m = float(np.linalg.norm(model.body_pos[self.hands[0]]) + np.linalg.norm(HAND_OFFSET_M))
+        self.fist_m_s = np.zeros((0, 2, 2))  # per simulation, each fist's (x, z) velocity at the last step's state
+        self.fist_reach = np.zeros((0, 2))  # ... and each fist's reach (fraction of the arm's length)
+        self.contact_speed_m_s = np.zeros(0)  # the touching fist's speed at the first contact (NaN: none yet)
+        self.contact_reach = np.zeros(0)  # ... and its reach then
+
+    def fields(self):
+        return {"xmat"}
+
+    def start(self, batch, b, n, end_qpos, mass_scale=None):
+        super().start(batch, b, n, end_qpos, mass_scale)
+        self.fist_m_s = np.full((n, 2, 2), np.nan)
+        self.fist_reach = np.full((n, 2), np.nan)
+        self.contact_speed_m_s = np.full(n, np.nan)
+        self.contact_reach = np.full(n, np.nan)
 
     def settle_hold(self, b):
         b["qpos"][:, self.qpos] = 0.0
         b["qvel"][:, self.dof] = 0.0
 
+    def step(self, batch, b, ids, t):
+        """Every physics step: the touch sensors hold the force of the step just taken, which started from the
+        state the fists' velocities were last read at; the first step with a force on a hand is the contact,
+        and that hand's speed and reach then are the fist's at contact. Then read those of the state now."""
+        waiting = ids[np.isnan(self.contact_speed_m_s[ids])]
+        if waiting.size == 0:
+            return
+        force = b["sensordata"][waiting][:, self.sensors]  # (rows, 2): right, left
+        hit = force.max(axis=1) > CONTACT_FORCE_N
+        if hit.any():
+            rows = waiting[hit]
+            side = np.argmax(force[hit], axis=1)
+            self.contact_speed_m_s[rows] = np.hypot(*self.fist_m_s[rows, side].T)
+            self.contact_reach[rows] = self.fist_reach[rows, side]
+            waiting = waiting[~hit]
+        self.fist_m_s[waiting] = fist_velocity(b, waiting, self.hands, self.root)
+        self.fist_reach[waiting] = fist_reach(b, waiting, self.hands, self.shoulders, self.arm_m)
+
     def extras(self, b, rows):
-        """How fast the bag swings away now (m/s at its centre; + = away from the character)."""
-        return {"bag_speed_m_s": -b["qvel"][rows, self.dof] * self.params["bag_rope_m"]}
+        """How fast the bag swings away now (m/s at its centre; + = away from the character), and the speed of
+        the fist that first touched it, at that instant (m/s; NaN: no contact), and that fist's reach then (its
+        distance from the shoulder as a fraction of the arm's length)."""
+        return {"bag_speed_m_s": -b["qvel"][rows, self.dof] * self.params["bag_rope_m"],
+                "fist_speed_at_contact_m_s": self.contact_speed_m_s[rows],
+                "fist_reach_at_contact": self.contact_reach[rows]}
 
     def success(self, b, rows, contact_force_n, times, window):
-        return strike_success(contact_force_n, times, window, self.params["strike_impulse_n_s"],
-                              self.params["max_contact_s"])
+        """The strike rule (``strike_success``), and the fist met the bag at ``min_fist_speed_m_s`` or faster (a
+        punch, not a push) with the arm extended to ``min_fist_reach`` of its length or more (a punch, not a lean
+        that smothers it)."""
+        struck = strike_success(contact_force_n, times, window, self.params["strike_impulse_n_s"],
+                                self.params["max_contact_s"])
+        fast = np.nan_to_num(self.contact_speed_m_s[rows]) >= self.params["min_fist_speed_m_s"] - 1e-9
+        reached = np.nan_to_num(self.contact_reach[rows]) >= self.params["min_fist_reach"] - 1e-9
+        return struck & fast & reached
 
 
 #: The prop kinds a task file may name, each its class.

@@ -160,6 +160,12 @@ class Evaluation:
     # "cop_margin", "final_pose" - empty for a success
     failed_rules: tuple[str, ...] = ()
     success_rule: str = ""
+    # a struck prop (the bag): the speed of the fist that first touched it, at the state that contact step
+    # started from (m/s; None: no contact before any fall, or a prop that does not measure it)
+    fist_speed_at_contact_m_s: float | None = None
+    # ... and how extended that arm was then: the fist's distance from its shoulder over the arm's length (None: as
+    # for the speed)
+    fist_reach_at_contact: float | None = None
 
     def scored(self) -> Evaluation:
         """This evaluation without the trace-only figures: what a scoring run of the same clip gives."""
@@ -397,7 +403,13 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
         **after_fall(traj),
         failed_rules=failed,
         success_rule=success_rule(task),
+        fist_speed_at_contact_m_s=_finite_or_none(traj.prop_extras.get("fist_speed_at_contact_m_s")),
+        fist_reach_at_contact=_finite_or_none(traj.prop_extras.get("fist_reach_at_contact")),
     )
+
+
+def _finite_or_none(x: float | None) -> float | None:
+    return None if x is None or not np.isfinite(x) else float(x)
 
 
 def _impact_windows(traj: Trajectory, first_contact_s: float | None, touchdowns: bool = True) -> np.ndarray:
