@@ -159,6 +159,9 @@ class Prop:
     #: the hands can lean on the prop (a slab): while they touch it the body is held up, and the inverted pendulum's
     #: capture point does not apply. A held ball only pulls on the hands.
     holds_body_up: ClassVar[bool] = True
+    #: the prop is struck (a bag, a pad): it stops the striking limb, whose motion is judged on time up to the
+    #: first contact (objective.timing_lag_s) - what follows is the target's physics, not the motion asked for
+    struck: ClassVar[bool] = False
 
     @classmethod
     def check(cls, p: dict[str, float]) -> None:
@@ -546,6 +549,7 @@ class Pad(Prop):
     """A fixed punching pad (kind ``wall``), to be struck and let go."""
 
     kind = "wall"
+    struck = True
     PARAMS = {"wall_x_m": 0.58, "wall_timeconst_s": 0.01, "strike_impulse_n_s": 3.0, "max_contact_s": 0.3}
     MODEL_PARAMS = ("wall_x_m", "wall_timeconst_s")
     LIMITS = {"wall_x_m": Range(0.2, 5.0, unit="m"), "wall_timeconst_s": Range(0.001, 1.0, unit="s"),
@@ -577,6 +581,7 @@ class Bag(Prop):
     before the task window, no contact episode longer than ``max_contact_s``."""
 
     kind = "bag"
+    struck = True
     PARAMS = {"bag_mass_kg": 40.0, "bag_x_m": 0.79, "bag_center_z_m": 1.2, "bag_rope_m": 1.0,
               "bag_timeconst_s": 0.01, "strike_impulse_n_s": 3.0, "max_contact_s": 0.3, "min_fist_speed_m_s": 0.0,
               "min_fist_reach": 0.0}

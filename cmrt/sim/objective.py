@@ -39,7 +39,7 @@ import mujoco
 import numpy as np
 
 from cmrt.body.character import GRAVITY_M_S2, character
-from cmrt.body.props import CONTACT_FORCE_N
+from cmrt.body.props import CONTACT_FORCE_N, prop_class
 from cmrt.control.controller import ControllerConfig
 from cmrt.motion.task import Task
 from cmrt.sim.simulate import Trajectory
@@ -493,7 +493,13 @@ def timing_lag_s(task: Task, traj: Trajectory) -> float | None:
     over the joints, never below 0. One joint cannot hide behind another (a uniform-delay fit over all
     joints read 0.04 s for a bend whose trunk arrived 0.29 s late), a motion slowed down or done half way
     scores large, and tracking noise does not add lag. None for a task without a pose change, or when
-    balance was lost before the window. (Sampled at the CoP sample steps.)"""
+    balance was lost before the window. (Sampled at the CoP sample steps.)
+
+    A strike (a prop that is ``struck``: a bag, a pad) stops the limb that hits it: a joint that has not covered
+    its 90 % when the hand first touches the prop inside [P, P + T] is judged at that contact - by how far it had
+    got, against when the reference got that far. The rest of its excursion is the follow-through the target
+    stops (a punch aimed through the bag), not the motion being late; the goal says the strike landed hard
+    enough, fast enough and with the arm extended enough."""
     if task.end_pose_deg is None or task.duration_s <= 0 or traj.time_s.size < 2:
         return None
     start, stop = task.task_window_s()
@@ -502,6 +508,7 @@ def timing_lag_s(task: Task, traj: Trajectory) -> float | None:
     idx, t = idx[t >= start - 1e-9], t[t >= start - 1e-9]
     if idx.size == 0:
         return None
+    strike_s = _strike_s(task, traj, start, stop)
     q_ref = _reachable(task.reference(t)[0])
     ch = character()
     skip = set()
@@ -518,10 +525,24 @@ def timing_lag_s(task: Task, traj: Trajectory) -> float | None:
         if abs(target) <= DRIVING_JOINT_RAD:
             continue
         goal = TIMING_FRACTION * abs(target)
-        ref_at = _crossing_s(t, np.sign(target) * (q_ref[:, j] - q_ref[0, j]), goal)
         done_at = _crossing_s(t, np.sign(target) * (traj.qpos[idx, j] - q_ref[0, j]), goal)
+        if strike_s is not None and (done_at is None or done_at > strike_s + 1e-9):  # stopped by the target
+            got = np.sign(target) * (np.interp(strike_s, t, traj.qpos[idx, j]) - q_ref[0, j])
+            ref_at = _crossing_s(t, np.sign(target) * (q_ref[:, j] - q_ref[0, j]), min(got, goal))
+            lags.append(strike_s - (start if ref_at is None else ref_at))
+            continue
+        ref_at = _crossing_s(t, np.sign(target) * (q_ref[:, j] - q_ref[0, j]), goal)
         lags.append((t[-1] if done_at is None else done_at) - ref_at)
     return max(0.0, float(max(lags))) if lags else None
+
+
+def _strike_s(task: Task, traj: Trajectory, start: float, stop: float) -> float | None:
+    """The first hand contact with a struck prop inside the task window [P, P + T] (None: not a strike)."""
+    if not prop_class(task.prop).struck:
+        return None
+    f = np.nan_to_num(traj.prop_force_n)
+    hit = np.flatnonzero((f > CONTACT_FORCE_N) & (traj.time_s >= start - 1e-9) & (traj.time_s <= stop + 1e-9))
+    return float(traj.time_s[hit[0]]) if hit.size else None
 
 
 def _reachable(q_ref: np.ndarray) -> np.ndarray:

@@ -189,3 +189,23 @@ def test_unannounced_pushes_and_touchdowns_are_impacts_for_the_plan_but_not_for_
     assert evaluate(slow, _clip(slow, a)).success
     a["fz"][760] = 2.6 * character().mass_kg * 9.81
     assert evaluate(slow, _clip(slow, a)).failed_rules == ("ground_force",)
+
+
+def test_a_strike_is_judged_on_time_at_its_contact():
+    """A struck prop stops the arm that hits it: a joint not yet at 90 % of its excursion when the hand first touches
+    the bag is judged by how far it had got, against when the reference got that far. The same arm frozen at the
+    same pose without a contact is late (it never gets there), and one that reaches the bag 60 ms behind its
+    reference is late by 60 ms."""
+    punch = load_task("punch")
+    t = clip_times(punch)
+    contact_s = punch.preparation_s + 0.08  # half way out to the via pose (0.16 s)
+
+    def struck(delay_s: float, touch: bool) -> Trajectory:
+        q = reference_at(punch, np.minimum(t - delay_s, contact_s - delay_s))  # stopped where it met the bag
+        traj = played(punch, q)
+        force = np.where(touch & (t >= contact_s) & (t < contact_s + 0.05), 500.0, 0.0)
+        return dataclasses.replace(traj, prop_force_n=force)
+
+    assert timing_lag_s(punch, struck(0.0, True)) == pytest.approx(0.0, abs=1e-6)
+    assert timing_lag_s(punch, struck(0.06, True)) == pytest.approx(0.06, abs=2e-3)
+    assert timing_lag_s(punch, struck(0.0, False)) > 1.0  # no target: an arm that stops half way never arrives

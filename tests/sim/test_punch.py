@@ -130,19 +130,20 @@ def test_the_zero_cmrt_is_knocked_over_backward_by_the_strike(punch, recorded):
     _, ev = recorded
     assert ev.fell and ev.fall_direction == "backward" and ev.fall_time_s > ev.first_contact_s + 0.3
     assert ev.contact_impulse_n_s > punch.params["strike_impulse_n_s"] and ev.task_success
-    assert ev.failed_rules == ("balance", "on_time")
+    assert ev.failed_rules == ("balance",)  # on time at the bag: the strike's reaction is what fells it
     alone = evaluate(_free(punch), simulate(_free(punch), record=False))
     assert not alone.fell
 
 
 def test_the_cmrt_keeps_balance_through_the_strike_and_is_on_time_at_the_bag(punch):
-    """Leaning the CoM ~3 cm forward through the strike (SEED1) keeps balance and puts weight behind the fist;
-    every rule holds but the shared on-time rule, which no CMRT can meet: the bag stops the arm where it meets
-    it, 35-55 % through its joints' excursions. Judged at that contact - each driving joint's progress there
-    against when the reference got as far - the punch is on time."""
+    """Leaning the CoM ~3 cm forward through the strike (SEED1) keeps balance and puts weight behind the fist: a
+    success by every rule. The bag stops the arm where it meets it, 35-55 % through its joints' excursions, so
+    the on-time rule judges a strike at that contact (objective.timing_lag_s): each driving joint's progress
+    there against when the reference got as far. Judged at 90 % of the excursions instead, as a pose change is,
+    no CMRT could be on time."""
     traj = simulate(punch, SEED1)
     ev = evaluate(punch, traj)
-    assert ev.failed_rules == ("on_time",) and not ev.fell and ev.task_success
+    assert ev.success and ev.failed_rules == () and ev.task_success
     assert ev.fist_speed_at_contact_m_s > 5.5 and ev.fist_reach_at_contact >= punch.params["min_fist_reach"]
     assert ev.contact_impulse_n_s > 14.0 and 2000.0 < ev.peak_contact_force_n < 5000.0  # a heavy-bag punch
     assert ev.max_joint_speed_rad_s < 20.0 and ev.peak_normal_force_bw < 2.0
@@ -188,7 +189,9 @@ def _on_time_straight(punch, **params):
 
 def test_an_on_time_straight_is_slow_at_its_reach_and_a_bag_there_stops_it(punch):
     """On time to 90 % of the excursion, the fist is at 2-3 m/s there; a bag placed 1.5 cm short of that reach stops
-    the arm short of 90 % (the heavy bag does not give way), a bag at it is met at under 3 m/s."""
+    the arm short of 90 % (the heavy bag does not give way) and is met as slowly, a bag at it at under 3 m/s: a
+    planar straight at full reach is a push, which is why the shipped punch meets its bag at 69 % of the arm's
+    length and is judged on time at the contact."""
     free = _on_time_straight(punch, bag_x_m=1.5)
     traj = simulate(free)
     ev = evaluate(free, traj)
@@ -202,7 +205,9 @@ def test_an_on_time_straight_is_slow_at_its_reach_and_a_bag_there_stops_it(punch
     face = fist[0] + 0.035  # the capsule's end: the fist's knuckles
     short = _on_time_straight(punch, bag_x_m=face - 0.015, bag_center_z_m=1.35)
     blocked = evaluate(short, simulate(short, record=False))
-    assert blocked.first_contact_s is not None and blocked.timing_lag_s > 10 * blocked.timing_lag_bound_s
+    assert blocked.first_contact_s is not None and blocked.fist_speed_at_contact_m_s < 3.5
+    progress = _progress_at(short, simulate(short), _contact_step(simulate(short), blocked))
+    assert min(progress[j][0] for j in ("shoulder_r", "elbow_r")) < TIMING_FRACTION  # stopped short of 90 %
     at_reach = _on_time_straight(punch, bag_x_m=face, bag_center_z_m=1.35)
     met = evaluate(at_reach, simulate(at_reach, record=False))
     assert met.timing_lag_s <= met.timing_lag_bound_s and met.fist_speed_at_contact_m_s < 3.0
