@@ -52,6 +52,9 @@ MAX_PASSES = 8  # active-set passes with the wrench rows alone
 MAX_PASSES_LIMITS = 40
 # A torque beyond its limit by more than this fraction means the QP found no plan within the limits.
 LIMIT_SLACK = 1e-6
+# A plan solved without the limit rows is kept only if it keeps each of them clear by this (a fraction of a torque
+# limit, or rad/s^2 of a joint stop's spring): far beyond rounding, so the whole QP would not have added the row.
+LIMIT_CLEARANCE = 1e-6
 TOL = 1e-9
 # Feet farther apart than this (heel to heel, m) stand in a split stance - only a step gets them there: the
 # plan's load is then split with every point's share bounded below (``bounded_shares``). Side by side the
@@ -398,8 +401,8 @@ def _point_floor(fmin, n_flat, n_points, length, low_load):
 def _ground_rows(A, a_g, pts, com, mg, params, support, nrow, E, e, ne, low_load=False):
     """The ground's rows on the wrench w = A qdd + a (F_x = w0, F_z = w1 + m g, Hdot = w2): unilateral F_z,
     two friction rows and two CoP rows (C, c, the first N_INEQ of ``nrow`` rows; the rest are filled by
-    :func:`_limit_rows`) with which are on; a rolling foot's CoP equality and an airborne body's zero wrench
-    go into (E, e). ``support``: (lo, hi, n_flat, n_points). Returns (C, c, c_on, ne, arm)."""
+    :func:`_torque_rows` and :func:`_stop_rows`) with which are on; a rolling foot's CoP equality and an airborne
+    body's zero wrench go into (E, e). ``support``: (lo, hi, n_flat, n_points). Returns (C, c, c_on, ne, arm)."""
     lo, hi, n_flat, n_points = support
     nv = A.shape[1]
     grounded = n_points > 0
@@ -523,27 +526,35 @@ def _ground_bias(a, frame, qd, chain, com, ext_f_row, ext_p_row, field_f_row, fi
 
 
 @njit(cache=True, nogil=True)
-def _limit_rows(C, c, c_on, torque, q, qd, actuated, limits, params):
-    """The motors' limits and the joint stops as rows of the QP (in place, after the ground's N_INEQ rows):
-    |T qdd + t0| <= the torque limit, and a joint may approach its stop (less a margin) no faster than a
-    critically damped spring would, qdd >= -k (q - lo) - d qd: the plan never leans on a stop, whose force it
-    does not model (a standing knee on its 0 rad stop carried up to 47 N m that way). ``torque``: (Tm, t0)."""
+def _torque_rows(C, c, c_on, torque, actuated, limits):
+    """The motors' limits as rows of the QP (in place, after the ground's N_INEQ rows): |T qdd + t0| <= the torque
+    limit. ``torque``: (Tm, t0)."""
     Tm, t0 = torque
-    nu = actuated.size
-    kj, dj = params[P_JK], params[P_JD]
-    for u in range(nu):
+    for u in range(actuated.size):
         ju = actuated[u]
         lim = limits[u, 0]
         C[N_INEQ + 2 * u] = -Tm[u]
         c[N_INEQ + 2 * u] = lim - t0[ju]
         C[N_INEQ + 2 * u + 1] = Tm[u]
         c[N_INEQ + 2 * u + 1] = lim + t0[ju]
+        c_on[N_INEQ + 2 * u] = c_on[N_INEQ + 2 * u + 1] = True
+
+
+@njit(cache=True, nogil=True)
+def _stop_rows(C, c, c_on, q, qd, actuated, limits, params):
+    """The joint stops as rows of the QP (in place, after the torque rows): a joint may approach its stop (less a
+    margin) no faster than a critically damped spring would, qdd >= -k (q - lo) - d qd: the plan never leans on a
+    stop, whose force it does not model (a standing knee on its 0 rad stop carried up to 47 N m that way)."""
+    nu = actuated.size
+    kj, dj = params[P_JK], params[P_JD]
+    for u in range(nu):
+        ju = actuated[u]
         r = N_INEQ + 2 * nu + 2 * u
         C[r, ju] = 1.0
         c[r] = kj * (q[ju] - limits[u, 1]) + dj * qd[ju]
         C[r + 1, ju] = -1.0
         c[r + 1] = -kj * (q[ju] - limits[u, 2]) - dj * qd[ju]
-        c_on[N_INEQ + 2 * u] = c_on[N_INEQ + 2 * u + 1] = c_on[r] = c_on[r + 1] = True
+        c_on[r] = c_on[r + 1] = True
 
 
 @njit(cache=True, nogil=True)
@@ -582,6 +593,67 @@ def _inverse_dynamics(A, qdd, a_g, mg, com, arm, dyn, load_gen, pts, Jp, loaded,
             saturated = 1.0
         tau_row[u] = min(max(t, -lim), lim)
     return fx, fz, cop, saturated
+
+
+@njit(cache=True, nogil=True)
+def _plan(qp, params, passes, active, in_plan, body, motors):
+    """The QP's plan (``solve_qp``; ``active`` in and out). With the motors' limits and the joint stops in the plan,
+    the torque rows (the costly part: the torque map) are built only when they may bind: if none was active at the
+    last control step, the QP is first solved with the ground's and the joint stops' rows alone and that plan kept
+    if it keeps every torque row clear by ``LIMIT_CLEARANCE`` - it is then the whole QP's optimum (a convex QP whose
+    relaxed optimum is feasible), found from the same final set of rows in the same order, so bit for bit the same
+    plan. Otherwise the torque rows are built and the whole QP is solved. Most steps need none (``cmrt bench``).
+    ``qp``: (Q, g, E, e, C, c, c_on) with the ground's rows filled; ``body``: (q, qd, dyn, loaded, load_gen,
+    (A, a_g, mg, com, arm, pts, Jp, n_points)); ``motors``: (actuated, limits)."""
+    Q, g, E, e, C, c, c_on = qp
+    if not in_plan:
+        return solve_qp(Q, g, E, e, C, c, c_on, params[P_DUALREG], passes, active)
+    q, qd, dyn, loaded, load_gen, geo = body
+    actuated, limits = motors
+    A, a_g, mg, com, arm, pts, Jp, n_points = geo
+    nu = actuated.size
+    _stop_rows(C, c, c_on, q, qd, actuated, limits, params)
+    relaxed = True
+    for k in range(N_INEQ, N_INEQ + 2 * nu):
+        relaxed = relaxed and not active[k]
+    if relaxed:
+        trial = active.copy()
+        x = solve_qp(Q, g, E, e, C, c, c_on, params[P_DUALREG], passes, trial)
+        if _clear_of_limits(x, dyn, loaded, load_gen, geo, motors):
+            active[:] = trial
+            return x
+    Tm, t0 = _torque_map(dyn, actuated, nu, n_points > 0, A, a_g, mg, com, arm, pts, Jp, loaded)
+    for eb in range(load_gen.shape[0]):
+        t0 -= load_gen[eb]
+    _torque_rows(C, c, c_on, (Tm, t0), actuated, limits)
+    return solve_qp(Q, g, E, e, C, c, c_on, params[P_DUALREG], passes, active)
+
+
+@njit(cache=True, nogil=True)
+def _clear_of_limits(x, dyn, loaded, load_gen, geo, motors):
+    """Whether the plan ``x`` keeps every torque row of :func:`_torque_rows` clear by ``LIMIT_CLEARANCE`` of its
+    limit: each motor's torque - the same affine map, tau = M x + h - the held load - J' f with the plan's ground
+    force split as :func:`_torque_map` splits it - within its limit."""
+    M, h = dyn
+    carries, count, mean, spread = loaded
+    actuated, limits = motors
+    A, a_g, mg, com, arm, pts, Jp, n_points = geo
+    gen = M @ x + h
+    for eb in range(load_gen.shape[0]):
+        gen -= load_gen[eb]
+    if n_points > 0:
+        w = A @ x + a_g
+        fz = w[1] + mg
+        moment = (com[0] - mean) * fz + arm * w[0] - w[2]  # (cop - mean) fz, linear in the plan
+        for p in range(4):
+            if carries[p]:
+                lever = (pts[p, 0] - mean) / spread if spread > 1e-12 else 0.0
+                gen -= Jp[p, 0] * (w[0] / count) + Jp[p, 1] * (fz / count + lever * moment)
+    for u in range(actuated.size):
+        lim = limits[u, 0]
+        if abs(gen[actuated[u]]) > lim - LIMIT_CLEARANCE * lim:
+            return False
+    return True
 
 
 # control_step's arguments, grouped: ``fields`` (cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias,
@@ -643,27 +715,22 @@ def control_step(rows, fields, model, refs, support, warm, load, out):
         C, c, c_on, ne, arm = _ground_rows(A, a_g, pts, com, mg, params, support_now, nrow, E, e, ne_support)
 
         # the torques are affine in the plan, tau = T qdd + t0: the motors' limits are rows of the QP, so the
-        # plan is one the motors can carry out - nothing is clipped after the solve
+        # plan is one the motors can carry out - nothing is clipped after the solve (built only when they may bind)
         loaded = _loaded_points(state, pts)
         dyn = _dense_dynamics(row, M_sparse, m_rows, m_cols, qfrc_bias, qfrc_passive, nv)
-        Tm, t0 = _torque_map(dyn, actuated, nu if in_plan else 0, n_points > 0, A, a_g, mg, com, arm, pts, Jp,
-                             loaded)
         load_gen = _load_forces(frame, qd, chain, ext_bodies, ext_p[i], com, fex, fez)
         if field_gen.shape[0] > 0:
             load_gen = np.concatenate((load_gen, field_gen))
-        for eb in range(load_gen.shape[0]):
-            t0 -= load_gen[eb]
-        if in_plan:
-            _limit_rows(C, c, c_on, (Tm, t0), q, qd, actuated, limits, params)
         active = warm_in[row, :nrow].copy() if params[P_WARM] > 0.0 else np.zeros(nrow, np.bool_)
         passes = MAX_PASSES_LIMITS if in_plan else MAX_PASSES
-        qdd = solve_qp(Q, g, E[:ne], e[:ne], C, c, c_on, params[P_DUALREG], passes, active)
+        body = (q, qd, dyn, loaded, load_gen, (A, a_g, mg, com, arm, pts, Jp, n_points))
+        qdd = _plan((Q, g, E[:ne], e[:ne], C, c, c_on), params, passes, active, in_plan, body,
+                    (actuated, limits))
         if n_flat > 0 and A[1] @ qdd + a_g[1] + mg < 2.0 * n_points * params[P_FMIN]:  # a low load: the floor per
             C, c, c_on, ne, arm = _ground_rows(A, a_g, pts, com, mg, params, support_now, nrow, E, e, ne_support,
                                                True)  # point becomes half an equal share (_point_floor), re-planned
-            if in_plan:
-                _limit_rows(C, c, c_on, (Tm, t0), q, qd, actuated, limits, params)
-            qdd = solve_qp(Q, g, E[:ne], e[:ne], C, c, c_on, params[P_DUALREG], passes, active)
+            qdd = _plan((Q, g, E[:ne], e[:ne], C, c, c_on), params, passes, active, in_plan, body,
+                        (actuated, limits))
         warm_out[row, :nrow] = active
         warm_out[row, nrow:] = False
 
