@@ -15,7 +15,7 @@ import pytest
 from cmrt import inputs
 from cmrt.body.props import PROPS
 from cmrt.cli import commands as cli
-from cmrt.errors import CmrtError
+from cmrt.errors import CmrtError, DiskFull
 from cmrt.inputs import MAX_RUN_S, Range, shown
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.sequence import load_sequence
@@ -173,7 +173,7 @@ def test_cmrt_json_is_checked():
 def test_atomic_output_never_leaves_half_a_file(tmp_path):
     target = tmp_path / "out.json"
     target.write_text("old")
-    with pytest.raises(CmrtError, match="No space left"):
+    with pytest.raises(DiskFull, match="disk full"):  # a machine fault, not bad input: exit 75 (docs/service.md)
         with inputs.atomic_output(target, "--out") as tmp:
             tmp.write_text("partial")
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
@@ -200,16 +200,17 @@ def test_json_output_has_no_nan():
 
 
 def test_show_and_export_json_never_print_nan(tmp_path, capsys):
+    """A stored run whose JSON columns hold NaN or Infinity (``json.dumps`` writes them) is a damaged store: refused
+    in one line, exit 2, before anything is printed - so no NaN ever reaches the output."""
     store = make_store(tmp_path / "s.sqlite")
-    con = sqlite3.connect(store)  # a stored run whose JSON columns hold NaN (json.dumps writes it)
+    con = sqlite3.connect(store)
     con.execute("UPDATE runs SET params = ?, robustness = ? WHERE id = 1",
                 (json.dumps({"clip_s": math.nan}), json.dumps({"min_cop_margin_m": math.inf})))
     con.commit()
     con.close()
-    r = call(capsys, ["show", "1", "--json", "--store", store])
-    assert r.rc == 0 and assert_valid_json(r.out)["params"]["clip_s"] is None
-    r = call(capsys, ["export", "1", "--store", store])
-    assert r.rc == 0 and assert_valid_json(r.out)["run"]["robustness"]["min_cop_margin_m"] is None
+    for argv in (["show", "1", "--json"], ["export", "1"]):
+        r = call(capsys, [*argv, "--store", store])
+        assert r.rc == 2 and r.out == "" and r.err.startswith("cmrt: error: the store is damaged")
 
 
 def test_simulate_json_turns_nan_into_null(tmp_path, capsys, monkeypatch):

@@ -76,17 +76,16 @@ def _line(ax, prefix):
     return line
 
 
-def test_sequence_figure_stops_the_cop_at_the_fall():
-    """four-poses with zero CMRTs loses its balance at 3.25 s (recorded: the topple plays out to 8.6 s);
-    its CoP line ends there, the superposed one (a success) runs to the end."""
+def test_sequence_figure_shows_the_late_zero_and_the_superposed_success():
+    """four-poses with zero CMRTs keeps its balance but is late (its motions lag their references); the figure
+    draws both CoP lines to the end, labelled with their verdicts, the superposed one a success."""
     fig = plot.sequence_figure("four-poses")
     try:
         top, bottom = fig.axes[:2]
         for ax in (top, bottom):
             assert_legend_covers_everything(ax)
-        fall = _line(bottom, "zero CMRTs: balance lost").get_xdata()[0]
-        assert 3.0 < fall < 3.5
-        assert _line(bottom, "zero CMRTs: e=").get_xdata().max() <= fall
+        zero = _line(bottom, "zero CMRTs: e=")
+        assert zero.get_xdata().max() > 8.0 and "(SUCCESS)" not in zero.get_label()
         assert _line(bottom, "superposed CMRTs: e=").get_xdata().max() > 8.0
         assert "(SUCCESS)" in _line(bottom, "superposed CMRTs: e=").get_label()
     finally:
