@@ -486,11 +486,12 @@ class Slab(Prop):
 
     kind = "slab"
     PARAMS = {"slab_mass_kg": 140.0, "slab_x_m": 0.62, "slab_thickness_m": 0.25, "slab_height_m": 1.8,
-              "max_push_force_n": MAX_PUSH_FORCE_N}
-    MODEL_PARAMS = ("slab_mass_kg", "slab_x_m", "slab_thickness_m", "slab_height_m")
+              "max_push_force_n": MAX_PUSH_FORCE_N, "slab_timeconst_s": 0.01}
+    MODEL_PARAMS = ("slab_mass_kg", "slab_x_m", "slab_thickness_m", "slab_height_m", "slab_timeconst_s")
     LIMITS = {"slab_mass_kg": Range(1.0, 10_000.0, unit="kg"), "slab_x_m": Range(0.2, 5.0, unit="m"),
               "slab_thickness_m": Range(0.01, 2.0, unit="m"), "slab_height_m": Range(0.05, 5.0, unit="m"),
-              "max_push_force_n": Range(0.0, 1e6, unit="N")}
+              "max_push_force_n": Range(0.0, 1e6, unit="N"),
+              "slab_timeconst_s": Range(0.004, 1.0, unit="s")}  # at least 2 x the 2 ms physics step
     mass_body = "slab"
 
     @classmethod
@@ -500,7 +501,7 @@ class Slab(Prop):
         _free_planar(body, "slab")
         body.add_geom(name="slab", type=mujoco.mjtGeom.mjGEOM_BOX, size=[t / 2, SLAB_WIDTH_M / 2, h / 2],
                       mass=p["slab_mass_kg"], contype=1, conaffinity=1, friction=[1.0, 0.005, 0.0001],
-                      rgba=[0.5, 0.5, 0.6, 1])
+                      solref=[p["slab_timeconst_s"], 1.0], rgba=[0.5, 0.5, 0.6, 1])
         _hand_touch_sensors(spec)
         for side in ("r", "l"):  # the full force (normal and friction) each forearm puts on the slab, and where
             sensor = spec.add_sensor(name=f"slab_push_{side}", type=mujoco.mjtSensor.mjSENS_CONTACT,
