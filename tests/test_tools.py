@@ -589,9 +589,10 @@ def test_compare_surfaces_bad_input_is_one_line_and_exit_2(args):
 
 @pytest.mark.slow  # one short CMA-ES run
 def test_compare_surfaces_optimizes_a_cmrt_where_the_zero_one_fails():
-    """The fast bend on the shaking plane fails without a CMRT; with a budget the tool optimizes one there (the
-    library start succeeds in its first generation) and reports it in a row of its own."""
-    out = run_tool("compare_surfaces.py", "--surfaces", "shaking", "--modes", "center", "--tasks", "bend",
+    """The fast bend on the level floor fails without a CMRT; with a budget the tool optimizes one there (the
+    library start succeeds in its first generation) and reports it in a row of its own. (On the shaking plane the
+    0.4 s bend needs hundreds of evaluations: docs/surfaces.md.)"""
+    out = run_tool("compare_surfaces.py", "--surfaces", "level", "--modes", "center", "--tasks", "bend",
                    "--max-evals", "10", "--json")
     assert out.returncode == 0, out.stderr
     zero, cmrt_row = json.loads(out.stdout)["rows"]
@@ -603,9 +604,11 @@ def test_compare_surfaces_optimizes_a_cmrt_where_the_zero_one_fails():
 # --- tools/stepping_table.py --------------------------------------------------------------------
 
 def test_stepping_table_measures_plans_pushes_and_yus_walk():
-    """Two steps of 0.2 and 0.3 m and a three-step plan land where asked, within the plausibility limits; a 100 N
-    push during the three-step plan is one row with its outcome and its steps. Yu's walk re-keyed with 0.2 m steps
-    succeeds at its own crouch; 0.3 m steps need a deeper one, and with it succeed too; pushed, it is a row too."""
+    """Two steps of 0.2 and 0.3 m and a three-step plan land where asked, with touchdowns under 2.5 BW, and the body
+    stays up ("survived": under the one verdict rule a plan's split stance is not yet a success, docs/stepping.md); a
+    100 N push during the three-step plan is one row with its outcome and its steps. Yu's walk re-keyed with 0.2 m
+    steps succeeds at its own crouch; 0.3 m steps need a deeper one, and with it the walk stays up; pushed, it is a
+    row too."""
     out = run_tool("stepping_table.py", "--lengths", "0.2,0.3", "--durations", "0.6", "--steps", "3", "--pushes",
                    "100", "--push-times", "1.0", "--json")
     assert out.returncode == 0, out.stderr
@@ -613,7 +616,7 @@ def test_stepping_table_measures_plans_pushes_and_yus_walk():
     assert [r["plan"] for r in result["plans"]] == ["R:+0.2:0.6,L:+0.4:0.6", "R:+0.3:0.6,L:+0.6:0.6",
                                                     "R:+0.2:0.6,L:+0.4:0.6,R:+0.4:0.6"]
     for r in result["plans"]:
-        assert r["success"] and r["footsteps_landed"] == r["planned_steps"]
+        assert r["outcome"] in ("success", "survived") and r["footsteps_landed"] == r["planned_steps"]
         assert r["max_footstep_error_m"] < 0.02 and r["peak_touchdown_force_bw"] <= 2.5
         assert 0.0 < r["max_touchdown_speed_m_s"] < 0.3  # heel-first or flat, gently (docs/stepping.md)
         assert 0.0 <= r["max_timing_error_s"] < 0.3
@@ -624,7 +627,8 @@ def test_stepping_table_measures_plans_pushes_and_yus_walk():
     assert walked["outcome"] == "success" and walked["footsteps_landed"] == walked["planned_steps"] == 7
     assert walked["max_footstep_error_m"] < 0.02 and walked["peak_touchdown_force_bw"] <= 2.5
     assert 0.0 < walked["max_touchdown_speed_m_s"] < 0.3 and walked["crouch_m"] == 0.03
-    assert longer["outcome"] == "success" and longer["crouch_m"] > 0.03
+    assert longer["outcome"] in ("success", "survived") and longer["crouch_m"] > 0.03
+    assert longer["footsteps_landed"] == longer["planned_steps"] == 7
     (pushed,) = result["gait_pushes"]
     assert (pushed["push_n"], pushed["push_start_s"]) == (100.0, 1.0) and pushed["outcome"] in ("success", "fell")
 

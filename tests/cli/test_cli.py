@@ -26,7 +26,7 @@ def test_simulate_json_fields_and_trace(tmp_path):
         assert key in out
     assert out["task"] == "bend" and out["speed"] == 1.2 and out["fell"] is False and out["success"] is True
     # simulate records: the plan is there (the slow bend meets it to < 1 mm); no fall, no fall figures
-    assert 0.0 < out["max_plan_cop_error_m"] < 0.001 and 0.0 < out["timing_lag_s"] < 0.1
+    assert 0.0 < out["max_plan_cop_error_m"] < 0.001 and 0.0 <= out["timing_lag_s"] <= 0.04
     assert out["fall_direction"] is None and out["after_fall_floor_contact_s"] is None
     z = np.load(trace)
     for key in (

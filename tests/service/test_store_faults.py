@@ -285,7 +285,9 @@ def test_two_workers_with_a_stale_time_shorter_than_a_generation_never_take_a_ru
     switched off, this test fails.)"""
     path = tmp_path / "s.sqlite"
     with open_store(path) as store:
-        rid = submit(store, TASK, seed=3, max_evals=400, popsize=40, init="none", min_evals=400)
+        # no threshold stop: a random first generation of the 0.4 s bend can already hold a success under 0.7
+        rid = submit(store, TASK.with_params(stop_threshold=0.0), seed=3, max_evals=400, popsize=40, init="none",
+                     min_evals=400)
     first = spawn_worker(path, "--until-idle", "--stale-after", "0.3", backend="serial")
     _wait_for_a_generation(path, rid)
     second = spawn_worker(path, "--once", "--stale-after", "0.3", backend="serial")
