@@ -377,7 +377,8 @@ def test_plausibility_tool():
     assert {r["curve"] for r in rows if r["task"] == "bend"} == {"zero", "library"}
     for r in rows:
         assert {"success", "fell", "peak_normal_force_bw", "airborne_s", "max_joint_speed_rad_s", "min_cop_margin_m",
-                "tracking_error_rad", "objective"} <= set(r)
+                "tracking_error_rad", "objective", "failed_rules"} <= set(r)
+        assert r["success"] == (r["failed_rules"] == [])
 
 
 def test_profile_evaluator_tool():

@@ -19,7 +19,7 @@ from cmrt.sim.simulate import simulate_batch
 CASES = [
     ("stand", {}), ("stand", {"push_force_n": 100.0, "push_duration_s": 0.1}),
     ("stand", {"push_force_n": -100.0, "push_duration_s": 0.1}),
-    ("bend", {"duration_s": 0.4}), ("bend", {"duration_s": 1.2}), ("rise", {"duration_s": 0.5}),
+    ("bend", {"duration_s": 0.4}), ("bend", {"duration_s": 1.2}), ("rise", {"duration_s": 0.4}),
     ("punch", {}), ("catch", {}), ("push", {}),
 ]
 
@@ -42,6 +42,7 @@ def rows() -> list[dict]:
                 "peak_normal_force_bw": ev.peak_normal_force_bw, "airborne_s": ev.airborne_s,
                 "max_joint_speed_rad_s": ev.max_joint_speed_rad_s, "min_cop_margin_m": ev.min_cop_margin_m,
                 "tracking_error_rad": ev.tracking_error_rad, "objective": ev.objective,
+                "failed_rules": list(ev.failed_rules),
             })
     return out
 
@@ -55,7 +56,7 @@ def main() -> None:
         print(json.dumps(table, indent=2))
         return
     print(f"{'task':<26} {'curve':<8} {'success':<8} {'fall':<42} {'GRF/BW':>6} {'air s':>6} {'joint':>6} "
-          f"{'margin':>7} {'track':>6}")
+          f"{'margin':>7} {'track':>6}  failed rules")
     for r in table:
         short = {"push_force_n": "push {:g} N", "push_duration_s": "x {:g} s", "duration_s": "T {:g} s"}
         label = " ".join([r["task"]] + [short[k].format(v) for k, v in r["params"].items()])
@@ -63,7 +64,7 @@ def main() -> None:
         track = "-" if r["tracking_error_rad"] != r["tracking_error_rad"] else f"{r['tracking_error_rad']:.3f}"
         print(f"{label:<26} {r['curve']:<8} {str(r['success']):<8} {fall:<42} {r['peak_normal_force_bw']:6.2f} "
               f"{r['airborne_s']:6.3f} {r['max_joint_speed_rad_s']:6.1f} {100 * r['min_cop_margin_m']:5.1f}cm "
-              f"{track:>6}")
+              f"{track:>6}  {', '.join(r['failed_rules']) or '-'}")
 
 
 if __name__ == "__main__":

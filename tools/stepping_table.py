@@ -110,6 +110,7 @@ def _figures(task, durations: list[float], push_n: float, push_start_s: float) -
     return {
         "push_n": push_n, "push_start_s": push_start_s,
         "outcome": "success" if e.success else ("fell" if e.fell else "survived"),
+        "failed_rules": list(e.failed_rules),  # which rules of the one verdict (docs/physics.md) the clip breaks
         "success": e.success, "performed": e.performed, "fell": e.fell, "steps": e.steps,
         "planned_steps": len(durations), "footsteps_landed": e.footsteps_landed,
         "max_footstep_error_m": e.max_footstep_error_m,
@@ -142,12 +143,19 @@ def _cells(r: dict) -> tuple[str, str, str, str]:
     return err, peak, speed, f"{r['thorax_most_forward_deg']:.0f} to {r['thorax_most_backward_deg']:+.0f}"
 
 
+def _verdict(r: dict) -> str:
+    """The outcome as a cell: success, fell, or stood up and which rules of the one verdict the clip broke."""
+    if r["outcome"] == "survived" and r.get("failed_rules"):
+        return f"stood; not: {', '.join(r['failed_rules'])}"
+    return r["outcome"]
+
+
 def _push_table(title: str, steps: str, rows: list[dict]) -> None:
     print()
     print(f"| {title} | starts (s) | outcome | {steps} |")
     print("|---|---|---|---|")
     for r in rows:
-        print(f"| {r['push_n']:+g} | {r['push_start_s']:g} | {r['outcome']} | {r.get('steps')} "
+        print(f"| {r['push_n']:+g} | {r['push_start_s']:g} | {_verdict(r)} | {r.get('steps')} "
               f"({r.get('planned_steps')}) |")
 
 
@@ -192,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
     for r in plans:
         late = "-" if r["max_timing_error_s"] is None else f"{r['max_timing_error_s']:.3f}"
         err, peak, speed, thorax = _cells(r)
-        print(f"| `{r['plan']}` | {r['outcome']} | {err} | {peak} | {speed} | {late} | {thorax} |")
+        print(f"| `{r['plan']}` | {_verdict(r)} | {err} | {peak} | {speed} | {late} | {thorax} |")
     _push_table("push (N)", "steps (planned)", pushed)
     print()
     print("| Yu's tracked walk | outcome | placement error (mm) | peak touchdown force (BW) | touchdown speed (m/s) "
@@ -202,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
         if r["outcome"] == "refused":
             print(f"| {r['gait']} | refused: {r['reason']} | - | - | - | - |")
         else:
-            print(f"| {r['gait']} | {r['outcome']} | {' | '.join(_cells(r))} |")
+            print(f"| {r['gait']} | {_verdict(r)} | {' | '.join(_cells(r))} |")
     _push_table("push on Yu's walk (N)", "steps (keyed)", gait_pushes)
     print(f"\n{out['wall_s']} s on {out['machine']}, Python {out['python']}")
     return 0

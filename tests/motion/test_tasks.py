@@ -101,7 +101,7 @@ def test_zero_and_library_cmrt(name):
             assert lib.final_pose_error_rad < 0.1
     elif kind == "stepping":
         assert not zero.success and not lib.success and not lib.fell and lib.footsteps_landed == len(task.steps)
-        assert set(lib.failed_rules) <= STEPPING_OPEN and lib.objective <= 0.5 * zero.objective
+        assert set(lib.failed_rules) <= STEPPING_OPEN and lib.objective < zero.objective  # stands where zero falls
     elif kind == "reactive":
         assert zero.success and lib.success and lib.objective < zero.objective
     elif kind == "standing":
