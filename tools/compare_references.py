@@ -62,7 +62,8 @@ def _row(label: str, task, curve_kind: str, curve, source: str) -> dict:
             "success": ev.success, "objective": ev.objective, "cop_error_norm": ev.cop_error_norm,
             "cop_error_own_reference_norm": ev.cop_error_own_reference_norm,
             "min_cop_margin_m": ev.min_cop_margin_m, "fell": ev.fell, "fall_reason": ev.fall_reason,
-            "performed": ev.performed, "tracking_error_rad": ev.tracking_error_rad}
+            "performed": ev.performed, "tracking_error_rad": ev.tracking_error_rad,
+            "failed_rules": list(ev.failed_rules)}
 
 
 def _optimized(task, seed: int, max_evals: int, use_library: bool):
@@ -145,9 +146,9 @@ def main() -> None:
         print(json.dumps({"rows": rows, "largest_push": largest}, indent=1))
         return
     print(f"{'task':<22} {'reference':<9} {'curve':<9} {'success':<7} {'objective':>9} {'own CoP err':>11} "
-          f"{'min margin cm':>13}  why not")
+          f"{'min margin cm':>13}  failed rules")
     for r in rows:
-        why = r["fall_reason"] or ("" if r["success"] else "not performed / goal missed / not settled")
+        why = ", ".join(r["failed_rules"]) + (f" ({r['fall_reason']})" if r["fall_reason"] else "")
         print(f"{r['task']:<22} {r['reference']:<9} {r['curve']:<9} {str(r['success']):<7} {r['objective']:>9.3f} "
               f"{r['cop_error_own_reference_norm']:>11.3f} {100 * r['min_cop_margin_m']:>13.1f}  {why}")
     for r in largest:
