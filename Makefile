@@ -36,7 +36,7 @@ test: $(BIN)/cmrt
 	$(PYTEST) -q
 
 # The quick loop while editing: everything but the tests marked slow (pyproject.toml), on every core
-# (pytest-xdist): about 85 s on 2 cores. CI (`make test`) stays in one process.
+# (pytest-xdist): about 130 s on 2 cores. CI (`make test`) stays in one process.
 test-fast: $(BIN)/cmrt
 	$(PYTEST) -q -m "not slow" -n auto
 
