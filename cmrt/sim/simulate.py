@@ -515,6 +515,7 @@ def _no_held(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.zeros(n), np.zeros((n, 2)), np.zeros(n)
 
 
+@functools.lru_cache(maxsize=64)
 def _no_load(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """No load on the hands (``Prop.hand_load``), for the compiled tick's arguments, made once per n: writable like
     a prop's load (the kernel only reads them; another array type would compile the tick a second time)."""
