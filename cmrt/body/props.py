@@ -21,7 +21,9 @@ index and the controller works on the leading slices of the batch arrays.
   fields, ``mj_setConst``): from then on MuJoCo's own dynamics of the character - the
   momentum matrix, the mass matrix, gravity - carry the load, and so does the controller
   (it balances body and ball together). The ball body keeps ``BALL_RESIDUAL_MASS_KG``. With 0 the ball
-  stays a load on the hands to the end: felt, not balanced (ABC's reactive controller).
+  stays a load on the hands to the end: felt (ABC's reactive controller), and counterweighted in part if
+  ``ball_counterweight`` > 0: a reaction time after the grip the controller moves its CoM target back so that its
+  body and that share of the ball stand over it together (``Prop.held_mass``'s share).
 * ``slab``: a free block (planar joints: it can slide and tip) standing on the floor in
   front of the character; floor friction 1.0 (MuJoCo takes the larger of the two geoms').
   Toppled when it has rotated past its balance angle and is falling (``TOPPLED_DEG``), by a push: first
@@ -64,6 +66,12 @@ WRIST_OFFSET_M = HAND_OFFSET_M + np.array([0.0, 0.0, HAND_LENGTH_M])  # forearm 
 GRIP_TOLERANCE_M = 0.005  # the ball counts as touching a hand within this gap
 GRIP_TIMECONST_S = 0.01  # the grip's constraint time constant (MuJoCo's default 0.02 lets 12 kg wobble)
 GRIP_SETTLE_S = 0.06  # at the latest this long after the grip the load is handed to the forearms
+#: ``ball_counterweight`` (with ``ball_balanced`` 0): the controller starts to counterweight the ball it holds this
+#: long after the grip - the balance feedback's 0.1 s delay and 0.1 s to respond (compensatory postural responses to
+#: a load begin ~0.1-0.2 s after it) - and takes COUNTERWEIGHT_RAMP_S to move its CoM target (a smoothstep: slow
+#: against the feedback delay, so the CoM follows by the ankles and the hips barely move). docs/controller.md, *Catch*.
+COUNTERWEIGHT_REACTION_S = 0.2
+COUNTERWEIGHT_RAMP_S = 0.5
 BALL_HOLD_S = 0.3  # a catch is held when the hands have stayed this long within max_ball_sag_m of the reference
 GRIP_SETTLED_M_S = 0.05  # ... or as soon as the ball moves with the point it is held at to within this
 BALL_RESIDUAL_MASS_KG = 0.05  # what the ball body keeps once its mass is in the forearms
@@ -209,10 +217,11 @@ class Prop:
         the hands (n, 2) x/z N, where it acts (n, 3) and the bodies sharing it; None: none."""
         return None
 
-    def held_mass(self, b: dict, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    def held_mass(self, b: dict, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """Mass the hands hold that the character's own bodies do not carry yet, for simulations ``rows``: kg (n,),
         its (x, z) (n, 2) and x velocity (n,) - part of what balances and falls (the balance monitor adds it to the
-        character's CoM). None: none."""
+        character's CoM) - and the share of it (n,) the controller balances now (its CoM target moved so that body
+        and held mass stand over the target together). None: none."""
         return None
 
     def contact_force(self, b: dict, sel) -> np.ndarray | None:
@@ -236,7 +245,7 @@ class Ball(Prop):
     PARAMS = {"ball_mass_kg": 7.0, "ball_speed_m_s": 4.0, "ball_angle_deg": 10.0, "ball_flight_s": 0.4,
               "ball_arrival_s": 1.35, "ball_height_m": 1.36, "ball_reach_m": 0.86, "max_ball_sag_m": 0.1,
               "ball_hold_s": BALL_HOLD_S, "ball_grip_timeconst_s": GRIP_TIMECONST_S,
-              "ball_grip_settle_s": GRIP_SETTLE_S, "ball_balanced": 1.0}
+              "ball_grip_settle_s": GRIP_SETTLE_S, "ball_balanced": 1.0, "ball_counterweight": 0.0}
     MODEL_PARAMS = ("ball_mass_kg", "ball_grip_timeconst_s")
     LIMITS = {"ball_mass_kg": Range(0.1, 100.0, unit="kg"),  # above BALL_RESIDUAL_MASS_KG: the hand-over moves it
               "ball_speed_m_s": Range(0.0, 50.0, unit="m/s"), "ball_angle_deg": Range(-90.0, 90.0, unit="deg"),
@@ -249,7 +258,11 @@ class Ball(Prop):
               # 1: once the grip has settled the controller balances body and ball together (the ball's mass moves
               # into the forearms); 0: never - the ball stays a load on the hands, felt (its pull is in the plan) but
               # not balanced: ABC's reactive controller, to which the ball is a disturbance
-              "ball_balanced": Range(0.0, 1.0)}  # 0 or 1 (``check``)
+              "ball_balanced": Range(0.0, 1.0),  # 0 or 1 (``check``)
+              # with ball_balanced 0: the share of the held ball's moment the controller counterweights, its CoM
+              # target moved back so that the body and that share of the ball stand over it together, from
+              # COUNTERWEIGHT_REACTION_S after the grip (0: none - the ball only felt)
+              "ball_counterweight": Range(0.0, 1.0)}
     mass_body = "ball"
     every_step = True
     holds_body_up = False
@@ -258,6 +271,8 @@ class Ball(Prop):
     def check(cls, p):
         if p.get("ball_balanced", 1.0) not in (0.0, 1.0):
             raise CmrtError(f"ball_balanced must be 0 or 1, got {p['ball_balanced']:g}")
+        if p.get("ball_balanced", 1.0) and p.get("ball_counterweight", 0.0):
+            raise CmrtError("ball_counterweight needs ball_balanced = 0 (with 1 the controller balances all of the ball)")
 
     @classmethod
     def add_to_spec(cls, spec, p):
@@ -446,10 +461,20 @@ class Ball(Prop):
         return f, np.ascontiguousarray(b["xpos"][rows, self.body]), np.array(self.forearms, np.int64)
 
     def held_mass(self, b, rows):
-        """The gripped ball until its mass is handed over to the forearms (from then on the forearms carry it)."""
+        """The gripped ball until its mass is handed over to the forearms (from then on the forearms carry it), and
+        how much of it the controller counterweights now (``ball_counterweight``)."""
         gripped = ~np.isnan(self.grip_s[rows]) & ~self.handed_over[rows]
         mass = np.where(gripped, self.mass[rows, self.body], 0.0)
-        return mass, b["xpos"][rows, self.body][:, [0, 2]], b["qvel"][rows, self.dofs.start]
+        return mass, b["xpos"][rows, self.body][:, [0, 2]], b["qvel"][rows, self.dofs.start], self._balanced(rows)
+
+    def _balanced(self, rows: np.ndarray) -> np.ndarray:
+        """(n,) in [0, ``ball_counterweight``]: the share of the held ball the controller counterweights at the last
+        step's time - a smoothstep over ``COUNTERWEIGHT_RAMP_S`` from ``COUNTERWEIGHT_REACTION_S`` after the grip."""
+        share = self.params.get("ball_counterweight", 0.0)
+        if share <= 0.0 or self.params.get("ball_balanced", 1.0):
+            return np.zeros(rows.size)
+        u = np.clip((self._now_s - self.grip_s[rows] - COUNTERWEIGHT_REACTION_S) / COUNTERWEIGHT_RAMP_S, 0.0, 1.0)
+        return np.where(np.isnan(u), 0.0, share * (u * u * (3.0 - 2.0 * u)))
 
     def contact_force(self, b, sel):
         """|m (a - g)| of the ball: what the hands (or anything else) apply to it."""

@@ -510,9 +510,9 @@ def _ground_records(rec: _Recorder, touch: np.ndarray, sample_x: np.ndarray, sam
 
 
 @functools.lru_cache(maxsize=64)
-def _no_held(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _no_held(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Nothing held that the character's bodies do not carry (``Prop.held_mass``), for the compiled tick."""
-    return np.zeros(n), np.zeros((n, 2)), np.zeros(n)
+    return np.zeros(n), np.zeros((n, 2)), np.zeros(n), np.zeros(n)
 
 
 @functools.lru_cache(maxsize=64)
@@ -868,13 +868,25 @@ def _set_up(task: Task, curves: list[Cmrt | None], config: ControllerConfig, rec
     )
 
 
+def _balancing_held(g: _Group, ids: np.ndarray, targets: Targets, mass_kg: np.ndarray) -> Targets:
+    """The CoM target moved so that the body and the share of a held mass the controller balances (``Prop.held_mass``)
+    stand over it together: c_b = c_r - w m (x_held - c_r) / M_body (the compiled tick's operations, bit for bit)."""
+    held = g.prop.held_mass(g.b, ids)
+    if held is None or not held[3].any():
+        return targets
+    m, xz, _, share = held
+    c = targets.com_x_m
+    moved = np.where(share > 0.0, c - share * m * (xz[:, 0] - c) / mass_kg, c)
+    return Targets(moved, targets.com_vel_x_m_s, targets.cop_x_m)
+
+
 def _with_held(g: _Group, ids: np.ndarray, com: np.ndarray, vel_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The CoM (x, y, z rows) and its x velocity of the character with what its hands hold and its bodies do not
     carry yet (``Prop.held_mass``: a gripped ball before its mass is handed over): what balances and falls."""
     held = g.prop.held_mass(g.b, ids)
     if held is None or not held[0].any():
         return com, vel_x
-    m, xz, vx = held
+    m, xz, vx = held[:3]
     own = g.ch.mass_kg + g.prop.carried_kg[ids]
     total = own + m
     holding = m > 0.0  # the others' CoM untouched (as the compiled tick's: bit for bit)
@@ -1102,6 +1114,7 @@ def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
     mass = g.ch.mass_kg + g.prop.carried_kg  # what the controller knows it carries
     targets = _targets(g.yu, b, sel, ids, g.drive, k, r.center, r.lo, r.hi, r.com, r.vel_x, g.nb,
                        None if g.field is None else g.field.lean_x(ids, k, g.times[k], r.com[:, 2]))
+    targets = _balancing_held(g, ids, targets, mass[ids])
     shown = targets.com_x_m  # the reference CoM as recorded: where the CoM is asked to be now
     if g.field is not None:  # the CoM over the support centre along gravity, moving with it
         com_vel_z = r.momentum[:, 1] / (g.ch.mass_kg + g.prop.carried_kg[ids])

@@ -183,7 +183,8 @@ def linear_momentum(rows, cinert, cvel, nb, out):
 # QPs' active sets (n_all, rows), kept from the last control step, and this step's first: (warm, warm_out);
 # ``load``, a held load's pull on the hands, rows ``ids``: (ext_f, ext_p, ext_bodies) - force (n, 2), point (n, 3),
 # the bodies sharing it; ``held``, a mass the hands hold and the bodies do not carry, rows ``ids`` (``Prop.held_mass``:
-# the balance monitor adds it to the CoM): (mass (n,), x/z (n, 2), x velocity (n,)); ``out``, rows ``ids``:
+# the balance monitor adds it to the CoM; the controller balances ``share`` of it): (mass (n,), x/z (n, 2),
+# x velocity (n,), share (n,)); ``out``, rows ``ids``:
 # (point_x, momentum, new).
 @njit(cache=True, nogil=True)
 def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, now, delay, warm_sets, load, held, out):
@@ -207,6 +208,7 @@ def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, 
     carried_kg, com_ref_now, cop_ref_now, ctrl_all = now
     delay_steps, fb_vel = delay
     (warm, warm_out), (ext_f, ext_p, ext_bodies), (point_x, momentum, new) = warm_sets, load, out
+    held_m, held_xz, held_share = held[0], held[1], held[3]
     n = ids.shape[0]
     for r in range(n):
         if fall_code[ids[r]] != 0:
@@ -239,6 +241,8 @@ def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, 
         vel_x[r] = momentum[r, 0] / mass[r]
         rec_jspeed[s, k] = jspeed[r]
         com_ref[r] = center + disp_m[s, k]
+        if held_share[r] > 0.0:  # body and the held mass's balanced share over the target (simulate._balancing_held)
+            com_ref[r] = com_ref[r] - held_share[r] * held_m[r] * (held_xz[r, 0] - com_ref[r]) / mass[r]
         com_ref_vel[r] = disp_vel_m_s[s, k]
         cop_ref[r] = center
         com_ref_now[s], cop_ref_now[s] = com_ref[r], cop_ref[r]
@@ -303,7 +307,7 @@ def _judge_tick(k, ids, clock, fields, consts, lean, state, now, tau, read, held
         if lean_check and k > 0 and prop_force[s, k - 1] > leaning_n:  # leaning on a prop
             c_lo[r], c_hi[r] = -np.inf, np.inf
     com_x, com_z, com_vel = np.empty(n), np.empty(n), np.empty(n)
-    held_m, held_xz, held_vx = held
+    held_m, held_xz, held_vx = held[0], held[1], held[2]
     carried_kg = now[0]
     for r in range(n):
         com_x[r], com_z[r], com_vel[r] = subtree_com[ids[r], 1, 0], subtree_com[ids[r], 1, 2], vel_x[r]

@@ -10,6 +10,8 @@ from cmrt import CmrtError, evaluate, load_model, load_task, simulate
 from cmrt.body.props import (
     BAG_DAMPING_RATIO,
     BALL_RADIUS_M,
+    COUNTERWEIGHT_RAMP_S,
+    COUNTERWEIGHT_REACTION_S,
     FOREARM_RADIUS_M,
     GRIP_TOLERANCE_M,
     HAND_OFFSET_M,
@@ -127,7 +129,7 @@ def test_the_grip_is_made_at_contact_with_the_hand_and_a_balanced_load_is_then_c
     gap = hand_gap(task, traj.qpos[k], traj.qpos[k, NQ : NQ + 2])
     assert gap <= GRIP_TOLERANCE_M and gap > -0.03  # touching, not grabbed from a distance
     assert np.isnan(traj.prop_extras["handover_s"])  # the shipped catch: the ball stays a load on the hands
-    balanced = task.with_params(ball_balanced=1)
+    balanced = task.with_params(ball_balanced=1, ball_counterweight=0)
     traj = simulate(balanced)
     after = int(np.searchsorted(traj.time_s, traj.prop_extras["handover_s"]))
     assert traj.prop_extras["grip_s"] < traj.time_s[after] <= traj.prop_extras["grip_s"] + 0.4
@@ -185,6 +187,34 @@ def test_a_cmrt_found_by_cma_es_catches_and_holds_it(caught):
     assert ev.timing_lag_s <= ev.timing_lag_bound_s and ev.max_plan_cop_error_m <= 0.005
     assert ev.min_cop_margin_m > 0.0 and ev.peak_normal_force_bw <= 2.5 and ev.final_pose_error_rad < 0.1
     assert_plausible(ev)
+
+
+def test_the_controller_counterweights_part_of_the_held_ball_after_a_reaction_time(caught):
+    """``ball_counterweight`` (the shipped catch: 0.3): from ``COUNTERWEIGHT_REACTION_S`` after the grip, over
+    ``COUNTERWEIGHT_RAMP_S``, the CoM target moves back by share x m (x_ball - c_r) / M - the body and that share of
+    the ball over the target together - and the standing tail's CoP comes back from the toe end of the band: felt
+    and not balanced (0) it stands ~2.5 cm further forward for the whole tail, with nothing left to stop a drift."""
+    task, traj = caught
+    share, m_ball = task.params["ball_counterweight"], task.params["ball_mass_kg"]
+    assert share == 0.3
+    grip = traj.prop_extras["grip_s"]
+    t, cref, disp = traj.time_s, traj.com_ref_x_m, traj.cmrt_displacement_m
+    plain = traj.support_center_x_m + disp  # the target without the counterweight
+    control = np.isfinite(cref) & np.isfinite(plain)
+    control[np.arange(t.size) % ControllerConfig().control_every != 0] = False  # the target is held in between
+    before = control & (t < grip + COUNTERWEIGHT_REACTION_S - 0.01)
+    assert np.allclose(cref[before], plain[before], atol=1e-12)
+    body_kg = load_model().body_subtreemass[1]
+    done = control & (t > grip + COUNTERWEIGHT_REACTION_S + COUNTERWEIGHT_RAMP_S + 0.01) & (t < 3.0)
+    ball_x = traj.qpos[done, NQ]
+    want = plain[done] - share * m_ball * (ball_x - plain[done]) / body_kg
+    assert np.allclose(cref[done], want, atol=1e-9)
+    assert np.all(plain[done] - cref[done] > 0.02)  # ~2.3 cm back
+    unbalanced = simulate(task.with_params(ball_counterweight=0.0), CATCH_CMRT)
+    tail = t > 3.0
+    assert np.mean(traj.cop_x_m[tail]) < np.mean(unbalanced.cop_x_m[unbalanced.time_s > 3.0]) - 0.015
+    with pytest.raises(CmrtError, match="ball_counterweight needs ball_balanced = 0"):
+        task.with_params(ball_balanced=1)
 
 
 def test_a_light_ball_caught_with_the_heavy_balls_cmrt_is_not_held():
