@@ -272,7 +272,7 @@ class Ball(Prop):
         if p.get("ball_balanced", 1.0) not in (0.0, 1.0):
             raise CmrtError(f"ball_balanced must be 0 or 1, got {p['ball_balanced']:g}")
         if p.get("ball_balanced", 1.0) and p.get("ball_counterweight", 0.0):
-            raise CmrtError("ball_counterweight needs ball_balanced = 0 (with 1 the controller balances all of the ball)")
+            raise CmrtError("ball_counterweight needs ball_balanced = 0 (with 1 the controller balances all the ball)")
 
     @classmethod
     def add_to_spec(cls, spec, p):

@@ -187,6 +187,16 @@ def linear_momentum(rows, cinert, cvel, nb, out):
 # x velocity (n,), share (n,)); ``out``, rows ``ids``:
 # (point_x, momentum, new).
 @njit(cache=True, nogil=True)
+def _counterweighted(com_ref, held, r, mass_kg):
+    """The CoM target with the body and the balanced share of row ``r``'s held mass over it together (``held``: see
+    control_tick; ``simulate._balancing_held``'s operations): c_r - w m (x_held - c_r) / M."""
+    share = held[3][r]
+    if share > 0.0:
+        return com_ref - share * held[0][r] * (held[1][r, 0] - com_ref) / mass_kg
+    return com_ref
+
+
+@njit(cache=True, nogil=True)
 def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, now, delay, warm_sets, load, held, out):
     """Control step ``k`` of a scoring run, rows ``ids`` (center reference, feet planted, nobody fallen),
     in the Python loop's order: geometry, records, CoM velocity, targets ``c_r = s + d(t)``, ``p_r = s``,
@@ -208,7 +218,6 @@ def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, 
     carried_kg, com_ref_now, cop_ref_now, ctrl_all = now
     delay_steps, fb_vel = delay
     (warm, warm_out), (ext_f, ext_p, ext_bodies), (point_x, momentum, new) = warm_sets, load, out
-    held_m, held_xz, held_share = held[0], held[1], held[3]
     n = ids.shape[0]
     for r in range(n):
         if fall_code[ids[r]] != 0:
@@ -240,9 +249,7 @@ def control_tick(k, ids, clock, fields, consts, controller, drive, lean, state, 
         mass[r] = mass_kg + carried_kg[s]
         vel_x[r] = momentum[r, 0] / mass[r]
         rec_jspeed[s, k] = jspeed[r]
-        com_ref[r] = center + disp_m[s, k]
-        if held_share[r] > 0.0:  # body and the held mass's balanced share over the target (simulate._balancing_held)
-            com_ref[r] = com_ref[r] - held_share[r] * held_m[r] * (held_xz[r, 0] - com_ref[r]) / mass[r]
+        com_ref[r] = _counterweighted(center + disp_m[s, k], held, r, mass[r])
         com_ref_vel[r] = disp_vel_m_s[s, k]
         cop_ref[r] = center
         com_ref_now[s], cop_ref_now[s] = com_ref[r], cop_ref[r]

@@ -139,16 +139,19 @@ def test_slow_bend_library_beats_zero():
 
 @pytest.mark.slow  # three catch clips
 def test_expectation_mismatch_light_ball():
-    """ABC 5: the CMRT optimized for the heavy ball, used on a 1 kg ball, does worse than no
-    anticipation at all (measured: 3x the objective; balance is kept - the paper's character falls)."""
+    """ABC 5: the CMRT optimized for the heavy ball, used on a 1 kg ball, does worse than no anticipation at all:
+    the library's 7 kg CMRT leans the body back ~5 cm for a load that does not come, the trunk arches back (the
+    hip strategy: the CoP is pinned at the heels' end of the band) and the body falls backward, as the paper's
+    character does - with the ball not held (the arched trunk lifts the hands off the reference). The zero CMRT
+    catches the light ball."""
     heavy = load_task("catch")
     curve = library_curve(heavy)
     expected = evaluate(heavy, simulate(heavy, curve, record=False))
     light = heavy.with_params(ball_mass_kg=1.0)
     surprised = evaluate(light, simulate(light, curve, record=False))
     unprepared = evaluate(light, simulate(light, record=False))
-    assert expected.success
-    assert surprised.fell or surprised.objective >= 2.0 * unprepared.objective
+    assert expected.success and unprepared.success
+    assert surprised.fell and surprised.fall_direction == "backward" and not surprised.task_success
 
 
 def test_goals_can_be_missed_and_are_penalised():

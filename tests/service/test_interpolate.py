@@ -52,9 +52,9 @@ def test_interpolating_over_ball_mass_and_mismatch_lookup():
     from cmrt import library_curve
 
     """Across ball mass the blend is made as across speeds (knots and values between the neighbours'). On the catch
-    as shipped it keeps the balance and holds the ball where the zero CMRT falls forward, but it is not a success:
-    the library's 6, 7 and 8 kg CMRTs end with the trunk 0.099 rad off its pose (the optimum sits on the 0.1 rad
-    bound, as a CoP objective's does), and the blends at 6.5 and 7.5 kg 0.107-0.108 rad (measured)."""
+    as shipped it keeps the balance where the zero CMRT falls forward, but it is not a success: the library's 7 and
+    8 kg CMRTs end with the hands on the hold's 0.15 m bound (the CoP objective does not score it), and the blend at
+    7.5 kg lifts them past it (measured: held 0.70 s, rule ``performed``)."""
     task = load_task("catch").with_params(ball_mass_kg=7.5)
     r = interpolate(task, param="ball_mass_kg")
     assert [v for v, _ in r.sources] == [7.0, 8.0] and r.weight == pytest.approx(0.5)
@@ -63,7 +63,8 @@ def test_interpolating_over_ball_mass_and_mismatch_lookup():
                        r.curve.knot_times_s + r.curve.values_m, strict=True):
         assert min(a, b) - 1e-12 <= c <= max(a, b) + 1e-12
     ev = evaluate(task, simulate(task, r.curve, record=False))
-    assert ev.task_success and not ev.fell and ev.failed_rules == ("final_pose",) and ev.final_pose_error_rad < 0.12
+    assert not ev.fell and ev.failed_rules == ("performed",) and ev.task_success is False
+    assert ev.ball_max_sag_m > task.params["max_ball_sag_m"]
     assert evaluate(task, simulate(task, record=False)).fell  # without anticipation it falls
     # --curve library with another mass is the task file's own (7 kg) CMRT: the mismatch demo
     assert library_curve(load_task("catch").with_params(ball_mass_kg=1.0)) == library_curve(load_task("catch"))
