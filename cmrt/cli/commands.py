@@ -185,7 +185,11 @@ def _report_text(r: dict) -> str:
         f"{_n(r['final_pose_error_rad'], '.3f')} rad  [{r['wall_s']:.2f} s]",
         f"  peak ground force {_n(r['peak_normal_force_bw'], '.2f')} x body weight  airborne "
         f"{_n(r['airborne_s'], '.3f')} s  max joint speed {_n(r['max_joint_speed_rad_s'], '.1f')} rad/s",
-        *([f"  steps {r['steps']} (lift-off at {', '.join(f'{t:.3f}' for t in r['step_times_s'])} s)"]
+        *([f"  steps {r['steps']} (lift-off at {', '.join(f'{t:.3f}' for t in r['step_times_s'])} s"
+           + (f"; the first {r['step_liftoff_after_push_s']:.3f} s after the push"
+              if r.get("step_liftoff_after_push_s") is not None else "")
+           + (f"; hardest landing {r['max_touchdown_force_bw']:.2f} x body weight"
+              if r.get("max_touchdown_force_bw") is not None else "") + ")"]
           if r.get("steps") and isinstance(r.get("step_times_s"), list | tuple) else []),
         f"  planned vs executed CoP {_n(r.get('max_plan_cop_error_m'), '.2f', 1000)} mm (bound "
         f"{_n((r.get('verdict_bounds') or {}).get('max_plan_cop_error_m'), '.0f', 1000)})  timing lag "

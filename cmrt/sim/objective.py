@@ -139,6 +139,11 @@ class Evaluation:
     # each lifted off
     steps: int = 0
     step_times_s: tuple[float, ...] = ()
+    # ... the first lift-off after an unannounced push began (s after its start; None: no push, or no step after it:
+    # people lift the foot 0.25-0.35 s after a push) and the hardest touchdown (peak vertical ground force within
+    # IMPACT_WINDOW_S of each step's touchdown, in body weights; None: no touchdown)
+    step_liftoff_after_push_s: float | None = None
+    max_touchdown_force_bw: float | None = None
     # a footstep plan (Task.steps): how many of its steps landed before any fall, and the farthest one landed from
     # where it was asked to (m; None without a plan). All landed within FOOTSTEP_TOLERANCE_M: the plan performed
     footsteps_landed: int | None = None
@@ -392,6 +397,8 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
         ball_held_s=traj.prop_extras.get("ball_held_s"),
         steps=len(traj.step_times_s),
         step_times_s=tuple(round(float(t), 4) for t in traj.step_times_s),
+        step_liftoff_after_push_s=step_liftoff_after_push_s(traj),
+        max_touchdown_force_bw=max_touchdown_force_bw(traj, before, weight),
         footsteps_landed=len(traj.footstep_errors_m) if task.footsteps_planned else None,
         max_footstep_error_m=(float(np.max(np.abs(traj.footstep_errors_m)))
                               if task.footsteps_planned and traj.footstep_errors_m else None),
@@ -427,6 +434,33 @@ def _impact_windows(traj: Trajectory, first_contact_s: float | None, touchdowns:
     for start in starts:
         inside |= (t >= start - 1e-9) & (t < start + IMPACT_WINDOW_S)
     return inside
+
+
+def step_liftoff_after_push_s(traj: Trajectory) -> float | None:
+    """How long after an unannounced push began the first step lifted off (s; None: no push, or no step after it).
+    The stepping supervisor decides from the balance feedback's delayed state, as a person reacts."""
+    if traj.push_n is None or not traj.step_times_s:
+        return None
+    pushing = np.flatnonzero(traj.push_n[: traj.time_s.size] != 0.0)
+    if pushing.size == 0:
+        return None
+    start = float(traj.time_s[pushing[0]])
+    after = [float(t) - start for t in traj.step_times_s if t >= start - 1e-9]
+    return round(min(after), 4) if after else None
+
+
+def max_touchdown_force_bw(traj: Trajectory, before: np.ndarray, weight_n: float) -> float | None:
+    """The hardest landing: peak vertical ground force within ``IMPACT_WINDOW_S`` of each step's touchdown, before
+    any fall, in body weights (None: no touchdown). People land a step at ~1.1-1.5 BW walking."""
+    t = traj.time_s
+    peaks = []
+    for footprint in traj.footprints:
+        window = before & (t >= float(footprint[1]) - 1e-9) & (t < float(footprint[1]) + IMPACT_WINDOW_S)
+        fz = traj.normal_force_n[window]
+        fz = fz[np.isfinite(fz)]
+        if fz.size:
+            peaks.append(float(fz.max()) / weight_n)
+    return max(peaks) if peaks else None
 
 
 def foot_slip_m(traj: Trajectory) -> float | None:

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cmrt import CmrtError
+from cmrt import CmrtError, load_model
 from cmrt.body.character import GRAVITY_M_S2
 from cmrt.control.stepping import (
     CAPTURE_POINT,
@@ -181,6 +181,30 @@ def test_a_step_saves_a_push_standing_cannot(force_n):
 
 
 @pytest.mark.slow
+def test_a_steps_reaction_and_landing_are_reported():
+    """``step_liftoff_after_push_s``: the first lift-off after the push began, counted from its start (the task's
+    1.0 s); ``max_touchdown_force_bw``: the hardest landing, the vertical ground force within 0.1 s of a touchdown
+    - at least the body's weight (a landing stops the fall onto the foot), at most the clip's peak. None without a
+    push or a step (quiet standing)."""
+    from cmrt.sim.objective import IMPACT_WINDOW_S, evaluate
+    from cmrt.sim.simulate import simulate
+
+    task = load_task("push-recovery")
+    traj = simulate(task, None, record=True)
+    ev = evaluate(task, traj)
+    push_s = task.params["push_start_s"]
+    assert ev.steps >= 1 and ev.step_liftoff_after_push_s == pytest.approx(ev.step_times_s[0] - push_s, abs=1e-9)
+    assert 0.0 < ev.step_liftoff_after_push_s < 0.5
+    weight = load_model().body_subtreemass[1] * GRAVITY_M_S2
+    landed_s = traj.footprints[0][1]
+    window = (traj.time_s >= landed_s - 1e-9) & (traj.time_s < landed_s + IMPACT_WINDOW_S)
+    assert ev.max_touchdown_force_bw >= np.nanmax(traj.normal_force_n[window]) / weight - 1e-12
+    assert 1.0 < ev.max_touchdown_force_bw <= ev.peak_normal_force_bw + 1e-12
+    quiet = load_task("stand")
+    still = evaluate(quiet, simulate(quiet, None, record=False))
+    assert still.steps == 0 and still.step_liftoff_after_push_s is None and still.max_touchdown_force_bw is None
+
+
 def test_a_real_topple_is_still_a_fall_with_stepping():
     from cmrt.sim.simulate import simulate
 
