@@ -122,6 +122,7 @@ def _figures(task, durations: list[float], push_n: float, push_start_s: float) -
         "thorax_most_forward_deg": float(thorax.min()) if thorax.size else None,
         "thorax_most_backward_deg": float(thorax.max()) if thorax.size else None,
         "peak_normal_force_bw": e.peak_normal_force_bw, "airborne_s": e.airborne_s,
+        "max_foot_slip_m": e.max_foot_slip_m,  # the farthest a heel or toe point slid while touching the floor
     }
 
 
