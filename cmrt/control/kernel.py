@@ -34,9 +34,10 @@ N_PARAMS = 26
 # The swing foot's task-space target (cmrt.control.stepping): heel point x, z, foot pitch; their rates
 # and accelerations; then the bend added to the stance knee's reference while the foot swings (rad).
 # ``swing_foot`` per simulation: -1 (both feet support), 0 (right swings), 1 (left).
-N_SWING = 12
+N_SWING = 15
 S_CROUCH = 9
 S_SWING_KNEE = 10  # the bend added to the swing knee's reference (rad; a straight knee cannot lift its foot)
+S_SWING_GAINS = 12  # (weight, stiffness 1/s^2, damping 1/s) of this swing's foot objective; 0: the controller's
 S_SWING_TRACKED = 11  # nonzero: the swing leg tracks the reference motion's own swing at full weight (a keyed
 # gait, cmrt.control.gait: its knee bends in the reference) instead of leaving the leg to the foot's target
 N_INFO = 6  # planned F_x, F_z, CoP x, right foot state, left foot state, torque saturated
@@ -366,13 +367,17 @@ def _support_rows(state, frames, qd, q, params, leg_dofs, swing, swing_target_ro
                 ne += 1
         if foot == swing:  # task-space objective: heel point (x, z) and foot pitch toward the swing plan
             pitch = q[2] + q[leg_dofs[foot, 0]] + q[leg_dofs[foot, 1]] + q[leg_dofs[foot, 2]]
+            own = swing_target_row[S_SWING_GAINS] > 0.0  # this swing's own gains (a planned step's)
+            w_sw = swing_target_row[S_SWING_GAINS] if own else params[P_SW]
+            k_sw = swing_target_row[S_SWING_GAINS + 1] if own else params[P_SK]
+            d_sw = swing_target_row[S_SWING_GAINS + 2] if own else params[P_SD]
             for r in range(3):
                 jr = Jp[heel, r]
                 pos = pts[heel, 0] if r == 0 else (pts[heel, 2] if r == 1 else pitch)
-                target = (swing_target_row[6 + r] + params[P_SK] * (swing_target_row[r] - pos)
-                          + params[P_SD] * (swing_target_row[3 + r] - jr @ qd) - bp[heel, r])
-                Q += params[P_SW] * np.outer(jr, jr)
-                g += params[P_SW] * target * jr
+                target = (swing_target_row[6 + r] + k_sw * (swing_target_row[r] - pos)
+                          + d_sw * (swing_target_row[3 + r] - jr @ qd) - bp[heel, r])
+                Q += w_sw * np.outer(jr, jr)
+                g += w_sw * target * jr
         elif s != FLAT:
             jp = Jp[heel, 2]
             pitch = q[2] + q[leg_dofs[foot, 0]] + q[leg_dofs[foot, 1]] + q[leg_dofs[foot, 2]]
