@@ -868,10 +868,10 @@ def _set_up(task: Task, curves: list[Cmrt | None], config: ControllerConfig, rec
     )
 
 
-def _balancing_held(g: _Group, ids: np.ndarray, targets: Targets, mass_kg: np.ndarray) -> Targets:
-    """The CoM target moved so that the body and the share of a held mass the controller balances (``Prop.held_mass``)
-    stand over it together: c_b = c_r - w m (x_held - c_r) / M_body (the compiled tick's operations, bit for bit)."""
-    held = g.prop.held_mass(g.b, ids)
+def _balancing_held(held: tuple | None, targets: Targets, mass_kg: np.ndarray) -> Targets:
+    """The CoM target moved so that the body and the share of a held mass the controller balances (``held``:
+    ``Prop.held_mass``) stand over it together: c_b = c_r - w m (x_held - c_r) / M_body (the compiled tick's
+    operations, bit for bit)."""
     if held is None or not held[3].any():
         return targets
     m, xz, _, share = held
@@ -880,10 +880,12 @@ def _balancing_held(g: _Group, ids: np.ndarray, targets: Targets, mass_kg: np.nd
     return Targets(moved, targets.com_vel_x_m_s, targets.cop_x_m)
 
 
-def _with_held(g: _Group, ids: np.ndarray, com: np.ndarray, vel_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _with_held(g: _Group, ids: np.ndarray, com: np.ndarray, vel_x: np.ndarray,
+               held: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The CoM (x, y, z rows) and its x velocity of the character with what its hands hold and its bodies do not
-    carry yet (``Prop.held_mass``: a gripped ball before its mass is handed over): what balances and falls."""
-    held = g.prop.held_mass(g.b, ids)
+    carry yet (``Prop.held_mass``: a gripped ball before its mass is handed over; ``held`` if the caller has it):
+    what balances and falls."""
+    held = g.prop.held_mass(g.b, ids) if held is None else held
     if held is None or not held[0].any():
         return com, vel_x
     m, xz, vx = held[:3]
@@ -1114,7 +1116,8 @@ def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
     mass = g.ch.mass_kg + g.prop.carried_kg  # what the controller knows it carries
     targets = _targets(g.yu, b, sel, ids, g.drive, k, r.center, r.lo, r.hi, r.com, r.vel_x, g.nb,
                        None if g.field is None else g.field.lean_x(ids, k, g.times[k], r.com[:, 2]))
-    targets = _balancing_held(g, ids, targets, mass[ids])
+    held = g.prop.held_mass(b, ids)  # read once: nothing moves before the monitor reads it too
+    targets = _balancing_held(held, targets, mass[ids])
     shown = targets.com_x_m  # the reference CoM as recorded: where the CoM is asked to be now
     if g.field is not None:  # the CoM over the support centre along gravity, moving with it
         com_vel_z = r.momentum[:, 1] / (g.ch.mass_kg + g.prop.carried_kg[ids])
@@ -1145,7 +1148,7 @@ def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
     if g.has_contact_force and k > 0 and g.prop.holds_body_up:  # leaning on a prop: the pendulum's capture point
         leaning = rec["prop_force"][ids, k - 1] > CONTACT_FORCE_N  # does not apply
         c_lo, c_hi = np.where(leaning, -np.inf, c_lo), np.where(leaning, np.inf, c_hi)
-    com, vel_x = _with_held(g, ids, r.com, r.vel_x)
+    com, vel_x = _with_held(g, ids, r.com, r.vel_x, held)
     if g.field is not None:  # the CoM where the field projects it onto the support (its capture point from there)
         com = com.copy()
         com[:, 0] -= g.field.lean_x(ids, k, g.times[k], com[:, 2])
