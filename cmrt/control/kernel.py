@@ -34,10 +34,12 @@ N_PARAMS = 26
 # The swing foot's task-space target (cmrt.control.stepping): heel point x, z, foot pitch; their rates
 # and accelerations; then the bend added to the stance knee's reference while the foot swings (rad).
 # ``swing_foot`` per simulation: -1 (both feet support), 0 (right swings), 1 (left).
-N_SWING = 15
+N_SWING = 22
 S_CROUCH = 9
 S_SWING_KNEE = 10  # the bend added to the swing knee's reference (rad; a straight knee cannot lift its foot)
 S_SWING_GAINS = 12  # (weight, stiffness 1/s^2, damping 1/s) of this swing's foot objective; 0: the controller's
+S_SETTLED = 15  # nonzero: both feet down after a step; S_STANCE.. S_STANCE + 5 then hold the right and left leg's
+S_STANCE = 16  # (hip, knee, ankle) offsets from the reference to the stance over the landed feet (rad)
 S_SWING_TRACKED = 11  # nonzero: the swing leg tracks the reference motion's own swing at full weight (a keyed
 # gait, cmrt.control.gait: its knee bends in the reference) instead of leaving the leg to the foot's target
 N_INFO = 6  # planned F_x, F_z, CoP x, right foot state, left foot state, torque saturated
@@ -228,7 +230,7 @@ def solve_qp(Q, g, E, e, C, c, c_on, dual_reg, passes=MAX_PASSES, active=None):
 
 
 @njit(cache=True, nogil=True)
-def _objective(A, a, qd, q, com, mass, mg, params, w2, leg_dofs, pts, swing, i, targets, field_w):
+def _objective(A, a, qd, q, com, mass, mg, params, w2, leg_dofs, swing, i, targets, field_w):
     """The QP's objective (Q, g) of simulation ``i``: the momentum rates (the CoM toward its reference, the CoP's
     angular momentum rate) and the joints' tracking, a swing leg's and a crouch's adjustments included.
     ``targets``: (q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, swing_target), row ``i`` read."""
@@ -257,12 +259,11 @@ def _objective(A, a, qd, q, com, mass, mg, params, w2, leg_dofs, pts, swing, i, 
                 qr += swing_target[i, S_CROUCH]  # foot stays flat, the trunk upright): a straight stance leg cannot
             elif j == leg_dofs[1 - swing, 0] or j == leg_dofs[1 - swing, 2]:  # lower the hip, and a swing
                 qr -= 0.5 * swing_target[i, S_CROUCH]  # foot a hip too high cannot reach the floor
-        elif swing_target[i, S_CROUCH] != 0.0:  # both feet down after a forward step: the front knee bends,
-            front = 0 if pts[0, 0] > pts[2, 0] else 1  # so the rear leg can reach the floor with its heel too
-            if j == leg_dofs[front, 1]:
-                qr += swing_target[i, S_CROUCH]
-            elif j == leg_dofs[front, 0] or j == leg_dofs[front, 2]:
-                qr -= 0.5 * swing_target[i, S_CROUCH]
+        elif swing_target[i, S_SETTLED] != 0.0:  # both feet down after a step: the legs stand over the feet where
+            for leg in range(2):  # they landed (cmrt.body.stance), not in the pose's own straight-hipped stance
+                for k in range(3):
+                    if j == leg_dofs[leg, k]:
+                        qr += swing_target[i, S_STANCE + 3 * leg + k]
         Q[j, j] += params[P_BT] * wj + params[P_EPS]
         g[j] += params[P_BT] * wj * (params[P_KT] * (qr - q[j])
                                      + params[P_DT] * (qd_ref[i, j] - qd[j]) + qdd_ref[i, j])
@@ -711,7 +712,7 @@ def control_step(rows, fields, model, refs, support, warm, load, out):
         swing = int(swing_foot[i])
         state = _foot_states(contact[i], swing)
         # the objective, then the support rows (a foot that is not flat gets a soft return-to-flat pitch target)
-        Q, g = _objective(A, a, qd, q, com, mass, mg, params, w2, leg_dofs, pts, swing, i,
+        Q, g = _objective(A, a, qd, q, com, mass, mg, params, w2, leg_dofs, swing, i,
                           (q_ref, qd_ref, qdd_ref, com_ref_x, com_ref_vel_x, cop_des_x, swing_target),
                           field_w if field_gen.shape[0] > 0 else field_w[:0])
         E, e, ne, lo, hi, n_flat, n_points = _support_rows(state, (pts, Jp, bp), qd, q, params, leg_dofs, swing,

@@ -31,6 +31,7 @@ the pivot - a walking step, as people take it after a hard push.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,7 +43,7 @@ from cmrt.control import kernel
 MOMENTUM, CAPTURE_POINT = 1, 2  # the task parameter ``stepping``: 0 off, 1 momentum supervisor, 2 capture point
 RULES = {MOMENTUM: "momentum", CAPTURE_POINT: "capture point"}
 NO_SWING = -1
-SETTLE_SPLIT_M = 0.41  # the split stance the settle bend is made for (a reactive step's longest, heel to heel)
+SETTLE_SPLIT_M = 0.41  # the split a step's full stance-knee bend is made for (a reactive step's longest, heel to heel)
 
 
 @dataclass(frozen=True)
@@ -59,14 +60,15 @@ class StepConfig:
     width: float = 0.08  # the speed and lift bells are exp(-(s - 1/2)^2 / width), s = t / step time (paper's
     # 0.08; read as sigma = 0.08 of the step time instead, the foot is asked for 5.6 m/s and 100 m/s^2 on a
     # 0.45 m step of 0.4 s and cannot follow: docs/stepping.md)
-    # a PLANNED step's foot objective (weight, stiffness 1/s^2, damping 1/s, critical): firm enough to win over the
-    # rest of the plan, so the foot follows its path. With the controller's (10, 400) the walk's heel rose 2.6 of the
+    # a step's foot objective (weight, stiffness 1/s^2, damping 1/s, critical): firm enough to win over the rest
+    # of the plan, so the foot follows its path. With the controller's (10, 400) the walk's heel rose 2.6 of the
     # 5 cm asked, peaked late, came down at 0.19 m/s in the step's last quarter, scraped 1.3 cm at lift-off and
-    # landed at 2.1 body weights; with these it follows the bell within 1-5 mm and lands at 0.09 m/s. Reactive
-    # steps and a tracked gait keep the controller's: firm, a 250 N push fell (docs/stepping.md, *Swing*)
-    planned_swing_weight: float = 100.0
-    planned_swing_k: float = 900.0
-    planned_swing_d: float = 60.0
+    # landed at 2.1 body weights; a reactive step's foot dragged 5.9-7.1 cm along the floor before it rose. With
+    # these the foot follows the bell within 1-5 mm and lands at ~0.1 m/s. A tracked gait keeps the controller's
+    # (docs/stepping.md, *Swing*)
+    swing_weight: float = 100.0
+    swing_k: float = 900.0
+    swing_d: float = 60.0
     min_step_m: float = 0.10  # the foot's centre lands at least this far from the pivot foot's centre
     max_step_m: float = 0.45  # and at most this far forward (0.86 m hip to ankle)
     max_back_step_m: float = 0.30  # and backward: the swing leg's reach behind a hip the push left over the
@@ -75,8 +77,6 @@ class StepConfig:
     # take -half each: the stance foot stays flat, the trunk upright): a straight stance leg cannot lower the hip
     back_knee_bend_rad: float = 0.8  # the same, stepping backward: the hip must come down 7 cm, not 3.5, for
     # the swing ankle to reach the floor behind it
-    settle_knee_bend_rad: float = 0.8  # after a forward step, the front knee keeps this bend: the rear leg
-    # reaches the floor flat only from a hip ~3 cm lower than standing height (0.41 m split; docs/stepping.md)
     retarget_until: float = 0.3  # the target follows the momenta until this fraction of the step (the foot
     # has covered 0.6 % of its path): a push still going on at lift-off makes the step longer
     touchdown_after: float = 0.5  # contact of the swing foot counts as touchdown after this fraction
@@ -193,8 +193,11 @@ class StepSupervisor:
     (``_take_over``)."""
 
     def __init__(self, n: int, config: StepConfig, heel_to_center_m: float, foot_length_m: float,
-                 plan: StepPlan | None = None):
+                 plan: StepPlan | None = None, stance: Callable[[float, float], np.ndarray] | None = None):
         self.config = config
+        self.stance = stance  # the legs' offsets from the reference (right, left x hip, knee, ankle; rad) to stand
+        # over feet with heel points at (right x, left x) m (``cmrt.body.stance``); None: the reference's legs
+        self.stance_offsets = np.zeros((n, 6))  # those of the feet where the last step landed
         self.plan = plan
         self.next_planned = np.zeros(n, int)  # the plan's next step
         self.planned = np.zeros(n, bool)  # the step under way is the plan's
@@ -235,11 +238,15 @@ class StepSupervisor:
 
     def update(self, ids: np.ndarray, time_s: float, com_x: np.ndarray, com_z: np.ndarray, momentum_x: np.ndarray,
                ang_momentum_y: np.ndarray, mass_kg: np.ndarray, contact: np.ndarray, point_x: np.ndarray,
-               cmrt: tuple[np.ndarray, np.ndarray] | None = None) -> StepCommand:
+               cmrt: tuple[np.ndarray, np.ndarray] | None = None,
+               felt: tuple[np.ndarray, ...] | None = None) -> StepCommand:
         """Advance simulations ``ids`` to ``time_s`` (a control step) and return what the controller should do.
 
         ``contact`` (k, 4) and ``point_x`` (k, 4): heel_r, toe_r, heel_l, toe_l on the floor / their x.
-        ``cmrt``: the CMRT's displacement and rate of each row (a footstep plan's capture point moves with them)."""
+        ``cmrt``: the CMRT's displacement and rate of each row (a footstep plan's capture point moves with them).
+        ``felt``: (com_x, com_z, momentum_x, ang_momentum_y) as the balance feedback feels them, its delay ago: the
+        reactive decisions - whether to step, where, how far to stretch a step under way - are a person's reaction
+        and are made from them (None: from the state of now); the feet are felt as they touch now."""
         c = self.config
         swing = self.swing[ids]
         new = np.isnan(self.origin_x[ids])
@@ -248,10 +255,11 @@ class StepSupervisor:
         self._touchdowns(ids, time_s, contact, point_x)
         swing = self.swing[ids]
 
-        d_l, d_h = self._gains(com_z, place=False)
-        p_test = desired_cop_x(com_x, com_z, momentum_x, ang_momentum_y, mass_kg, d_l, d_h)
-        d_l, d_h = self._gains(com_z, place=True)
-        p_place = desired_cop_x(com_x, com_z, momentum_x, ang_momentum_y, mass_kg, d_l, d_h)
+        f_x, f_z, f_lx, f_hy = (com_x, com_z, momentum_x, ang_momentum_y) if felt is None else felt
+        d_l, d_h = self._gains(f_z, place=False)
+        p_test = desired_cop_x(f_x, f_z, f_lx, f_hy, mass_kg, d_l, d_h)
+        d_l, d_h = self._gains(f_z, place=True)
+        p_place = desired_cop_x(f_x, f_z, f_lx, f_hy, mass_kg, d_l, d_h)
         foot_down = contact[:, 0::2] | contact[:, 1::2]  # (k, 2)
         on = np.repeat(foot_down, 2, axis=1)
         with np.errstate(invalid="ignore"):
@@ -327,6 +335,8 @@ class StepSupervisor:
                 landed = 0.5 * (point_x[r, 2 * swing[r]] + point_x[r, 2 * swing[r] + 1])
                 self.placement_error_m[sim].append(
                     (time_s, float(landed - (self.target_heel_x[sim] + self.heel_to_center_m))))
+            if self.stance is not None:
+                self.stance_offsets[sim] = self.stance(float(point_x[r, 0]), float(point_x[r, 2]))
         self.swing[ids[rows[down]]] = NO_SWING
         self.last_touchdown_s[ids[rows[down]]] = time_s
 
@@ -489,10 +499,7 @@ class StepSupervisor:
             target[rows, 0] = self.start_heel_x[sims] + dist * phi
             target[rows, 3] = dist * dphi / T
             target[rows, 6] = dist * ddphi / T**2
-            planned = self.planned[sims]  # a planned step's foot follows its path firmly (``StepConfig``)
-            target[rows, kernel.S_SWING_GAINS] = np.where(planned, c.planned_swing_weight, 0.0)
-            target[rows, kernel.S_SWING_GAINS + 1] = np.where(planned, c.planned_swing_k, 0.0)
-            target[rows, kernel.S_SWING_GAINS + 2] = np.where(planned, c.planned_swing_d, 0.0)
+            target[rows, kernel.S_SWING_GAINS:kernel.S_SWING_GAINS + 3] = (c.swing_weight, c.swing_k, c.swing_d)
             late = phase[rows] > 1.0  # not down yet: aim a few millimetres into the floor, gently
             target[rows, 1] = np.where(late, -0.005, c.lift_m * h)
             target[rows, 4] = np.where(late, 0.0, c.lift_m * dh / T)
@@ -501,6 +508,11 @@ class StepSupervisor:
             # a planned step crouches as much as its reach needs (feet brought together need none: the full bend
             # pushed the body up at their touchdown, 2.75 BW)
             target[rows, 9] *= np.where(self._plan_shaped(sims), self._crouch_scale(sims), 1.0)
+            # a reactive step forward bends the stance knee as its foot travels: bent at once, the hip came down
+            # onto a foot still ~1 mm up, pressed it into the floor (60 N on a foot the plan had unloaded), dragged
+            # it forward and threw the CoP to the stance toe at lift-off. A planned step's crouch is scaled to its
+            # reach already; a step back needs its 7 cm drop early (ramped, it landed at 2.7 body weights, not 2.4)
+            target[rows, 9] *= np.where((self.direction[sims] > 0) & ~self.planned[sims], phi, 1.0)
             if self.plan is not None:  # a plan's forward swing knee bends (backward, it rolled the stance foot over
                 # its toe at lift-off: a step back from standing fell)
                 knee = swing_profile(np.minimum(sr / SWING_KNEE_UNTIL, 1.0), c.width)[3]
@@ -511,12 +523,9 @@ class StepSupervisor:
             b, db = bezier(sr, self.com0_x[sims], pivot, mid)
             com_ref[rows] = b
             com_vel[rows] = np.where(late, 0.0, db / T)
-        settled = np.flatnonzero((swing < 0) & np.isfinite(self.last_touchdown_s[ids]) & (self.direction[ids] > 0))
-        target[settled, 9] = c.settle_knee_bend_rad  # double support after a forward step: the front knee bends
-        planned = settled[self._plan_shaped(ids[settled])]
-        if planned.size:  # after a planned step, as much as its split needs (1.3 cm of hip drop at 0.30 m, 2.5 cm
-            # at the 0.41 m the full bend is for)
-            target[planned, 9] *= self._crouch_scale(ids[planned])
+        settled = np.flatnonzero((swing < 0) & np.isfinite(self.last_touchdown_s[ids]))
+        target[settled, kernel.S_SETTLED] = 1.0  # both feet down after a step: stand over them
+        target[settled, kernel.S_STANCE:kernel.S_STANCE + 6] = self.stance_offsets[ids[settled]]
         return StepCommand(swing.astype(float), target, com_ref, com_vel,
                            None if self.plan is None else np.full(k, np.nan))
 
@@ -530,6 +539,15 @@ class StepSupervisor:
         """For the balance monitor: a capture point over the footprint a swing foot is heading for is not a
         fall, so the support of a stepping clip includes that footprint."""
         return with_landing(self.swing[ids], self.target_heel_x[ids], self.foot_length_m, lo, hi)
+
+    def step_reach_span(self, ids: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For the balance monitor: while no foot swings, a capture point one step can reach is not yet a fall (the
+        body is one-step capturable, Koolen et al. 2012). The supervisor decides from the delayed state, so the
+        capture point of a hard push leaves the feet before the foot lifts; a step then catches it, or the capture
+        point runs past the step's reach too (a fall)."""
+        idle = self.swing[ids] < 0
+        c = self.config
+        return np.where(idle, lo - c.max_back_step_m, lo), np.where(idle, hi + c.max_step_m, hi)
 
     def swinging(self, ids: np.ndarray) -> np.ndarray:
         """(k, 2) bool: which foot of each simulation swings now."""

@@ -17,6 +17,7 @@ import numpy as np
 from cmrt import inputs
 from cmrt.body.character import character, feet_flat_qpos, joint_angles_from_pose
 from cmrt.body.props import build_model, model_values, prop_class
+from cmrt.body.stance import feet_heel_x, stance_qpos
 from cmrt.body.surface import BOX_PARAMS, SURFACE_PARAMS, Support
 from cmrt.errors import CmrtError
 from cmrt.inputs import MAX_RUN_S, Range, param_range, shown
@@ -184,6 +185,11 @@ class Task:
     def gait(self) -> Gait | None:
         """The keyed gait the task tracks (``gait_*`` parameters, ``cmrt.motion.gait``; Yu's walking), or None."""
         return Gait.from_params(self.params)
+
+    @property
+    def feet_move(self) -> bool:
+        """Whether the feet may leave their places: a footstep plan, a keyed gait or a stepping supervisor."""
+        return bool(self.steps) or self.stepping != 0 or self.gait is not None
 
     @property
     def footsteps_planned(self) -> int:
@@ -447,9 +453,12 @@ class Task:
 
     def final_pose_error_rad(self, qpos: np.ndarray) -> float:
         """Euclidean distance of the actuated joint angles from the task's target pose (on a slope: stood upright
-        on it, as the reference is at the end)."""
+        on it, as the reference is at the end). Where the feet may move, the target is that pose stood over the
+        feet where they are (``cmrt.body.stance``): after a step the pose's own straight hips cannot be taken."""
         dofs = list(character().actuated_dofs)
         end = self.end_qpos()
+        if self.feet_move:
+            end = stance_qpos(end, feet_heel_x(qpos))
         end[list(character().ankle_dofs)] += float(self.support.tilt(self.clip_s + self.tail_s)[0])
         return float(np.linalg.norm(qpos[dofs] - end[dofs]))
 

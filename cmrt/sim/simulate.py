@@ -41,6 +41,7 @@ import numpy as np
 from cmrt.body.character import FOOT_POINT_RADIUS_M, character
 from cmrt.body.floating_box import FloatingBox, contact_wrench
 from cmrt.body.props import CONTACT_FORCE_N, model_values, prop_class
+from cmrt.body.stance import leg_offsets
 from cmrt.body.surface import Support, body_inertia_yy, frame_field, lean_rate, lean_x, tilt_pose, uniform_field
 from cmrt.control import ControllerConfig, MomentumBalanceController
 from cmrt.control.controller import read_only
@@ -780,6 +781,8 @@ class _Group:
     has_contact_force: bool
     delay_steps: int  # the balance feedback's delay (ControllerConfig.feedback_delay_s), whole control steps
     fb_vel: np.ndarray  # the CoM velocity at every control step so far (its position is in the records)
+    felt: np.ndarray | None  # a reactive stepper's inputs at every control step so far (com x, com z, L_x, H_y): it
+    # decides from those of ``delay_steps`` ago, as the balance feedback does (None: no reactive stepping)
     warm: np.ndarray  # each simulation's QP active set at its last control step: the next one starts from it
     compiled: _CompiledTick | None
     push_steps: set  # a set: cheaper per step than an array
@@ -862,6 +865,7 @@ def _set_up(task: Task, curves: list[Cmrt | None], config: ControllerConfig, rec
         extras={}, ctrl_all=np.zeros((n, m.nu)), com_ref_now=np.full(n, np.nan), cop_ref_now=np.full(n, np.nan),
         control_dt=control_dt, sample_every=max(1, int(round(task.cop_sample_step_s / dt))),
         has_contact_force=has_contact_force, delay_steps=delay_steps, fb_vel=fb_vel, warm=warm, compiled=compiled,
+        felt=np.full((n, n_steps, 4), np.nan) if isinstance(stepper, StepSupervisor) else None,
         push_steps=set(np.flatnonzero(drive.push_changes).tolist()),
         field=None if support.still_and_level else _SupportField(support, m, nb, n, n_steps, delay_steps),
         com_ref_shown=np.full(n, np.nan),
@@ -1060,7 +1064,8 @@ def _read(g: _Group, s: _LoopState, k: int, control: bool) -> _Reading:
     if g.stepper is not None:  # the support of the moment: the stance foot while the other swings
         if control:
             s.step = _step_command(g.stepper, g.kin, b, sel, ids, g.times[k], g.ch.mass_kg + g.prop.carried_kg[ids],
-                                   r.contact, r.point_x, (g.drive.disp_m[sel, k], g.drive.disp_vel_m_s[sel, k]))
+                                   r.contact, r.point_x, (g.drive.disp_m[sel, k], g.drive.disp_vel_m_s[sel, k]),
+                                   (g.felt, k, g.delay_steps))
         r.lo, r.hi = g.stepper.support(ids, r.point_x, r.lo, r.hi)
     r.center = 0.5 * (r.lo + r.hi)
     rec["sc"][sel, k], rec["lo"][sel, k], rec["hi"][sel, k] = r.center, r.lo, r.hi
@@ -1144,6 +1149,8 @@ def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
     c_lo, c_hi, roll = r.c_lo, r.c_hi, r.roll
     if stepper is not None:  # a swing foot is not a rolled foot; where it lands is support
         c_lo, c_hi = stepper.landing_span(ids, c_lo, c_hi)
+        if g.felt is not None:  # a reactive stepper: what one step can still catch is not yet a fall
+            c_lo, c_hi = stepper.step_reach_span(ids, c_lo, c_hi)
         roll = np.where(stepper.swinging(ids), 0.0, roll)
     if g.has_contact_force and k > 0 and g.prop.holds_body_up:  # leaning on a prop: the pendulum's capture point
         leaning = rec["prop_force"][ids, k - 1] > CONTACT_FORCE_N  # does not apply
@@ -1231,19 +1238,35 @@ def _stepper(task: Task, n: int, com_stiffness: float = ControllerConfig.k_l) ->
                         duration_s=np.array([s.duration_s for s in steps]),
                         start_s=np.array([np.nan if s.start_s is None else s.start_s for s in steps]),
                         first_step_s=FIRST_STEP_S, double_support_s=DOUBLE_SUPPORT_S, com_stiffness=com_stiffness)
-    return StepSupervisor(n, config, heel_to_center_m=0.5 * (toe - heel), foot_length_m=toe - heel, plan=plan)
+    return StepSupervisor(n, config, heel_to_center_m=0.5 * (toe - heel), foot_length_m=toe - heel, plan=plan,
+                          stance=functools.partial(leg_offsets, task.end_qpos()))
 
 
 def _step_command(stepper: StepSupervisor | GaitTracker, kin: PlanarKinematics, b: dict, sel, ids: np.ndarray,
                   time_s: float, mass: np.ndarray, contact: np.ndarray, point_x: np.ndarray,
-                  cmrt: tuple | None = None) -> StepCommand:
+                  cmrt: tuple | None = None, delayed: tuple | None = None) -> StepCommand:
     """Advance the supervisor of simulations ``ids`` by one control step from their bound state; ``cmrt``: their
-    CMRT displacement and its rate now (a footstep plan's capture point is displaced by it)."""
+    CMRT displacement and its rate now (a footstep plan's capture point is displaced by it).
+
+    A person's reaction: a reactive stepper decides - whether to step, where, how far to stretch the step - from
+    the CoM and momenta of the balance feedback's delay ago (``delayed``: (history (n, steps, 4), this control
+    step, the delay in steps), the history written here; people lift the foot 0.25-0.35 s after a push). Before
+    the clip's first ``delay`` steps the character stood still: its first control step stands in for them."""
     nb = kin.model.nbody
     momentum = kin.momentum(b["cinert"][sel, :nb], b["cvel"][sel, :nb])  # (k, 3): H_y, L_x, L_z
     com = b["subtree_com"][sel, 1]
+    felt = None
+    if delayed is not None and delayed[0] is not None:
+        history, k, delay_steps = delayed
+        history[ids, k] = np.stack([com[:, 0], com[:, 2], momentum[:, 1], momentum[:, 0]], axis=1)
+        then = history[ids, max(k - delay_steps, 0)]
+        then = np.where(np.isnan(then), history[ids, 0], then)
+        felt = (then[:, 0], then[:, 1], then[:, 2], then[:, 3])
+    if felt is None:
+        return stepper.update(ids, time_s, com[:, 0], com[:, 2], momentum[:, 1], momentum[:, 0], mass, contact,
+                              point_x, cmrt)
     return stepper.update(ids, time_s, com[:, 0], com[:, 2], momentum[:, 1], momentum[:, 0], mass, contact,
-                          point_x, cmrt)
+                          point_x, cmrt, felt)
 
 
 def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarray, falls: FallMonitor, disp: np.ndarray,

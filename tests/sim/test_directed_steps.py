@@ -12,11 +12,11 @@ from cmrt.sim.objective import FOOTSTEP_TOLERANCE_M, evaluate
 from cmrt.sim.simulate import simulate, simulate_batch
 
 TWO_STEPS = "R:+0.30:0.6,L:+0.60:0.6"
-# Under the one verdict rule (controller v0.4, docs/physics.md) a clip that steps is not yet a success: a split
-# stance is judged against the standing pose (final_pose), touchdowns slam (ground_force), the CoP reaches an end of
-# a foot as it lands (cop_margin), and the plan of the walk's weight shifts misses by ~5.5 mm (plan). What these
-# tests check is the stepping itself; each states which of those rules its clip still breaks, as measured.
-STEPPING_OPEN = {"final_pose", "ground_force", "cop_margin", "plan"}
+# The rules a clip that steps may still break (controller v0.5, docs/stepping.md): fast or pushed steps slam
+# (ground_force), the CoP reaches an end of a foot at a lift-off or a landing (cop_margin), a plan's weight shift
+# misses by a few mm after a push (plan). Since v0.5 a split stance is judged against the stance over the landed
+# feet, not the standing pose. What these tests check is the stepping itself; each states which rules it breaks.
+STEPPING_OPEN = {"ground_force", "cop_margin", "plan"}
 
 
 def _stepped(e, broken: set[str]) -> bool:
@@ -34,11 +34,13 @@ def _heel_to_center_m() -> float:
 def test_two_steps_forward_land_where_asked_and_the_body_comes_to_rest():
     """The issue's first must-show: two steps, each foot's centre within 2 cm of its target (measured here from
     the footprints, independently of the supervisor's own figure), balance kept, standing still after, the
-    touchdowns flat and slower than 0.3 m/s, the ground force within 2.5 body weights."""
+    touchdowns flat and slower than 0.3 m/s, the ground force within 2.5 body weights; a success, standing in the
+    stance over its feet (0.04 rad from it; 0.62 rad from the standing pose), planted feet sliding under 1 cm."""
     task = resolve_task("stand", params={"clip_s": 4.0}, steps=TWO_STEPS)
     traj = simulate(task)
     e = evaluate(task, traj)
-    assert _stepped(e, {"final_pose"}), e  # split 0.3 m apart, judged against the standing pose: 0.62 rad
+    assert _stepped(e, set()) and e.success, e
+    assert e.final_pose_error_rad < 0.1 and e.max_touchdown_force_bw <= 2.5 and e.max_foot_slip_m <= 0.01
     assert e.steps == 2 and e.footsteps_landed == 2
     origin = traj.support_center_x_m[0]  # the start stance's centre: the plan's x = 0
     landed = {foot: heel + _heel_to_center_m() for foot, _, heel in traj.footprints}
@@ -61,7 +63,7 @@ def test_a_step_back_lands_where_asked():
     weight and never lifted)."""
     task = resolve_task("stand", params={"clip_s": 3.0}, steps="R:-0.30:0.6")
     e = evaluate(task, simulate_batch(task, [None], record=False)[0])
-    assert _stepped(e, {"final_pose"}) and e.footsteps_landed == 1 and e.max_footstep_error_m < 0.02
+    assert _stepped(e, set()) and e.footsteps_landed == 1 and e.max_footstep_error_m < 0.02
 
 
 def test_a_plan_with_a_step_far_from_its_target_is_not_performed():
@@ -80,7 +82,7 @@ def test_the_walk_task_walks_upright_and_comes_to_rest():
     """The issue's walk: six 0.2 m steps and feet together, each where asked; standing still at the end; the
     ground force within 2.5 body weights, never airborne; the thorax never more than 10 degrees forward (the
     steps' Bezier CoM target bowed it 20-68 degrees: the capture-point plan is why it stays up). A success by the
-    one rule since a planned step's foot follows its path firmly (``StepConfig.planned_swing_*``): it lifts and
+    one rule since a step's foot follows its path firmly (``StepConfig.swing_*``): it lifts and
     lands as asked - planted feet slide under 1 cm (1.3 cm before), touchdowns under 1.9 body weights (2.1), and
     the landings' tails no longer break the plan (5.5 mm before)."""
     task = resolve_task("walk")
@@ -91,14 +93,18 @@ def test_the_walk_task_walks_upright_and_comes_to_rest():
     assert e.steps == e.footsteps_landed == len(task.steps) >= 6
     assert e.max_footstep_error_m < 0.02
     assert e.peak_normal_force_bw <= 2.5 and e.airborne_s == 0.0 and e.max_joint_speed_rad_s <= 25.0
+    # the thorax's pitch in the world, + forward (it stands at +3.3 deg): within 10 degrees of its standing posture
+    # (v0.4's check read + as backward; the walk's thorax reaches +10.0 deg in the world)
     thorax_deg = np.degrees(traj.qpos[:, 2] + traj.qpos[:, character().dof("lumbar")])
-    assert thorax_deg.min() > -10.0
+    assert np.abs(thorax_deg - thorax_deg[0]).max() < 10.0
     assert traj.com_m[-1, 0] - traj.com_m[0, 0] > 1.0  # it went somewhere
 
 
-@pytest.mark.parametrize("force_n,start_s", [(100.0, 2.5), (-50.0, 2.0)])
+@pytest.mark.parametrize("start_s", [1.5, 2.0, 2.5])
+@pytest.mark.parametrize("force_n", [150.0, -150.0])
 def test_a_push_during_the_walk_is_taken(force_n, start_s):
-    """Pushes the walk takes (docs/stepping.md has the others): balance kept, every step landed, a success."""
+    """+-150 N x 0.1 s at any phase of the walk (docs/stepping.md has the others): balance kept, every step
+    landed, a success."""
     task = resolve_task("walk", params={"push_force_n": force_n, "push_start_s": start_s})
     e = evaluate(task, simulate_batch(task, [None], record=False)[0])
     assert e.success and e.steps == e.footsteps_landed == len(task.steps), e
@@ -114,7 +120,7 @@ def test_a_hard_push_during_the_walk_moves_the_plans_steps():
 
 @pytest.mark.parametrize("takes_over", [True, False])
 def test_a_push_the_plan_cannot_absorb_is_taken_over_by_reactive_steps(takes_over, monkeypatch):
-    """+300 N at 2.5 s, in the double support before the fourth step: the supervisor adds a reactive step, then
+    """+250 N at 2.5 s, in the double support before the fourth step: the supervisor adds a reactive step, then
     the plan goes on with the trailing foot (no foot steps twice running), every planned step lands where asked
     and the body comes to rest; without the takeover the plan is not carried out (a step lands 5 cm off)."""
     import math
@@ -123,7 +129,7 @@ def test_a_push_the_plan_cannot_absorb_is_taken_over_by_reactive_steps(takes_ove
 
     if not takes_over:
         monkeypatch.setattr(stepping, "TAKEOVER_ERROR_M", math.inf)
-    task = resolve_task("walk", params={"push_force_n": 300.0, "push_start_s": 2.5})
+    task = resolve_task("walk", params={"push_force_n": 250.0, "push_start_s": 2.5})
     traj = simulate_batch(task, [None], record=False)[0]
     e = evaluate(task, traj)
     assert (e.performed is not False and not e.fell) is takes_over, e
@@ -142,9 +148,10 @@ def test_a_plan_is_deterministic_and_independent_of_its_batch():
         assert traj.footprints == one.footprints and traj.footstep_errors_m == one.footstep_errors_m
 
 
-def test_a_fast_directed_step_plan_needs_anticipation_and_cma_es_finds_it(tmp_path):
-    """Two 0.45 m steps of 0.4 s each: without a CMRT the body falls; the CMRT displaces the plan's capture point
-    (anticipation for steps) and ``cmrt optimize`` finds one that makes the plan a success, stored and replayed."""
+def test_a_fast_directed_step_plan_is_optimized_stored_and_replayed(tmp_path):
+    """Two 0.45 m steps of 0.4 s each: without a CMRT not a success; the CMRT displaces the plan's capture point
+    (anticipation for steps) and ``cmrt optimize`` finds a better one, stored and replayed exactly (no success yet:
+    docs/stepping.md, the stride)."""
     import json
 
     from tests.service_helpers import cmrt
@@ -154,9 +161,11 @@ def test_a_fast_directed_step_plan_needs_anticipation_and_cma_es_finds_it(tmp_pa
     out = cmrt("optimize", *args, "--seed", "1", "--max-evals", "20", "--json", store=store)
     assert out.returncode == 0, out.stderr
     run = json.loads(out.stdout)
-    # without a CMRT it falls; the best CMRT found keeps the balance and lands both steps (its split stance and its
+    # without a CMRT the body keeps its balance (v0.5: a capture point one step can reach is not yet a fall) but
+    # slams and rolls a foot; the best CMRT found in 20 evaluations lowers the objective and lands both steps (its
     # touchdowns still break the stepping rules: not a success yet)
-    assert run["baseline_fell"] is True and run["fell"] is False
+    assert run["baseline_success"] is False and run["fell"] is False
+    assert run["best_objective"] < run["baseline_objective"]
     replay = cmrt("simulate", *args, "--curve", str(run["run_id"]), "--json", store=store)
     assert replay.returncode == 0, replay.stderr
     result = json.loads(replay.stdout)
