@@ -102,6 +102,7 @@ def _figures(task, durations: list[float], push_n: float, push_start_s: float) -
         if len(lift) > 1:
             speeds.append(float(np.max(-np.diff(lift, axis=0))) / float(traj.time_s[1] - traj.time_s[0]))
     before = slice(None) if traj.fall_time_s is None else traj.time_s < traj.fall_time_s
+    # the thorax's pitch in the world: + forward (a +y rotation tips the head toward +x), standing +3.3
     thorax = np.degrees(traj.qpos[before, 2] + traj.qpos[before, character().dof("lumbar")])
     return {
         "push_n": push_n, "push_start_s": push_start_s,
@@ -115,8 +116,8 @@ def _figures(task, durations: list[float], push_n: float, push_start_s: float) -
         # without a push every step is the plan's, in order: how much longer than planned each took to land
         "max_timing_error_s": (max(d - p for d, p in zip(late, durations, strict=False))
                                if late and push_n == 0.0 and e.steps == len(durations) else None),
-        "thorax_most_forward_deg": float(thorax.min()) if thorax.size else None,
-        "thorax_most_backward_deg": float(thorax.max()) if thorax.size else None,
+        "thorax_most_forward_deg": float(thorax.max()) if thorax.size else None,
+        "thorax_most_backward_deg": float(thorax.min()) if thorax.size else None,
         "peak_normal_force_bw": e.peak_normal_force_bw, "airborne_s": e.airborne_s,
         "max_foot_slip_m": e.max_foot_slip_m,  # the farthest a heel or toe point slid while touching the floor
     }
@@ -137,7 +138,7 @@ def _cells(r: dict) -> tuple[str, str, str, str]:
     err = "-" if r["max_footstep_error_m"] is None else f"{r['max_footstep_error_m'] * 1000:.1f}"
     peak = "-" if r["peak_touchdown_force_bw"] is None else f"{r['peak_touchdown_force_bw']:.2f}"
     speed = "-" if r["max_touchdown_speed_m_s"] is None else f"{r['max_touchdown_speed_m_s']:.2f}"
-    return err, peak, speed, f"{r['thorax_most_forward_deg']:.0f} to {r['thorax_most_backward_deg']:+.0f}"
+    return err, peak, speed, f"{r['thorax_most_backward_deg']:.0f} to {r['thorax_most_forward_deg']:+.0f}"
 
 
 def _verdict(r: dict) -> str:
