@@ -131,6 +131,8 @@ class StepCommand:
     com_ref_x_m: np.ndarray  # (k,) CoM target on the Bezier (NaN: not stepping, the task's own target)
     com_ref_vel_x_m_s: np.ndarray  # (k,)
     cop_x_m: np.ndarray | None = None  # (k,) the CoP a footstep plan asks for (NaN: the task's own)
+    arms_rad: np.ndarray | None = None  # (k, 3, 2): the shoulders' (right, left) angle, rate and acceleration added
+    # to the reference (a plan's arm swing; None: none)
 
     def com_targets(self, com_ref: np.ndarray, com_ref_vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The task's CoM target where no foot swings, the step's Bezier where one does (a footstep plan's
@@ -145,7 +147,20 @@ class StepCommand:
     def rows(self, idx: np.ndarray) -> StepCommand:
         """The command of a subset of its rows."""
         return StepCommand(self.swing_foot[idx], self.swing_target[idx], self.com_ref_x_m[idx],
-                           self.com_ref_vel_x_m_s[idx], None if self.cop_x_m is None else self.cop_x_m[idx])
+                           self.com_ref_vel_x_m_s[idx], None if self.cop_x_m is None else self.cop_x_m[idx],
+                           None if self.arms_rad is None else self.arms_rad[idx])
+
+    def with_arms(self, refs: tuple[np.ndarray, ...], shoulder_dofs: tuple[int, int]) -> tuple[np.ndarray, ...]:
+        """The reference (q, qd, qdd; shared (nv,) or per row (k, nv)) with the arm swing added at the shoulders."""
+        if self.arms_rad is None or not np.any(self.arms_rad):
+            return refs
+        k = self.arms_rad.shape[0]
+        out = []
+        for order, r in enumerate(refs):
+            rows = np.array(np.broadcast_to(r, (k, r.shape[-1])))
+            rows[:, list(shoulder_dofs)] += self.arms_rad[:, order]
+            out.append(rows)
+        return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -181,6 +196,9 @@ TAKEOVER_ERROR_M = 0.06  # in double support, the momentum rule's call for a ste
 # a plan to the reactive rule when the capture point is also this far off the plan's: a push. Measured without a
 # push, while p_test was beyond the feet: at most 0.035 m in the walk, 0.053 m in two 0.4 m steps of 0.6 s; with
 # +200 N at 2.0 s in the walk it passed 0.06 m 0.04 s before the capture point left the feet
+ARM_SWING_RAD_PER_M = 0.6  # a planned step swings the arms opposite the legs, each shoulder this many rad per m of
+# the step (foot to stance foot at landing): 0.12 rad (7 deg) each way in the walk's 0.2 m steps, 0.24 at 0.4 m (people:
+# about 10-20 deg each way at 1-1.3 m/s). The arm on the swinging leg's side goes back as the leg goes forward
 PLANNED_TOUCHDOWN_AFTER = 0.85  # a planned swing foot touching the floor counts as landed after this fraction of
 # its step (a reactive one after ``touchdown_after``): at 0.5 the second step of a 0.3 m plan grazed the floor at
 # mid-swing and "landed" 35 cm short
@@ -198,6 +216,8 @@ class StepSupervisor:
         self.stance = stance  # the legs' offsets from the reference (right, left x hip, knee, ankle; rad) to stand
         # over feet with heel points at (right x, left x) m (``cmrt.body.stance``); None: the reference's legs
         self.stance_offsets = np.zeros((n, 6))  # those of the feet where the last step landed
+        self.arm_from_rad = np.zeros((n, 2))  # a planned step's shoulders (right, left) at its lift-off ...
+        self.arm_to_rad = np.zeros((n, 2))  # ... and at its touchdown (ARM_SWING_RAD_PER_M)
         self.plan = plan
         self.next_planned = np.zeros(n, int)  # the plan's next step
         self.planned = np.zeros(n, bool)  # the step under way is the plan's
@@ -369,6 +389,12 @@ class StepSupervisor:
         self.duration_s[sims] = plan.duration_s[j]
         self.planned[sims] = True
         self.next_planned[sims] = j + 1
+        # the arms swing opposite the legs: at touchdown the swinging leg's arm is back (+), the other forward;
+        # the plan's last step brings them back to hang
+        self.arm_from_rad[sims] = self.arm_to_rad[sims]
+        amplitude = ARM_SWING_RAD_PER_M * np.abs(target_center - pivot) * (j + 1 < plan.foot.size)
+        side = np.where(foot[:, None] == np.arange(2)[None, :], 1.0, -1.0)  # +1 on the swinging leg's side
+        self.arm_to_rad[sims] = side * amplitude[:, None]
         for sim in sims:
             self.step_times[sim].append(time_s)
 
@@ -527,7 +553,24 @@ class StepSupervisor:
         target[settled, kernel.S_SETTLED] = 1.0  # both feet down after a step: stand over them
         target[settled, kernel.S_STANCE:kernel.S_STANCE + 6] = self.stance_offsets[ids[settled]]
         return StepCommand(swing.astype(float), target, com_ref, com_vel,
-                           None if self.plan is None else np.full(k, np.nan))
+                           None if self.plan is None else np.full(k, np.nan), self._arms(ids, s, rows))
+
+    def _arms(self, ids: np.ndarray, s: np.ndarray, rows: np.ndarray) -> np.ndarray | None:
+        """The plan's arm swing of rows ``ids`` (k, 3, 2): held between steps, along the foot's path during one."""
+        if self.plan is None:
+            return None
+        arms = np.zeros((ids.size, 3, 2))
+        arms[:, 0] = self.arm_to_rad[ids]
+        planned = rows[self.planned[ids[rows]]]
+        if planned.size:
+            sims = ids[planned]
+            phi, dphi, ddphi = swing_profile(s[planned], self.config.width)[:3]
+            T = self.duration_s[sims][:, None]
+            span = self.arm_to_rad[sims] - self.arm_from_rad[sims]
+            arms[planned, 0] = self.arm_from_rad[sims] + span * phi[:, None]
+            arms[planned, 1] = span * dphi[:, None] / T
+            arms[planned, 2] = span * ddphi[:, None] / T**2
+        return arms
 
     def support(self, ids: np.ndarray, point_x: np.ndarray, lo: np.ndarray, hi: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray]:

@@ -283,6 +283,12 @@ def _judge_prop(prop, b, rows, force, times, windows, goal, extras) -> None:
         extras.setdefault(key, np.full(goal.size, np.nan))[rows] = values
 
 
+@functools.cache
+def _shoulder_dofs() -> tuple[int, int]:
+    ch = character()
+    return ch.dof("shoulder_r"), ch.dof("shoulder_l")
+
+
 def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass, step: StepCommand | None = None,
              warm: np.ndarray | None = None, ids: np.ndarray | None = None, load=None, field=None):
     """Torques and the planned CoP (``ControlOutput.cop_x_m``) for the given rows; a row whose plan is singular or
@@ -292,6 +298,7 @@ def _control(controller, f, refs, com_ref, com_ref_vel, cop_ref, contact, mass, 
     if step is not None:
         com_ref, com_ref_vel = step.com_targets(com_ref, com_ref_vel)
         cop_ref = step.cop_target(cop_ref)
+        refs = step.with_arms(refs, _shoulder_dofs())
 
     def swing(rows):
         return {} if step is None else {"swing_foot": step.swing_foot[rows], "swing_target": step.swing_target[rows]}
