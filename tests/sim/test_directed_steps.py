@@ -79,12 +79,12 @@ def test_a_plan_with_a_step_far_from_its_target_is_not_performed():
 
 
 def test_the_walk_task_walks_upright_and_comes_to_rest():
-    """The issue's walk: six 0.2 m steps and feet together, each where asked; standing still at the end; the
-    ground force within 2.5 body weights, never airborne; the thorax never more than 10 degrees forward (the
-    steps' Bezier CoM target bowed it 20-68 degrees: the capture-point plan is why it stays up). A success by the
-    one rule since a step's foot follows its path firmly (``StepConfig.swing_*``): it lifts and
-    lands as asked - planted feet slide under 1 cm (1.3 cm before), touchdowns under 1.9 body weights (2.1), and
-    the landings' tails no longer break the plan (5.5 mm before)."""
+    """The walk: six 0.2 m steps and feet together, each where asked, the arms swinging opposite the legs;
+    standing still at the end; the ground force within 2.5 body weights, never airborne; the thorax within 10
+    degrees of its standing posture (the steps' Bezier CoM target bowed it 20-68 degrees: the capture-point plan is
+    why it stays up). A success by the one rule since a step's foot follows its path firmly
+    (``StepConfig.swing_*``): it lifts and lands as asked - planted feet slide under 1 cm (1.3 cm before),
+    touchdowns under 1.9 body weights (2.1), and the landings' tails no longer break the plan (5.5 mm before)."""
     task = resolve_task("walk")
     traj = simulate(task)
     e = evaluate(task, traj)
@@ -98,6 +98,14 @@ def test_the_walk_task_walks_upright_and_comes_to_rest():
     thorax_deg = np.degrees(traj.qpos[:, 2] + traj.qpos[:, character().dof("lumbar")])
     assert np.abs(thorax_deg - thorax_deg[0]).max() < 10.0
     assert traj.com_m[-1, 0] - traj.com_m[0, 0] > 1.0  # it went somewhere
+    # the arms swing opposite the legs (ARM_SWING_RAD_PER_M): the right arm back as the right leg goes forward
+    ch = character()
+    legs = traj.qpos[:, ch.dof("hip_r")] - traj.qpos[:, ch.dof("hip_l")]  # < 0: the right thigh ahead
+    arms = traj.qpos[:, ch.dof("shoulder_r")] - traj.qpos[:, ch.dof("shoulder_l")]  # > 0: the right arm behind
+    walking = (traj.time_s > 0.5) & (traj.time_s < traj.footprints[-2][1])
+    assert np.corrcoef(legs[walking], arms[walking])[0, 1] < -0.8
+    assert np.degrees(np.abs(traj.qpos[walking, ch.dof("shoulder_r")])).max() > 5.0
+    assert np.degrees(np.abs(traj.qpos[-1, [ch.dof("shoulder_r"), ch.dof("shoulder_l")]])).max() < 1.0  # hanging
 
 
 @pytest.mark.parametrize("start_s", [1.5, 2.0, 2.5])
