@@ -189,7 +189,9 @@ def _report_text(r: dict) -> str:
            + (f"; the first {r['step_liftoff_after_push_s']:.3f} s after the push"
               if r.get("step_liftoff_after_push_s") is not None else "")
            + (f"; hardest landing {r['max_touchdown_force_bw']:.2f} x body weight"
-              if r.get("max_touchdown_force_bw") is not None else "") + ")"]
+              if r.get("max_touchdown_force_bw") is not None else "")
+           + (f"; planted feet slid {r['max_foot_slip_m'] * 100:.2f} cm"
+              if r.get("max_foot_slip_m") is not None else "") + ")"]
           if r.get("steps") and isinstance(r.get("step_times_s"), list | tuple) else []),
         f"  planned vs executed CoP {_n(r.get('max_plan_cop_error_m'), '.2f', 1000)} mm (bound "
         f"{_n((r.get('verdict_bounds') or {}).get('max_plan_cop_error_m'), '.0f', 1000)})  timing lag "

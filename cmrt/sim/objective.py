@@ -257,10 +257,11 @@ def success_rule(task: Task) -> str:
     if task.has_goal:
         return "interaction: goal met, on time"
     if task.footsteps_planned:
-        return "footsteps: every step within 3 cm" + (", then the end pose" if task.end_pose_deg else "")
+        return ("footsteps: every step within 3 cm, then " + ("the end pose" if task.end_pose_deg else "standing")
+                + " in the stance over them")
     if task.end_pose_deg is not None:
         return "pose change: end pose, tracked, on time"
-    return "standing"
+    return "standing in the stance over its feet" if task.feet_move else "standing"
 
 
 def _excesses(ev: dict, fell: bool, pose_judged: bool) -> dict[str, float]:

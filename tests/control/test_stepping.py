@@ -222,6 +222,7 @@ def test_the_shipped_push_recovery_is_a_persons_step():
     assert ev.success, ev.failed_rules
     assert ev.step_liftoff_after_push_s >= 0.15 and ev.max_touchdown_force_bw <= 2.5
     assert ev.max_foot_slip_m <= 0.01 and ev.final_pose_error_rad < FINAL_POSE_TOLERANCE_RAD
+    assert ev.success_rule == "standing in the stance over its feet"  # the rule that judged it, named
 
 
 def test_a_reactive_decision_is_made_from_the_felt_state():

@@ -89,6 +89,7 @@ def test_the_walk_task_walks_upright_and_comes_to_rest():
     traj = simulate(task)
     e = evaluate(task, traj)
     assert e.success and e.failed_rules == () and e.max_plan_cop_error_m <= 0.005, e
+    assert e.success_rule == "footsteps: every step within 3 cm, then standing in the stance over them"
     assert e.max_foot_slip_m <= 0.01 and e.max_touchdown_force_bw < 1.9
     assert e.steps == e.footsteps_landed == len(task.steps) >= 6
     assert e.max_footstep_error_m < 0.02
