@@ -191,7 +191,9 @@ def _report_text(r: dict) -> str:
            + (f"; hardest landing {r['max_touchdown_force_bw']:.2f} x body weight"
               if r.get("max_touchdown_force_bw") is not None else "")
            + (f"; planted feet slid {r['max_foot_slip_m'] * 100:.2f} cm"
-              if r.get("max_foot_slip_m") is not None else "") + ")"]
+              if r.get("max_foot_slip_m") is not None else "")
+           + (f"; a stance foot's CoP rolled {r['min_stance_cop_roll'] * 100:.0f} % heel to toe at least"
+              if r.get("min_stance_cop_roll") is not None else "") + ")"]
           if r.get("steps") and isinstance(r.get("step_times_s"), list | tuple) else []),
         f"  planned vs executed CoP {_n(r.get('max_plan_cop_error_m'), '.2f', 1000)} mm (bound "
         f"{_n((r.get('verdict_bounds') or {}).get('max_plan_cop_error_m'), '.0f', 1000)})  timing lag "

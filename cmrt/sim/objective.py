@@ -148,6 +148,10 @@ class Evaluation:
     # where it was asked to (m; None without a plan). All landed within FOOTSTEP_TOLERANCE_M: the plan performed
     footsteps_landed: int | None = None
     max_footstep_error_m: float | None = None
+    # ... and how far each stance foot's own CoP rolled from heel toward toe between its touchdown and its next
+    # lift-off, the least over the plan's stances (a fraction of heel to toe; None without such a stance). A
+    # person's walk rolls from heel strike to toe-off, the whole foot
+    min_stance_cop_roll: float | None = None
     # diagnostics (docs/controller.md, *Diagnostics*); the plan gap, timing lag and the figures above enter the verdict
     max_plan_cop_error_m: float | None = None  # planned vs executed CoP (recorded runs)
     max_foot_slip_m: float | None = None  # how far a heel/toe point slid along the support while touching it
@@ -396,13 +400,7 @@ def evaluate(task: Task, traj: Trajectory) -> Evaluation:
         ball_sag_m=traj.prop_extras.get("ball_sag_m"),
         ball_max_sag_m=traj.prop_extras.get("ball_max_sag_m"),
         ball_held_s=traj.prop_extras.get("ball_held_s"),
-        steps=len(traj.step_times_s),
-        step_times_s=tuple(round(float(t), 4) for t in traj.step_times_s),
-        step_liftoff_after_push_s=step_liftoff_after_push_s(traj),
-        max_touchdown_force_bw=max_touchdown_force_bw(traj, before, weight),
-        footsteps_landed=len(traj.footstep_errors_m) if task.footsteps_planned else None,
-        max_footstep_error_m=(float(np.max(np.abs(traj.footstep_errors_m)))
-                              if task.footsteps_planned and traj.footstep_errors_m else None),
+        **_step_figures(task, traj, before, weight),
         max_plan_cop_error_m=figures["max_plan_cop_error_m"],
         max_foot_slip_m=foot_slip_m(traj),
         timing_lag_s=lag,
@@ -462,6 +460,48 @@ def max_touchdown_force_bw(traj: Trajectory, before: np.ndarray, weight_n: float
         if fz.size:
             peaks.append(float(fz.max()) / weight_n)
     return max(peaks) if peaks else None
+
+
+def _step_figures(task: Task, traj: Trajectory, before: np.ndarray, weight_n: float) -> dict:
+    """The Evaluation's figures of the steps a clip took (none for planted feet) and of a plan's footsteps."""
+    planned = bool(task.footsteps_planned)
+    return {
+        "steps": len(traj.step_times_s),
+        "step_times_s": tuple(round(float(t), 4) for t in traj.step_times_s),
+        "step_liftoff_after_push_s": step_liftoff_after_push_s(traj),
+        "max_touchdown_force_bw": max_touchdown_force_bw(traj, before, weight_n),
+        "footsteps_landed": len(traj.footstep_errors_m) if planned else None,
+        "max_footstep_error_m": (float(np.max(np.abs(traj.footstep_errors_m)))
+                                 if planned and traj.footstep_errors_m else None),
+        "min_stance_cop_roll": stance_cop_roll(traj, weight_n) if planned else None,
+    }
+
+
+def stance_cop_roll(traj: Trajectory, weight_n: float, edge_s: float = 0.02) -> float | None:
+    """The least heel-to-toe roll of a stance foot's own CoP (its toe's share of its load: heel 0, toe 1) from its
+    touchdown to its next lift-off: the mean over the first ``edge_s`` it carries more than 5 % of the body's weight
+    against the mean over its last. A stance the body comes to rest on (no lift-off after it) is not counted."""
+    force = np.asarray(traj.point_normal_force_n)
+    if force.ndim != 2 or not traj.footprints:
+        return None
+    step_feet = [int(foot) for foot, _, _ in traj.footprints]  # step j's foot: its footprint's
+    rolls = []
+    for i, (foot, landed_s, _) in enumerate(traj.footprints):
+        foot = int(foot)
+        lifts = [traj.step_times_s[j] for j in range(i + 1, min(len(traj.step_times_s), len(step_feet)))
+                 if step_feet[j] == foot]
+        if not lifts:
+            continue
+        during = (traj.time_s >= landed_s) & (traj.time_s < lifts[0])
+        heel, toe = force[during, 2 * foot], force[during, 2 * foot + 1]
+        times = traj.time_s[during]
+        loaded = np.isfinite(heel) & np.isfinite(toe) & (heel + toe > 0.05 * weight_n)
+        if loaded.sum() < 2:
+            continue
+        share, times = toe[loaded] / (heel[loaded] + toe[loaded]), times[loaded]
+        first, last = share[times <= times[0] + edge_s], share[times >= times[-1] - edge_s]
+        rolls.append(float(last.mean() - first.mean()))
+    return min(rolls) if rolls else None
 
 
 def foot_slip_m(traj: Trajectory) -> float | None:

@@ -92,6 +92,8 @@ class Trajectory:
     support_hi_x_m: np.ndarray
     normal_force_n: np.ndarray  # total vertical ground force on the feet, every step
     foot_normal_force_n: np.ndarray  # (n, 2): right, left
+    point_normal_force_n: np.ndarray  # (n, 4): heel_r, toe_r, heel_l, toe_l (the CoP sample steps): where each foot's
+    # own CoP is (its toe's share of its load, heel 0 to toe 1)
     point_lift_m: np.ndarray  # (n, 4): heel_r, toe_r, heel_l, toe_l above settled height
     point_contact: np.ndarray  # (n, 4): 1 where that point touches the floor (control steps), else 0
     foot_roll_rad: np.ndarray  # (n, 2): pitch of each foot (0 flat; < 0 toes up)
@@ -341,8 +343,8 @@ class _Recorder:
     """Buffers (n, n_steps, ...) filled at the steps where each quantity is read; NaN elsewhere."""
 
     SHAPES = {"com": (2,), "com_vel": (), "xi": (), "cop": (), "sc": (), "lo": (), "hi": (), "fz": (),
-              "ffz": (2,), "lift": (4,), "contact": (4,), "roll": (2,), "jspeed": (), "cref": (), "pref": (),
-              "plan_cop": (), "body_z": (), "ctrl": None, "prop_force": (),
+              "ffz": (2,), "pfz": (4,), "lift": (4,), "contact": (4,), "roll": (2,), "jspeed": (), "cref": (),
+              "pref": (), "plan_cop": (), "body_z": (), "ctrl": None, "prop_force": (),
               "qpos": None, "qvel": None}
 
     def __init__(self, n: int, n_steps: int, nq: int, nv: int, nu: int):
@@ -515,6 +517,7 @@ def _ground_records(rec: _Recorder, touch: np.ndarray, sample_x: np.ndarray, sam
     t = touch[:, samples]
     rec["ffz"][:, samples, 0] = t[:, :, :2].sum(axis=2)
     rec["ffz"][:, samples, 1] = t[:, :, 2:].sum(axis=2)
+    rec["pfz"][:, samples] = t
 
 
 @functools.lru_cache(maxsize=64)
@@ -1196,6 +1199,7 @@ def _record_ground(g: _Group, s: _LoopState, k: int, point_x: np.ndarray | None,
     rec["pref"][sel, k] = g.cop_ref_now[sel]
     rec["ffz"][sel, k, 0] = touch[:, :2].sum(axis=1)
     rec["ffz"][sel, k, 1] = touch[:, 2:].sum(axis=1)
+    rec["pfz"][sel, k] = touch
 
 
 def _finish(g: _Group, s: _LoopState) -> list[Trajectory]:
@@ -1292,7 +1296,8 @@ def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarra
         out.append(Trajectory(
             time_s=times[: last[i]], qpos=r["qpos"], qvel=r["qvel"], com_m=r["com"], com_vel_x_m_s=r["com_vel"],
             capture_point_x_m=r["xi"], cop_x_m=r["cop"], support_center_x_m=r["sc"], support_lo_x_m=r["lo"],
-            support_hi_x_m=r["hi"], normal_force_n=r["fz"], foot_normal_force_n=r["ffz"], point_lift_m=r["lift"],
+            support_hi_x_m=r["hi"], normal_force_n=r["fz"], foot_normal_force_n=r["ffz"],
+            point_normal_force_n=r["pfz"], point_lift_m=r["lift"],
             point_contact=r["contact"],
             foot_roll_rad=r["roll"], prop_force_n=r["prop_force"], max_joint_speed_rad_s=r["jspeed"],
             cmrt_displacement_m=disp[i, : last[i]], prop_extras={k: float(v[i]) for k, v in extras.items()},

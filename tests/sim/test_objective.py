@@ -209,3 +209,31 @@ def test_a_strike_is_judged_on_time_at_its_contact():
     assert timing_lag_s(punch, struck(0.0, True)) == pytest.approx(0.0, abs=1e-6)
     assert timing_lag_s(punch, struck(0.06, True)) == pytest.approx(0.06, abs=2e-3)
     assert timing_lag_s(punch, struck(0.0, False)) > 1.0  # no target: an arm that stops half way never arrives
+
+
+def test_a_stance_foots_cop_roll_is_measured_from_its_heel_and_toe_loads():
+    """``stance_cop_roll``: a stance foot whose load moves from its heel to its toe between its touchdown and its
+    next lift-off rolled the whole foot (1); the reverse rolled back (-1); the stance the body rests on is not
+    counted, nor a plan without footprints."""
+    from cmrt.sim.objective import stance_cop_roll
+
+    n = 1000
+    t = np.arange(n) * DT
+    arrays = {f.name: np.full(n, np.nan) for f in dataclasses.fields(Trajectory) if f.type == "np.ndarray"}
+    arrays.update(time_s=t, qpos=np.zeros((n, 15)), protective=np.zeros(n, bool), final_qpos=np.zeros(15))
+    force = np.zeros((n, 4))
+    ramp = np.clip((t - 0.4) / 0.8, 0.0, 1.0)  # the right foot's stance: 0.4 s to 1.2 s
+    force[:, 0], force[:, 1] = 600.0 * (1 - ramp), 600.0 * ramp
+    force[:, 2] = force[:, 3] = 50.0
+    arrays["point_normal_force_n"] = force
+
+    def clip(footprints, step_times):
+        return Trajectory(**arrays, clip_s=2.0, fell=False, fall_time_s=None, fall_reason=None, diverged=False,
+                          final_com_speed_m_s=0.0, step_times_s=step_times, footprints=footprints)
+
+    weight = character().mass_kg * 9.81
+    rolled = clip(((0, 0.4, 0.0), (1, 1.0, 0.2), (0, 1.6, 0.4)), (0.1, 0.7, 1.2))
+    assert stance_cop_roll(rolled, weight) == pytest.approx(1.0, abs=0.03)  # the left foot rests: not counted
+    force[:, 0], force[:, 1] = force[:, 1].copy(), force[:, 0].copy()
+    assert stance_cop_roll(rolled, weight) == pytest.approx(-1.0, abs=0.03)
+    assert stance_cop_roll(clip((), ()), weight) is None
