@@ -504,11 +504,19 @@ def stance_cop_roll(traj: Trajectory, weight_n: float, edge_s: float = 0.02) -> 
     return min(rolls) if rolls else None
 
 
+PLANTED_FORCE_N = 5.0  # a heel/toe point carrying less is not planted: a foot lifting off (0 N, within the contact
+# distance for a few ms) moves forward without sliding (two 0.4 m steps of 0.4 s "slid" 2.4 cm that way)
+
+
 def foot_slip_m(traj: Trajectory) -> float | None:
-    """The farthest a heel/toe point slid along the support (m, in its frame) within one spell of touching it,
-    before any fall (recorded runs: the contacts of every control step; None for a scoring run). A planted foot
-    on a floor of friction 1 slides well under a millimetre; Yu's slippery floor (0.08) lets it go."""
+    """The farthest a heel/toe point slid along the support (m, in its frame) within one spell of being planted
+    (touching it and carrying at least ``PLANTED_FORCE_N``), before any fall (recorded runs: the contacts of every
+    control step; None for a scoring run). A planted foot on a floor of friction 1 slides well under a millimetre;
+    Yu's slippery floor (0.08) lets it go."""
     contact, qpos = np.asarray(traj.point_contact), np.asarray(traj.qpos)
+    force = np.asarray(traj.point_normal_force_n)
+    if force.shape == contact.shape:  # a point whose load is not known (NaN) counts by its contact alone
+        contact = np.where(np.isfinite(force) & (force < PLANTED_FORCE_N), 0.0, contact)
     if contact.ndim != 2 or qpos.ndim != 2 or contact.shape[0] != qpos.shape[0] or contact.size == 0:
         return None
     end = len(traj.time_s) if traj.fall_time_s is None else int(np.searchsorted(traj.time_s, traj.fall_time_s))
