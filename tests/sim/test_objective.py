@@ -237,3 +237,21 @@ def test_a_stance_foots_cop_roll_is_measured_from_its_heel_and_toe_loads():
     force[:, 0], force[:, 1] = force[:, 1].copy(), force[:, 0].copy()
     assert stance_cop_roll(rolled, weight) == pytest.approx(-1.0, abs=0.03)
     assert stance_cop_roll(clip((), ()), weight) is None
+
+
+def test_a_foot_slides_only_where_it_is_planted():
+    """``foot_slip_m`` counts a heel/toe point while it touches *and* carries ``PLANTED_FORCE_N``: the body slid 2 cm
+    along the floor is a 2 cm slip with the feet loaded, none with the feet touching but unloaded (a foot lifting
+    off, still within the contact distance)."""
+    from cmrt.sim.objective import PLANTED_FORCE_N, foot_slip_m
+
+    task = load_task("stand")
+    n = 50
+    qpos = np.tile(task.start_qpos(), (n, 1))
+    qpos[:, 0] += np.linspace(0.0, 0.02, n)  # the whole body slides 2 cm forward
+    traj = played(task, qpos)
+    touching = dataclasses.replace(traj, point_contact=np.ones((n, 4)))
+    loaded = dataclasses.replace(touching, point_normal_force_n=np.full((n, 4), 10.0 * PLANTED_FORCE_N))
+    unloaded = dataclasses.replace(touching, point_normal_force_n=np.zeros((n, 4)))
+    assert foot_slip_m(loaded) == pytest.approx(0.02, abs=1e-9)
+    assert foot_slip_m(unloaded) == 0.0
