@@ -458,7 +458,10 @@ class Task:
         dofs = list(character().actuated_dofs)
         end = self.end_qpos()
         if self.feet_move:
-            end = stance_qpos(end, feet_heel_x(qpos))
+            try:
+                end = stance_qpos(end, feet_heel_x(qpos))
+            except CmrtError:  # feet too far apart to stand over (a split fall): not back in any pose
+                return float("inf")
         end[list(character().ankle_dofs)] += float(self.support.tilt(self.clip_s + self.tail_s)[0])
         return float(np.linalg.norm(qpos[dofs] - end[dofs]))
 

@@ -53,3 +53,15 @@ def test_feet_too_far_apart_have_no_stance_and_the_supervisor_keeps_the_referenc
     with pytest.raises(CmrtError, match="apart"):
         stance_qpos(pose, (-0.06, 1.8))
     assert np.array_equal(leg_offsets(pose, -0.06, 1.8), np.zeros(6))
+
+
+def test_a_final_pose_over_feet_no_stance_reaches_is_infinitely_far():
+    """A clip that ends split wider than any stance (a split fall) is scored, not crashed: its final pose error
+    is inf; a split a stance reaches has a finite one."""
+    task = load_task("push-recovery")
+    assert np.isfinite(task.final_pose_error_rad(stance_qpos(task.end_qpos(), (-0.06, 1.5))))
+    split = task.end_qpos()
+    split[character().dof("hip_r")], split[character().dof("hip_l")] = 1.45, -1.45  # legs splayed, straight
+    heels = feet_heel_x(split)
+    assert abs(heels[1] - heels[0]) > 1.72
+    assert task.final_pose_error_rad(split) == float("inf")
