@@ -14,6 +14,7 @@ as in the pose); the pelvis comes down as far as that needs and the nearer leg b
 
 from __future__ import annotations
 
+import functools
 import math
 
 import mujoco
@@ -29,12 +30,14 @@ ANKLE_TO_HEEL_M = (-0.06, -0.06)  # heel point from the ankle, in the foot's fra
 ANKLE_HEIGHT_M = FOOT_POINT_RADIUS_M - ANKLE_TO_HEEL_M[1]  # ankle above the floor, foot flat
 
 
+@functools.cache
 def _leg_dofs() -> tuple[tuple[int, int, int], tuple[int, int, int]]:
     m = character().model
     return tuple(tuple(int(m.joint(f"{j}_{s}").qposadr[0]) for j in ("hip", "knee", "ankle"))
                  for s in ("r", "l"))
 
 
+@functools.cache
 def _pelvis_home_z() -> float:
     m = character().model
     return float(m.body("pelvis").pos[2])
