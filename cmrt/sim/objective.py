@@ -154,7 +154,7 @@ class Evaluation:
     min_stance_cop_roll: float | None = None
     # diagnostics (docs/controller.md, *Diagnostics*); the plan gap, timing lag and the figures above enter the verdict
     max_plan_cop_error_m: float | None = None  # planned vs executed CoP (recorded runs)
-    max_foot_slip_m: float | None = None  # how far a heel/toe point slid along the support while touching it
+    max_foot_slip_m: float | None = None  # how far a heel/toe point slid along the support while planted on it
     timing_lag_s: float | None = None  # how late the motion was done (pose changes)
     timing_lag_bound_s: float | None = None  # ...and how late it may be to count as performed
     fall_direction: str | None = None  # "forward" / "backward" (None: no fall, or a blow-up)
