@@ -7,6 +7,12 @@ on the actual stance heel: the reference's swing-heel-to-stance-heel vector at t
 the reference's foot-to-CoM vector on the actual feet. The CoM and CoP targets stay Yu's (eq. 3.2-3.4,
 ``cmrt.control.references``): the command gives none.
 
+A push moves the swing's landing, as a person's does (the gait's adjustment): in the first half of a swing, the
+capture point's error against the reference motion's (relative to the stance foot, felt with the balance
+feedback's delay) grown to touchdown moves the landing by ``stepping.STEP_ADJUST_GAIN`` of it beyond
+``stepping.STEP_ADJUST_DEAD_M``, as a footstep plan's step is moved. The later steps are placed from the foot where
+it landed.
+
 The swing ends when the foot touches the floor late enough in its swing (``TOUCHDOWN_AFTER``); one that has not
 by the end of its swing keeps being lowered, gently, until it does. The next step lifts off at its keyed time,
 never before the step before it has landed.
@@ -22,8 +28,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cmrt.body.character import GRAVITY_M_S2
 from cmrt.control import kernel
-from cmrt.control.stepping import NO_SWING, StepCommand, stance_support, swinging_feet, with_landing
+from cmrt.control.stepping import (NO_SWING, STEP_ADJUST_DEAD_M, STEP_ADJUST_GAIN, StepCommand, StepConfig,
+                                   stance_support, swinging_feet, with_landing)
 
 TOUCHDOWN_AFTER = 0.85  # the swing foot on the floor counts as landed after this fraction of its swing (as a
 # footstep plan's, cmrt.control.stepping.PLANNED_TOUCHDOWN_AFTER)
@@ -32,6 +40,8 @@ LATE_DEPTH_M = 0.02  # a swing foot still up after its swing is aimed this far i
 SET_DOWN_FROM = 0.7  # that depth from this fraction of the swing on. Measured in yu-walk: aimed at the floor
 # itself, the first and the closing step hovered 5 mm up for 0.15 s and landed late (the foot's objective weighs
 # little against the momentum objectives; releasing the swing leg's joint tracking did not bring it down)
+
+ADJUST_UNTIL = 0.8  # a push moves a swing's landing until this fraction of the swing
 
 
 @dataclass(frozen=True)
@@ -43,6 +53,10 @@ class KeyedSwings:
     swing_s: float  # lift-off to touchdown
     feet_paths: Callable[[np.ndarray], tuple[np.ndarray, ...]]  # times (k,) -> each ankle's x, z (k, 2) in the
     # gait's frame, their rates and accelerations (cmrt.motion.gait.feet_paths)
+    foot_to_com_x_m: np.ndarray | None = None  # (steps, 2) the reference motion's CoM from each ankle, at every
+    foot_to_com_vel_x_m_s: np.ndarray | None = None  # physics step, and its rate (references.MotionCom); None: no
+    step_s: float = 0.002  # adjustment. The physics step those are sampled at
+    delay_s: float = 0.0  # the balance feedback's delay: the adjustment is made from the state felt this long ago
 
 
 class GaitTracker:
@@ -56,6 +70,7 @@ class GaitTracker:
         self.next_step = np.zeros(n, int)
         self.t0 = np.zeros(n)
         self.target_heel_x = np.zeros(n)  # where the swing heel lands
+        self.adjust_m = np.zeros(n)  # how far a push moved the swing's landing from the gait's
         self.step_times: list[list[float]] = [[] for _ in range(n)]  # lift-off times
         self.footprints: list[list[tuple[int, float, float]]] = [[] for _ in range(n)]  # (foot, time, heel x)
         self.placement_error_m: list[list[tuple[float, float]]] = [[] for _ in range(n)]  # (touchdown s, landed
@@ -72,10 +87,12 @@ class GaitTracker:
 
     def update(self, ids: np.ndarray, time_s: float, com_x: np.ndarray, com_z: np.ndarray, momentum_x: np.ndarray,
                ang_momentum_y: np.ndarray, mass_kg: np.ndarray, contact: np.ndarray, point_x: np.ndarray,
-               cmrt: tuple[np.ndarray, np.ndarray] | None = None) -> StepCommand:
+               cmrt: tuple[np.ndarray, np.ndarray] | None = None,
+               felt: tuple[np.ndarray, ...] | None = None) -> StepCommand:
         """Advance simulations ``ids`` to ``time_s`` (a control step): touchdowns, lift-offs, and the swing's
         command. ``contact`` (k, 4) and ``point_x`` (k, 4): heel_r, toe_r, heel_l, toe_l on the floor / their x.
-        The momenta and the CMRT are not used (the stepping supervisor's signature)."""
+        ``felt``: (com_x, com_z, momentum_x, ang_momentum_y) the delay ago, as the supervisor's (None: now); the
+        CMRT is not used (the stepping supervisor's signature)."""
         g = self.gait
         self._touchdowns(ids, time_s, contact, point_x)
         idle = np.flatnonzero(self.swing[ids] < 0)
@@ -86,7 +103,32 @@ class GaitTracker:
                 self.t0[sim] = time_s
                 self.next_step[sim] = j + 1
                 self.step_times[sim].append(time_s)
+                self.adjust_m[sim] = 0.0
+        felt = felt if felt is not None else (com_x, com_z, momentum_x, ang_momentum_y)
+        self._adjust(ids, time_s, felt[0], felt[1], felt[2] / mass_kg, point_x)
         return self._command(ids, time_s, point_x)
+
+    def _adjust(self, ids: np.ndarray, time_s: float, com_x: np.ndarray, com_z: np.ndarray, vel_x: np.ndarray,
+                point_x: np.ndarray) -> None:
+        """The gait's adjustment of swings in their first half: the felt capture point's error against the
+        reference motion's, both from the stance ankle, grown to touchdown, moves the landing."""
+        g = self.gait
+        if g.foot_to_com_x_m is None:
+            return
+        k_felt = min(max(int(round((time_s - g.delay_s) / g.step_s)), 0), g.foot_to_com_x_m.shape[0] - 1)
+        for r in np.flatnonzero(self.swing[ids] >= 0):
+            sim = ids[r]
+            elapsed = time_s - self.t0[sim]
+            if elapsed > ADJUST_UNTIL * g.swing_s:
+                continue
+            stance = 1 - self.swing[sim]
+            omega = np.sqrt(GRAVITY_M_S2 / max(float(com_z[r]), 0.5))
+            ankle = point_x[r, 2 * stance] - self.heel_to_ankle_m[0]
+            xi = com_x[r] + vel_x[r] / omega - ankle
+            xi_ref = g.foot_to_com_x_m[k_felt, stance] + g.foot_to_com_vel_x_m_s[k_felt, stance] / omega
+            error_td = (xi - xi_ref) * np.exp(omega * (g.swing_s - elapsed + g.delay_s))
+            error_td = np.copysign(max(abs(error_td) - STEP_ADJUST_DEAD_M, 0.0), error_td)
+            self.adjust_m[sim] = STEP_ADJUST_GAIN * error_td
 
     def _touchdowns(self, ids: np.ndarray, time_s: float, contact: np.ndarray, point_x: np.ndarray) -> None:
         for r in np.flatnonzero(self.swing[ids] >= 0):
@@ -109,8 +151,13 @@ class GaitTracker:
             s = np.array([(time_s - self.t0[sim]) / self.gait.swing_s])
             dx, z, vx, vz, ax, az = (float(v[0]) for v in self._relative(j, s))
             stance_heel = point_x[r, 2 * (1 - foot)]
-            target[r, 0] = stance_heel + dx  # heel point x: heels sit alike on flat feet
-            target[r, 3], target[r, 6] = vx, ax
+            nominal = float(self._relative(j, np.ones(1))[0][0])  # the gait's landing from the stance heel
+            reach = StepConfig.max_step_m if self.adjust_m[sim] > 0 else StepConfig.max_back_step_m
+            adjust = float(np.clip(nominal + self.adjust_m[sim], -reach, reach)) - nominal
+            u = min(max(s[0], 0.0), 1.0)  # a push's adjustment eases in along the swing
+            target[r, 0] = stance_heel + dx + adjust * u * u * (3 - 2 * u)  # heel point x: heels sit alike
+            target[r, 3] = vx + adjust * 6 * u * (1 - u) / self.gait.swing_s
+            target[r, 6] = ax + adjust * (6 - 12 * u) / self.gait.swing_s**2 * (0.0 < u < 1.0)
             late = s[0] > 1.0
             span = (1.0 - SET_DOWN_FROM) * self.gait.swing_s
             u = min(max((s[0] - SET_DOWN_FROM) / (1.0 - SET_DOWN_FROM), 0.0), 1.0)  # the set-down: a cubic ease
@@ -119,7 +166,10 @@ class GaitTracker:
             target[r, 4] = 0.0 if late else vz - LATE_DEPTH_M * ddown / span
             target[r, 7] = 0.0 if late else az - LATE_DEPTH_M * dddown / span**2
             target[r, kernel.S_SWING_TRACKED] = SWING_TRACKED
-            self.target_heel_x[sim] = stance_heel + float(self._relative(j, np.ones(1))[0][0])
+            import os
+            if os.environ.get("GW"):
+                target[r, kernel.S_SWING_GAINS:kernel.S_SWING_GAINS + 3] = [float(v) for v in os.environ["GW"].split(",")]
+            self.target_heel_x[sim] = stance_heel + nominal + adjust
         nan = np.full(k, np.nan)
         return StepCommand(swing.astype(float), target, nan, nan.copy(), nan.copy())
 

@@ -856,7 +856,7 @@ def _set_up(task: Task, curves: list[Cmrt | None], config: ControllerConfig, rec
     settled_z = b["geom_xpos"][0, geo.points, 2].copy()
 
     rec = _Recorder(n, n_steps, m.nq, m.nv, m.nu)
-    stepper = _stepper(task, n, config.k_l)
+    stepper = _stepper(task, n, config, drive, dt)
     control_dt = config.control_every * dt
     falls = FallMonitor(n, act.size, nq, run_steps, limits, dt, control_dt)
     has_contact_force = prop.contact_force(b, slice(None)) is not None
@@ -875,7 +875,7 @@ def _set_up(task: Task, curves: list[Cmrt | None], config: ControllerConfig, rec
         extras={}, ctrl_all=np.zeros((n, m.nu)), com_ref_now=np.full(n, np.nan), cop_ref_now=np.full(n, np.nan),
         control_dt=control_dt, sample_every=max(1, int(round(task.cop_sample_step_s / dt))),
         has_contact_force=has_contact_force, delay_steps=delay_steps, fb_vel=fb_vel, warm=warm, compiled=compiled,
-        felt=np.full((n, n_steps, 4), np.nan) if isinstance(stepper, StepSupervisor) else None,
+        felt=None if stepper is None else np.full((n, n_steps, 4), np.nan),
         push_steps=set(np.flatnonzero(drive.push_changes).tolist()),
         field=None if support.still_and_level else _SupportField(support, m, nb, n, n_steps, delay_steps),
         com_ref_shown=np.full(n, np.nan),
@@ -1159,7 +1159,7 @@ def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
     c_lo, c_hi, roll = r.c_lo, r.c_hi, r.roll
     if stepper is not None:  # a swing foot is not a rolled foot; where it lands is support
         c_lo, c_hi = stepper.landing_span(ids, c_lo, c_hi)
-        if g.felt is not None:  # a reactive stepper: what one step can still catch is not yet a fall
+        if isinstance(stepper, StepSupervisor):  # a reactive stepper: what one step can still catch is not yet a fall
             c_lo, c_hi = stepper.step_reach_span(ids, c_lo, c_hi)
         roll = np.where(stepper.swinging(ids), 0.0, roll)
     if g.has_contact_force and k > 0 and g.prop.holds_body_up:  # leaning on a prop: the pendulum's capture point
@@ -1225,9 +1225,11 @@ def _finish(g: _Group, s: _LoopState) -> list[Trajectory]:
                          g.drive.push_n)
 
 
-def _stepper(task: Task, n: int, com_stiffness: float = ControllerConfig.k_l) -> StepSupervisor | GaitTracker | None:
+def _stepper(task: Task, n: int, config: ControllerConfig, drive: _Drive, dt: float
+             ) -> StepSupervisor | GaitTracker | None:
     """The stepping supervisor a task asks for (``stepping`` parameter, or a footstep plan: the momentum
-    supervisor then watches it), the tracker of its keyed gait, or None: feet stay planted."""
+    supervisor then watches it), the tracker of its keyed gait (its pushes' adjustment against the reference
+    motion's CoM, in Yu's mode), or None: feet stay planted."""
     ch = character()
     heel, toe = (ch.model.geom_pos[g, 0] for g in ch.foot_point_geoms[:2])
     if task.gait is not None:
@@ -1235,7 +1237,11 @@ def _stepper(task: Task, n: int, com_stiffness: float = ControllerConfig.k_l) ->
         g, ankle_z0_m = task.gait, stand_frame(ch, task.start_qpos()).ankle_z_m
         swings = KeyedSwings(foot=np.array([g.foot(j) for j in range(g.n_steps)]),
                              lift_off_s=np.array([g.lift_off_s(j) for j in range(g.n_steps)]), swing_s=g.swing_s,
-                             feet_paths=functools.partial(feet_paths, g, ankle_z0_m=ankle_z0_m))
+                             feet_paths=functools.partial(feet_paths, g, ankle_z0_m=ankle_z0_m),
+                             foot_to_com_x_m=None if drive.motion_com is None else drive.motion_com[0].foot_to_com_x_m,
+                             foot_to_com_vel_x_m_s=None if drive.motion_com is None
+                             else drive.motion_com[0].foot_to_com_vel_x_m_s, step_s=dt,
+                             delay_s=config.feedback_delay_s)
         return GaitTracker(n, swings, heel_to_ankle_m=(heel, heel_z), foot_length_m=toe - heel)
     config = StepConfig.from_task(task.params)
     if config is None and not task.steps:
@@ -1248,7 +1254,7 @@ def _stepper(task: Task, n: int, com_stiffness: float = ControllerConfig.k_l) ->
         plan = StepPlan(foot=np.array([s.foot for s in steps]), x_m=np.array([s.x_m for s in steps]),
                         duration_s=np.array([s.duration_s for s in steps]),
                         start_s=np.array([np.nan if s.start_s is None else s.start_s for s in steps]),
-                        first_step_s=FIRST_STEP_S, double_support_s=DOUBLE_SUPPORT_S, com_stiffness=com_stiffness)
+                        first_step_s=FIRST_STEP_S, double_support_s=DOUBLE_SUPPORT_S, com_stiffness=config.k_l)
     return StepSupervisor(n, config, heel_to_center_m=0.5 * (toe - heel), foot_length_m=toe - heel, plan=plan,
                           stance=functools.partial(leg_offsets, task.end_qpos()))
 
