@@ -41,7 +41,9 @@ SET_DOWN_FROM = 0.7  # that depth from this fraction of the swing on. Measured i
 # itself, the first and the closing step hovered 5 mm up for 0.15 s and landed late (the foot's objective weighs
 # little against the momentum objectives; releasing the swing leg's joint tracking did not bring it down)
 
-ADJUST_UNTIL = 0.8  # a push moves a swing's landing until this fraction of the swing
+ADJUST_UNTIL = 0.85
+import os
+UNLOAD_S = float(os.environ.get("UNLOAD_S", "0.1"))  # a push moves a swing's landing until this fraction of the swing
 
 
 @dataclass(frozen=True)
@@ -172,6 +174,27 @@ class GaitTracker:
             self.target_heel_x[sim] = stance_heel + nominal + adjust
         nan = np.full(k, np.nan)
         return StepCommand(swing.astype(float), target, nan, nan.copy(), nan.copy())
+
+    def cop_span(self, ids: np.ndarray, time_s: float, point_x: np.ndarray, lo: np.ndarray, hi: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """Where the CoP target may go: the support ``lo``/``hi``, narrowed toward the coming stance foot over the
+        ``UNLOAD_S`` before a lift-off, so the lifting foot is unloaded before it lifts (keyed at the gait's times,
+        Yu's CoP under the CoM left a rear foot loaded: pushed back, it carried 90 N as it lifted and the CoP fell
+        behind the stance heel)."""
+        g = self.gait
+        lo, hi = lo.copy(), hi.copy()
+        for r in np.flatnonzero(self.swing[ids] < 0):
+            j = self.next_step[ids[r]]
+            if j >= g.foot.size:
+                continue
+            u = min(max(1.0 - (g.lift_off_s[j] - time_s) / UNLOAD_S, 0.0), 1.0)
+            if u <= 0.0:
+                continue
+            w = u * u * (3 - 2 * u)
+            stance = 1 - g.foot[j]
+            lo[r] += w * (max(point_x[r, 2 * stance], lo[r]) - lo[r])
+            hi[r] += w * (min(point_x[r, 2 * stance + 1], hi[r]) - hi[r])
+        return lo, hi
 
     def support(self, ids: np.ndarray, point_x: np.ndarray, lo: np.ndarray, hi: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray]:
