@@ -43,7 +43,8 @@ SET_DOWN_FROM = 0.7  # that depth from this fraction of the swing on. Measured i
 
 ADJUST_UNTIL = 0.85
 import os
-UNLOAD_S = float(os.environ.get("UNLOAD_S", "0.1"))  # a push moves a swing's landing until this fraction of the swing
+UNLOAD_S = float(os.environ.get("UNLOAD_S", "0.1"))
+UNLOAD_TO = float(os.environ.get("UNLOAD_TO", "1.0"))  # a push moves a swing's landing until this fraction of the swing
 
 
 @dataclass(frozen=True)
@@ -172,6 +173,12 @@ class GaitTracker:
             if os.environ.get("GW"):
                 target[r, kernel.S_SWING_GAINS:kernel.S_SWING_GAINS + 3] = [float(v) for v in os.environ["GW"].split(",")]
             self.target_heel_x[sim] = stance_heel + nominal + adjust
+        for r in np.flatnonzero(swing < 0):  # both feet down: the foot lifting next is unloaded before it lifts
+            j = self.next_step[ids[r]]
+            if j < self.gait.foot.size and int(os.environ.get("UNLOAD", "1")):
+                u = min(max(1.0 - (self.gait.lift_off_s[j] - time_s) / UNLOAD_S, 0.0), 1.0)
+                target[r, kernel.S_UNLOAD_FOOT] = 1.0 + self.gait.foot[j] if u > 0.0 else 0.0
+                target[r, kernel.S_UNLOAD] = u * u * (3 - 2 * u) * UNLOAD_TO
         nan = np.full(k, np.nan)
         return StepCommand(swing.astype(float), target, nan, nan.copy(), nan.copy())
 

@@ -1129,9 +1129,7 @@ def _control_and_monitor(g: _Group, s: _LoopState, k: int, r: _Reading) -> None:
     b, sel, ids, rec, stepper = g.b, s.sel, s.ids, g.rec, g.stepper
     rec["jspeed"][sel, k] = r.jspeed
     mass = g.ch.mass_kg + g.prop.carried_kg  # what the controller knows it carries
-    lo, hi = (r.lo, r.hi) if not isinstance(stepper, GaitTracker) else stepper.cop_span(ids, g.times[k], r.point_x,
-                                                                                          r.lo, r.hi)
-    targets = _targets(g.yu, b, sel, ids, g.drive, k, r.center, lo, hi, r.com, r.vel_x, g.nb,
+    targets = _targets(g.yu, b, sel, ids, g.drive, k, r.center, r.lo, r.hi, r.com, r.vel_x, g.nb,
                        None if g.field is None else g.field.lean_x(ids, k, g.times[k], r.com[:, 2]))
     held = g.prop.held_mass(b, ids)  # read once: nothing moves before the monitor reads it too
     targets = _balancing_held(held, targets, mass[ids])
