@@ -169,9 +169,6 @@ class GaitTracker:
             target[r, 4] = 0.0 if late else vz - LATE_DEPTH_M * ddown / span
             target[r, 7] = 0.0 if late else az - LATE_DEPTH_M * dddown / span**2
             target[r, kernel.S_SWING_TRACKED] = SWING_TRACKED
-            import os
-            if os.environ.get("GW"):
-                target[r, kernel.S_SWING_GAINS:kernel.S_SWING_GAINS + 3] = [float(v) for v in os.environ["GW"].split(",")]
             self.target_heel_x[sim] = stance_heel + nominal + adjust
         for r in np.flatnonzero(swing < 0):  # both feet down: the foot lifting next is unloaded before it lifts
             j = self.next_step[ids[r]]

@@ -1079,6 +1079,12 @@ def _read(g: _Group, s: _LoopState, k: int, control: bool) -> _Reading:
         r.lo, r.hi = g.stepper.support(ids, r.point_x, r.lo, r.hi)
     r.center = 0.5 * (r.lo + r.hi)
     rec["sc"][sel, k], rec["lo"][sel, k], rec["hi"][sel, k] = r.center, r.lo, r.hi
+    if g.stepper is not None:  # a swing foot already on the floor (its touchdown is seen at the next control step)
+        # carries load, and the measured CoP counts it: the support it is measured against includes it
+        touching = g.stepper.swinging(ids).repeat(2, axis=1) & _in_contact(geom_xpos, g.geo.points)
+        if touching.any():
+            rec["lo"][sel, k] = np.fmin(r.lo, np.where(touching, r.point_x, np.inf).min(axis=1))
+            rec["hi"][sel, k] = np.fmax(r.hi, np.where(touching, r.point_x, -np.inf).max(axis=1))
     rec["qpos"][sel, k] = qpos
     r.com = b["subtree_com"][sel, 1]
     rec["com"][sel, k, 0], rec["com"][sel, k, 1] = r.com[:, 0], r.com[:, 2]  # x, z without a fancy-indexed copy
