@@ -1231,7 +1231,7 @@ def _finish(g: _Group, s: _LoopState) -> list[Trajectory]:
                          g.drive.push_n)
 
 
-def _stepper(task: Task, n: int, config: ControllerConfig, drive: _Drive, dt: float
+def _stepper(task: Task, n: int, controller: ControllerConfig, drive: _Drive, dt: float
              ) -> StepSupervisor | GaitTracker | None:
     """The stepping supervisor a task asks for (``stepping`` parameter, or a footstep plan: the momentum
     supervisor then watches it), the tracker of its keyed gait (its pushes' adjustment against the reference
@@ -1247,7 +1247,7 @@ def _stepper(task: Task, n: int, config: ControllerConfig, drive: _Drive, dt: fl
                              foot_to_com_x_m=None if drive.motion_com is None else drive.motion_com[0].foot_to_com_x_m,
                              foot_to_com_vel_x_m_s=None if drive.motion_com is None
                              else drive.motion_com[0].foot_to_com_vel_x_m_s, step_s=dt,
-                             delay_s=config.feedback_delay_s)
+                             delay_s=controller.feedback_delay_s)
         return GaitTracker(n, swings, heel_to_ankle_m=(heel, heel_z), foot_length_m=toe - heel)
     config = StepConfig.from_task(task.params)
     if config is None and not task.steps:
@@ -1260,7 +1260,7 @@ def _stepper(task: Task, n: int, config: ControllerConfig, drive: _Drive, dt: fl
         plan = StepPlan(foot=np.array([s.foot for s in steps]), x_m=np.array([s.x_m for s in steps]),
                         duration_s=np.array([s.duration_s for s in steps]),
                         start_s=np.array([np.nan if s.start_s is None else s.start_s for s in steps]),
-                        first_step_s=FIRST_STEP_S, double_support_s=DOUBLE_SUPPORT_S, com_stiffness=config.k_l)
+                        first_step_s=FIRST_STEP_S, double_support_s=DOUBLE_SUPPORT_S, com_stiffness=controller.k_l)
     return StepSupervisor(n, config, heel_to_center_m=0.5 * (toe - heel), foot_length_m=toe - heel, plan=plan,
                           stance=functools.partial(leg_offsets, task.end_qpos()))
 
