@@ -7,11 +7,12 @@ on the actual stance heel: the reference's swing-heel-to-stance-heel vector at t
 the reference's foot-to-CoM vector on the actual feet. The CoM and CoP targets stay Yu's (eq. 3.2-3.4,
 ``cmrt.control.references``): the command gives none.
 
-A push moves the swing's landing, as a person's does (the gait's adjustment): in the first half of a swing, the
-capture point's error against the reference motion's (relative to the stance foot, felt with the balance
-feedback's delay) grown to touchdown moves the landing by ``stepping.STEP_ADJUST_GAIN`` of it beyond
-``stepping.STEP_ADJUST_DEAD_M``, as a footstep plan's step is moved. The later steps are placed from the foot where
-it landed.
+A push moves the swing's landing, as a person's does (the gait's adjustment): until the foot may touch down
+(``ADJUST_UNTIL``), the capture point's error against the reference motion's (each from the stance ankle; the
+state as the balance feedback feels it, 0.1 s old, against the reference of that moment) grown to touchdown moves
+the landing by ``stepping.STEP_ADJUST_GAIN`` of it beyond ``stepping.STEP_ADJUST_DEAD_M``, as a footstep plan's
+step is moved. The later steps are placed from the foot where it landed. (People place the foot where the body's
+state in mid-swing calls for: Wang and Srinivasan 2014.)
 
 The swing ends when the foot touches the floor late enough in its swing (``TOUCHDOWN_AFTER``); one that has not
 by the end of its swing keeps being lowered, gently, until it does. The next step lifts off at its keyed time,
@@ -30,8 +31,16 @@ import numpy as np
 
 from cmrt.body.character import GRAVITY_M_S2
 from cmrt.control import kernel
-from cmrt.control.stepping import (NO_SWING, STEP_ADJUST_DEAD_M, STEP_ADJUST_GAIN, StepCommand, StepConfig,
-                                   stance_support, swinging_feet, with_landing)
+from cmrt.control.stepping import (
+    NO_SWING,
+    STEP_ADJUST_DEAD_M,
+    STEP_ADJUST_GAIN,
+    StepCommand,
+    StepConfig,
+    stance_support,
+    swinging_feet,
+    with_landing,
+)
 
 TOUCHDOWN_AFTER = 0.85  # the swing foot on the floor counts as landed after this fraction of its swing (as a
 # footstep plan's, cmrt.control.stepping.PLANNED_TOUCHDOWN_AFTER)
@@ -41,10 +50,10 @@ SET_DOWN_FROM = 0.7  # that depth from this fraction of the swing on. Measured i
 # itself, the first and the closing step hovered 5 mm up for 0.15 s and landed late (the foot's objective weighs
 # little against the momentum objectives; releasing the swing leg's joint tracking did not bring it down)
 
-ADJUST_UNTIL = 0.85
-import os
-UNLOAD_S = float(os.environ.get("UNLOAD_S", "0.1"))
-UNLOAD_TO = float(os.environ.get("UNLOAD_TO", "1.0"))  # a push moves a swing's landing until this fraction of the swing
+ADJUST_UNTIL = TOUCHDOWN_AFTER  # a push moves a swing's landing until the foot may touch down. Measured in yu-walk
+# (+-150 N x 0.1 s at 1.5, 2.0, 2.5 s): until half the swing, as a plan's step, +150 N at 1.5 s still fell - the
+# push came at a third of the swing and was felt, 0.1 s later, at half; until 0.65-0.8 of it the foot landed
+# 3.5 cm off its moved target; until 0.85 all six were successes
 
 
 @dataclass(frozen=True)
@@ -113,7 +122,7 @@ class GaitTracker:
 
     def _adjust(self, ids: np.ndarray, time_s: float, com_x: np.ndarray, com_z: np.ndarray, vel_x: np.ndarray,
                 point_x: np.ndarray) -> None:
-        """The gait's adjustment of swings in their first half: the felt capture point's error against the
+        """The gait's adjustment of swings until ``ADJUST_UNTIL``: the felt capture point's error against the
         reference motion's, both from the stance ankle, grown to touchdown, moves the landing."""
         g = self.gait
         if g.foot_to_com_x_m is None:
@@ -170,35 +179,8 @@ class GaitTracker:
             target[r, 7] = 0.0 if late else az - LATE_DEPTH_M * dddown / span**2
             target[r, kernel.S_SWING_TRACKED] = SWING_TRACKED
             self.target_heel_x[sim] = stance_heel + nominal + adjust
-        for r in np.flatnonzero(swing < 0):  # both feet down: the foot lifting next is unloaded before it lifts
-            j = self.next_step[ids[r]]
-            if j < self.gait.foot.size and int(os.environ.get("UNLOAD", "1")):
-                u = min(max(1.0 - (self.gait.lift_off_s[j] - time_s) / UNLOAD_S, 0.0), 1.0)
-                target[r, kernel.S_UNLOAD_FOOT] = 1.0 + self.gait.foot[j] if u > 0.0 else 0.0
-                target[r, kernel.S_UNLOAD] = u * u * (3 - 2 * u) * UNLOAD_TO
         nan = np.full(k, np.nan)
         return StepCommand(swing.astype(float), target, nan, nan.copy(), nan.copy())
-
-    def cop_span(self, ids: np.ndarray, time_s: float, point_x: np.ndarray, lo: np.ndarray, hi: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray]:
-        """Where the CoP target may go: the support ``lo``/``hi``, narrowed toward the coming stance foot over the
-        ``UNLOAD_S`` before a lift-off, so the lifting foot is unloaded before it lifts (keyed at the gait's times,
-        Yu's CoP under the CoM left a rear foot loaded: pushed back, it carried 90 N as it lifted and the CoP fell
-        behind the stance heel)."""
-        g = self.gait
-        lo, hi = lo.copy(), hi.copy()
-        for r in np.flatnonzero(self.swing[ids] < 0):
-            j = self.next_step[ids[r]]
-            if j >= g.foot.size:
-                continue
-            u = min(max(1.0 - (g.lift_off_s[j] - time_s) / UNLOAD_S, 0.0), 1.0)
-            if u <= 0.0:
-                continue
-            w = u * u * (3 - 2 * u)
-            stance = 1 - g.foot[j]
-            lo[r] += w * (max(point_x[r, 2 * stance], lo[r]) - lo[r])
-            hi[r] += w * (min(point_x[r, 2 * stance + 1], hi[r]) - hi[r])
-        return lo, hi
 
     def support(self, ids: np.ndarray, point_x: np.ndarray, lo: np.ndarray, hi: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray]:

@@ -34,7 +34,7 @@ N_PARAMS = 26
 # The swing foot's task-space target (cmrt.control.stepping): heel point x, z, foot pitch; their rates
 # and accelerations; then the bend added to the stance knee's reference while the foot swings (rad).
 # ``swing_foot`` per simulation: -1 (both feet support), 0 (right swings), 1 (left).
-N_SWING = 24
+N_SWING = 22
 S_CROUCH = 9
 S_SWING_KNEE = 10  # the bend added to the swing knee's reference (rad; a straight knee cannot lift its foot)
 S_SWING_GAINS = 12  # (weight, stiffness 1/s^2, damping 1/s) of this swing's foot objective; 0: the controller's
@@ -42,9 +42,6 @@ S_SETTLED = 15  # nonzero: both feet down after a step; S_STANCE.. S_STANCE + 5 
 S_STANCE = 16  # (hip, knee, ankle) offsets from the reference to the stance over the landed feet (rad)
 S_SWING_TRACKED = 11  # nonzero: the swing leg tracks the reference motion's own swing at full weight (a keyed
 # gait, cmrt.control.gait: its knee bends in the reference) instead of leaving the leg to the foot's target
-S_UNLOAD_FOOT = 22  # both feet down before a lift-off: 1 + the foot being unloaded (0: none), and how far (0-1):
-S_UNLOAD = 23  # its points' weight in the load split is 1 - that, the CoP rows' support moves as far toward the other
-# foot's - the weight goes onto the stance foot before the lift-off, not at it
 N_INFO = 6  # planned F_x, F_z, CoP x, right foot state, left foot state, torque saturated
 N_INEQ = 5  # F_z >= n f_min, two friction rows, two CoP rows
 
@@ -124,10 +121,9 @@ def point_frame(cdof, cdof_dot, cvel, qvel, chain_row, body, point, com):
 
 
 @njit(cache=True, nogil=True)
-def bounded_shares(x, carries, cop, lower, weight):
+def bounded_shares(x, carries, cop, lower):
     """Fractions of the vertical load per heel/toe point (x: their x) that sum to 1 with first moment ``cop``,
-    closest to shares in proportion to ``weight`` (4,) with every carrying point at least ``lower`` times its
-    weight (at most 1): an active set on the weighted linear split.
+    closest to equal shares with every carrying point at least ``lower``: an active set on the linear split.
 
     With the feet apart the linear split asks the far end's point to pull on the floor whenever the CoP
     nears the other foot (CoP 0.52 m on a [-0.06, 0.62] m stance: -7 % on the rear heel, measured), and
@@ -136,34 +132,33 @@ def bounded_shares(x, carries, cop, lower, weight):
     share = np.zeros(4)
     pinned = np.zeros(4, np.bool_)
     for _ in range(4):
-        rem, rem_m, count, mean = 1.0, cop, 0.0, 0.0
+        rem, rem_m, count, mean = 1.0, cop, 0, 0.0
         for p in range(4):
             if carries[p] and pinned[p]:
-                rem -= lower * min(weight[p], 1.0)
-                rem_m -= lower * min(weight[p], 1.0) * x[p]
+                rem -= lower
+                rem_m -= lower * x[p]
             elif carries[p]:
-                count += weight[p]
-                mean += weight[p] * x[p]
-        if count == 0.0:
+                count += 1
+                mean += x[p]
+        if count == 0:
             break
         mean /= count
         spread = 0.0
         for p in range(4):
             if carries[p] and not pinned[p]:
-                spread += weight[p] * (x[p] - mean) ** 2
-        worst, low = -1, 0.0
+                spread += (x[p] - mean) ** 2
+        worst, low = -1, lower - 1e-12
         for p in range(4):
             if carries[p] and not pinned[p]:
-                share[p] = weight[p] * rem / count
+                share[p] = rem / count
                 if spread > 1e-12:
-                    share[p] += weight[p] * (x[p] - mean) * (rem_m - rem * mean) / spread
-                below = share[p] - (lower * min(weight[p], 1.0) - 1e-12)
-                if below < low:
-                    worst, low = p, below
+                    share[p] += (x[p] - mean) * (rem_m - rem * mean) / spread
+                if share[p] < low:
+                    worst, low = p, share[p]
         if worst < 0:
             break
         pinned[worst] = True
-        share[worst] = lower * min(weight[worst], 1.0)
+        share[worst] = lower
     return share
 
 
@@ -276,31 +271,24 @@ def _objective(A, a, qd, q, com, mass, mg, params, w2, leg_dofs, swing, i, targe
 
 
 @njit(cache=True, nogil=True)
-def _loaded_points(state, pts, weight):
-    """Which of the four contact points carry load in the feet's states, their total weight (``weight`` (4,):
-    1 each, less on a foot being unloaded before it lifts; at least 1 in all), and their weighted mean x and
-    spread (the weighted sum of squared deviations) - the inverse dynamics' split of the ground force: point p's
-    share of F_z is w_p / W + w_p (x_p - mean) (cop - mean) / spread (sums to 1, first moment the CoP)."""
+def _loaded_points(state, pts):
+    """Which of the four contact points carry load in the feet's states, how many (at least 1), and their
+    mean x and spread (the sum of squared deviations) - the inverse dynamics' split of the ground force."""
     carries = np.zeros(4, np.bool_)
     for foot in range(2):
         carries[2 * foot] = state[foot] == FLAT or state[foot] == HEEL
         carries[2 * foot + 1] = state[foot] == FLAT or state[foot] == TOE
-    count = 0.0
-    for p in range(4):
-        if carries[p]:
-            count += weight[p]
-    if count == 0.0:
-        count = 1.0
+    count = max(1, carries.sum())
     mean = 0.0
     for p in range(4):
         if carries[p]:
-            mean += weight[p] * pts[p, 0]
+            mean += pts[p, 0]
     mean /= count
     spread = 0.0
     for p in range(4):
         if carries[p]:
-            spread += weight[p] * (pts[p, 0] - mean) ** 2
-    return carries, count, mean, spread, weight
+            spread += (pts[p, 0] - mean) ** 2
+    return carries, count, mean, spread
 
 
 @njit(cache=True, nogil=True)
@@ -397,13 +385,6 @@ def _support_rows(state, frames, qd, q, params, leg_dofs, swing, swing_target_ro
             target = -params[P_RK] * pitch - params[P_RD] * (jp @ qd) - bp[heel, 2]
             Q += params[P_RW] * np.outer(jp, jp)
             g += params[P_RW] * target * jp
-    unload = int(swing_target_row[S_UNLOAD_FOOT]) - 1
-    if swing < 0 and unload >= 0 and state[1 - unload] != AIR:  # the CoP rows' support moves toward the other foot
-        stay = 1 - unload
-        s_lo = pts[2 * stay, 0] if state[stay] != TOE else pts[2 * stay + 1, 0]
-        s_hi = pts[2 * stay + 1, 0] if state[stay] != HEEL else pts[2 * stay, 0]
-        u = swing_target_row[S_UNLOAD]
-        lo, hi = lo + u * (max(s_lo, lo) - lo), hi + u * (min(s_hi, hi) - hi)
     return E, e, ne, lo, hi, n_flat, n_points
 
 
@@ -471,7 +452,7 @@ def _torque_map(dyn, actuated, nu_rows, grounded, A, a_g, mg, com, arm, pts, Jp,
     split over the loaded points): T's rows for the actuated dofs (``nu_rows``: 0 without the limits in the
     plan) and t0 (every dof) at qdd = 0. ``dyn``: (M, h); ``loaded``: :func:`_loaded_points`."""
     M, h = dyn
-    carries, count, mean, spread, weight = loaded
+    carries, count, mean, spread = loaded
     nv = h.size
     Tm = np.empty((nu_rows, nv))
     for u in range(nu_rows):
@@ -480,19 +461,17 @@ def _torque_map(dyn, actuated, nu_rows, grounded, A, a_g, mg, com, arm, pts, Jp,
     if grounded and nu_rows > 0:
         # F_z share of point p: fz / count + (x_p - mean) (cop fz - mean fz) / spread, and cop fz =
         # com_x fz + arm F_x - Hdot is linear in w; F_x is split equally (exact for feet side by side)
-        # (weighted: F_x in proportion to the points' weights)
+        fx_share = A[0] / count
         for p in range(4):
             if carries[p]:
-                fx_share = weight[p] * A[0] / count
-                lever = weight[p] * (pts[p, 0] - mean) / spread if spread > 1e-12 else 0.0
-                dz = weight[p] * A[1] / count + lever * ((com[0] - mean) * A[1] + arm * A[0] - A[2])
-                z0 = (weight[p] * (a_g[1] + mg) / count
-                      + lever * ((com[0] - mean) * (a_g[1] + mg) + arm * a_g[0] - a_g[2]))
+                lever = (pts[p, 0] - mean) / spread if spread > 1e-12 else 0.0
+                dz = A[1] / count + lever * ((com[0] - mean) * A[1] + arm * A[0] - A[2])
+                z0 = (a_g[1] + mg) / count + lever * ((com[0] - mean) * (a_g[1] + mg) + arm * a_g[0] - a_g[2])
                 for u in range(nu_rows):  # the same operations as Tm -= outer(Jx, fx_share) + outer(Jz, dz)
                     jx, jz = Jp[p, 0, actuated[u]], Jp[p, 1, actuated[u]]
                     for j in range(nv):
                         Tm[u, j] -= jx * fx_share[j] + jz * dz[j]
-                t0 -= Jp[p, 0] * (weight[p] * a_g[0] / count) + Jp[p, 1] * z0
+                t0 -= Jp[p, 0] * (a_g[0] / count) + Jp[p, 1] * z0
     return Tm, t0
 
 
@@ -591,7 +570,7 @@ def _inverse_dynamics(A, qdd, a_g, mg, com, arm, dyn, load_gen, pts, Jp, loaded,
     limit (within LIMIT_SLACK with the limits in the plan: rounding only). Returns (F_x, F_z, CoP x, saturated).
     ``dyn``: (M, h); ``loaded``: :func:`_loaded_points`; ``motors``: (actuated, limits)."""
     M, h = dyn
-    carries, count, mean, spread, weight = loaded
+    carries, count, mean, spread = loaded
     actuated, limits = motors
     w = A @ qdd + a_g
     fx, fz = w[0], w[1] + mg
@@ -599,19 +578,18 @@ def _inverse_dynamics(A, qdd, a_g, mg, com, arm, dyn, load_gen, pts, Jp, loaded,
     gen = M @ qdd + h
     for eb in range(load_gen.shape[0]):
         gen -= load_gen[eb]
-    unloading = weight[0] != 1.0 or weight[1] != 1.0 or weight[2] != 1.0 or weight[3] != 1.0
     split = ((carries[0] or carries[1]) and (carries[2] or carries[3])
-             and (abs(pts[0, 0] - pts[2, 0]) > SPLIT_STANCE_M or unloading) and fz > 1e-9)
+             and abs(pts[0, 0] - pts[2, 0]) > SPLIT_STANCE_M and fz > 1e-9)
     if split:
-        shares = bounded_shares(pts[:, 0], carries, cop, min(fmin / fz, 0.5 / count), weight)
+        shares = bounded_shares(pts[:, 0], carries, cop, min(fmin / fz, 0.5 / count))
     for p in range(4):
         if carries[p]:
             if split:
                 share = shares[p]
             else:
-                share = weight[p] / count
+                share = 1.0 / count
                 if spread > 1e-12:
-                    share += weight[p] * (pts[p, 0] - mean) * (cop - mean) / spread
+                    share += (pts[p, 0] - mean) * (cop - mean) / spread
             gen -= Jp[p, 0] * (share * fx) + Jp[p, 1] * (share * fz)
     saturated = 0.0  # clipped at a motor limit (with the limits in the plan: the QP found no plan within them)
     for u in range(actuated.size):
@@ -663,7 +641,7 @@ def _clear_of_limits(x, dyn, loaded, load_gen, geo, motors):
     limit: each motor's torque - the same affine map, tau = M x + h - the held load - J' f with the plan's ground
     force split as :func:`_torque_map` splits it - within its limit."""
     M, h = dyn
-    carries, count, mean, spread, weight = loaded
+    carries, count, mean, spread = loaded
     actuated, limits = motors
     A, a_g, mg, com, arm, pts, Jp, n_points = geo
     gen = M @ x + h
@@ -675,8 +653,8 @@ def _clear_of_limits(x, dyn, loaded, load_gen, geo, motors):
         moment = (com[0] - mean) * fz + arm * w[0] - w[2]  # (cop - mean) fz, linear in the plan
         for p in range(4):
             if carries[p]:
-                lever = weight[p] * (pts[p, 0] - mean) / spread if spread > 1e-12 else 0.0
-                gen -= Jp[p, 0] * (weight[p] * w[0] / count) + Jp[p, 1] * (weight[p] * fz / count + lever * moment)
+                lever = (pts[p, 0] - mean) / spread if spread > 1e-12 else 0.0
+                gen -= Jp[p, 0] * (w[0] / count) + Jp[p, 1] * (fz / count + lever * moment)
     for u in range(actuated.size):
         lim = limits[u, 0]
         if abs(gen[actuated[u]]) > lim - LIMIT_CLEARANCE * lim:
@@ -744,11 +722,7 @@ def control_step(rows, fields, model, refs, support, warm, load, out):
 
         # the torques are affine in the plan, tau = T qdd + t0: the motors' limits are rows of the QP, so the
         # plan is one the motors can carry out - nothing is clipped after the solve (built only when they may bind)
-        weight = np.ones(4)
-        unload = int(swing_target[i, S_UNLOAD_FOOT]) - 1
-        if swing < 0 and unload >= 0:  # a foot unloaded before its lift-off carries less of the split
-            weight[2 * unload] = weight[2 * unload + 1] = 1.0 - swing_target[i, S_UNLOAD]
-        loaded = _loaded_points(state, pts, weight)
+        loaded = _loaded_points(state, pts)
         dyn = _dense_dynamics(row, M_sparse, m_rows, m_cols, qfrc_bias, qfrc_passive, nv)
         load_gen = _load_forces(frame, qd, chain, ext_bodies, ext_p[i], com, fex, fez)
         if field_gen.shape[0] > 0:
