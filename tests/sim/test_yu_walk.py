@@ -146,3 +146,17 @@ def test_with_the_support_centre_as_reference_the_same_gait_falls():
     task = resolve_task("yu-walk", reference="center")
     e = evaluate(task, simulate_batch(task, [None], record=False)[0])
     assert e.fell and e.fall_time_s < task.gait.touchdown_s(1) and e.steps <= 2, e
+
+
+def test_the_measured_cop_is_always_inside_the_recorded_support():
+    """The support a clip's CoP margin is measured against holds every point that carries load: a foot whose swing
+    has begun but which still touches the floor (a lift-off from a loaded rear foot after a push backward) or
+    already touches it (its touchdown is seen at the next control step). Measured before: with -150 N at 2.0 s the
+    CoP stood 1.07 cm behind the recorded support at the 2.104 s lift-off (the rear foot still carried 91 N) and
+    the clip failed `cop_margin`."""
+    task = resolve_task("yu-walk", params={"push_force_n": -150.0, "push_start_s": 2.0})
+    traj = simulate(task)
+    ok = np.isfinite(traj.cop_x_m)
+    cop, lo, hi = traj.cop_x_m[ok], traj.support_lo_x_m[ok], traj.support_hi_x_m[ok]
+    assert np.all(cop >= lo - 1e-9) and np.all(cop <= hi + 1e-9)
+    assert evaluate(task, traj).success
