@@ -42,7 +42,7 @@ from cmrt.body.character import GRAVITY_M_S2, character
 from cmrt.body.props import CONTACT_FORCE_N, prop_class
 from cmrt.control.controller import ControllerConfig
 from cmrt.motion.task import Task
-from cmrt.sim.simulate import Trajectory
+from cmrt.sim.simulate import PLANTED_FORCE_N, Trajectory
 
 MIN_FOOT_FORCE_FRACTION = 0.05
 IMPACT_WINDOW_S = 0.1  # peak ground force is reported outside this window after the first hand-prop contact
@@ -502,10 +502,6 @@ def stance_cop_roll(traj: Trajectory, weight_n: float, edge_s: float = 0.02) -> 
         first, last = share[times <= times[0] + edge_s], share[times >= times[-1] - edge_s]
         rolls.append(float(last.mean() - first.mean()))
     return min(rolls) if rolls else None
-
-
-PLANTED_FORCE_N = 5.0  # a heel/toe point carrying less is not planted: a foot lifting off (0 N, within the contact
-# distance for a few ms) moves forward without sliding (two 0.4 m steps of 0.4 s "slid" 2.4 cm that way)
 
 
 def foot_slip_m(traj: Trajectory) -> float | None:

@@ -188,6 +188,9 @@ class _Geometry:
 
 
 _SETTLED: dict = {}
+PLANTED_FORCE_N = 5.0  # a heel/toe point carrying less is not planted: a foot lifting off (0 N, within the contact
+# distance for a few ms) moves forward without sliding (two 0.4 m steps of 0.4 s "slid" 2.4 cm that way), and a
+# swing foot grazing the floor is no support
 
 
 def thread_count(n: int) -> int:
@@ -1079,9 +1082,10 @@ def _read(g: _Group, s: _LoopState, k: int, control: bool) -> _Reading:
         r.lo, r.hi = g.stepper.support(ids, r.point_x, r.lo, r.hi)
     r.center = 0.5 * (r.lo + r.hi)
     rec["sc"][sel, k], rec["lo"][sel, k], rec["hi"][sel, k] = r.center, r.lo, r.hi
-    if g.stepper is not None:  # a swing foot already on the floor (its touchdown is seen at the next control step)
-        # carries load, and the measured CoP counts it: the support it is measured against includes it
-        touching = g.stepper.swinging(ids).repeat(2, axis=1) & _in_contact(geom_xpos, g.geo.points)
+    if g.stepper is not None:  # a swing foot still or already loaded on the floor (lifting off a loaded rear foot;
+        # a touchdown is seen at the next control step) and the measured CoP counts it: the support it is measured
+        # against includes its loaded points
+        touching = g.stepper.swinging(ids).repeat(2, axis=1) & (b["sensordata"][sel, :4] >= PLANTED_FORCE_N)
         if touching.any():
             rec["lo"][sel, k] = np.fmin(r.lo, np.where(touching, r.point_x, np.inf).min(axis=1))
             rec["hi"][sel, k] = np.fmax(r.hi, np.where(touching, r.point_x, -np.inf).max(axis=1))
