@@ -16,7 +16,8 @@ plan, and thorax pushes during it.
   stepped on its own).
 * **Yu's tracked walk** (``yu-walk``): its keyed gait re-keyed with every step length and swing time of the grid,
   at the shallowest crouch the legs reach it with (none: reported refused, with why), and its own gait pushed as
-  the long plan is. The same figures; the gait has no supervisor, so a push it cannot absorb is a fall.
+  the long plan is. The same figures; the gait takes a push by moving its swing's landing (cmrt.control.gait), never
+  by a step sooner than keyed.
 """
 
 from __future__ import annotations
