@@ -11,10 +11,17 @@ The public API for scripts; the CLI (``cmrt``) is a thin layer over it::
         run = cmrt.optimize_now(store, task, seed=1)
 """
 
-import importlib
+import importlib as _importlib
 import os as _os
 import sys as _sys
-from typing import TYPE_CHECKING
+from importlib.metadata import PackageNotFoundError as _PackageNotFoundError
+from importlib.metadata import version as _version
+from typing import TYPE_CHECKING as _TYPE_CHECKING
+
+try:
+    __version__ = _version("cmrt")
+except _PackageNotFoundError:  # run from a source tree that was never installed
+    __version__ = "0+unknown"
 
 # The controller's matrices are tiny: BLAS thread pools only add overhead and, with
 # several worker processes, oversubscription. Effective only if numpy is not loaded yet.
@@ -32,7 +39,7 @@ if "mujoco" not in _sys.modules:
 # The API is imported on first use (PEP 562), so that ``import cmrt`` - and the ``cmrt`` command's start,
 # which a Ctrl-C may interrupt - does not load MuJoCo, numba and dask up front. Type checkers and IDEs see
 # the imports below.
-if TYPE_CHECKING:
+if _TYPE_CHECKING:
     from cmrt.body.character import character, load_model
     from cmrt.control import ControllerConfig, MomentumBalanceController
     from cmrt.errors import CmrtError
@@ -115,16 +122,17 @@ def __getattr__(name: str):
     module = _API.get(name)
     if module is None:
         try:  # a layer package: cmrt.service, cmrt.viz, ...
-            return importlib.import_module(f"cmrt.{name}")
+            return _importlib.import_module(f"cmrt.{name}")
         except ModuleNotFoundError:
             raise AttributeError(f"module 'cmrt' has no attribute '{name}'") from None
-    value = getattr(importlib.import_module(module), name)
+    value = getattr(_importlib.import_module(module), name)
     globals()[name] = value
     return value
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_API))
+    """The public API (``__all__``) and the module's dunders: not the names it uses to load them."""
+    return sorted(set(__all__) | {n for n in globals() if n.startswith("__")})
 
 
 __all__ = [

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import cmrt
 from cmrt import inputs
 from cmrt.errors import CmrtError, Terminated, TransientFault, clear_signals, note_signal, pending_termination
 from cmrt.inputs import escape, shown
@@ -1087,6 +1088,7 @@ COMMANDS: tuple[Command, ...] = (
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser: one sub-command per :data:`COMMANDS` entry."""
     p = _Parser(prog="cmrt", description="Anticipatory balance: center-of-mass reference trajectories.")
+    p.add_argument("--version", action="version", version=f"cmrt {cmrt.__version__}")
     sub = p.add_subparsers(dest="verb", required=True, parser_class=_Parser)
     common = _Parser(add_help=False)
     common.add_argument("--store", metavar="PATH", type=_store_arg,
