@@ -36,6 +36,7 @@ from cmrt.errors import CmrtError, Terminated, TransientFault, clear_signals, no
 from cmrt.inputs import escape, shown
 from cmrt.modes import BACKENDS, REFERENCE_MODES
 from cmrt.optimize.settings import FAMILY_SIGMA0, STALE_AFTER_S, OptimizeSettings
+from cmrt.service.query import search_summary
 from cmrt.service.records import RUN_STATUSES, Run
 from cmrt.service.store import DEFAULT_STORE, Store, disk_full, is_disk_full, open_store, resolve_path
 
@@ -237,6 +238,7 @@ def _result(run: Run) -> dict:
         "stop_reason": run.stop_reason,
         "restarts": run.restarts or 0,
         "init": run.init_source or "none",
+        "search": search_summary(run),
         "robust": run.robust is not None,
         "robustness": run.robustness,
         "wall_s": run.wall_s,
@@ -253,21 +255,21 @@ def _outcome_word(success, fell) -> str:
 
 
 def _run_line(run: Run) -> str:
-    """One line for a finished run (what a worker prints as each run ends)."""
+    """One line for a finished run (what a worker prints as each run ends): its verdict, then where its search
+    started and why it stopped."""
     speed = f" --speed {run.speed:g}" if run.speed is not None else ""
     verdict = _outcome_word(run.best_success, run.best_fell)
     best = "-" if run.best_objective is None else f"{run.best_objective:.4f}"
-    return (f"run {run.id} {escape(run.task)}{speed}: {run.status} ({run.stop_reason}), best objective {best} "
-            f"{verdict}, {run.evaluations} evaluations")
+    return (f"run {run.id} {escape(run.task)}{speed}: {run.status}, best objective {best} {verdict}; "
+            f"{escape(search_summary(run))}")
 
 
 def _result_text(r: dict) -> str:
     speed = f" --speed {r['speed']:g}" if r["speed"] is not None else ""
     kind = "robust CMRT:   " if r["robust"] else "optimized CMRT:"
     lines = [
-        f"run {r['run_id']} {escape(r['task'])}{speed}: {r['status']} ({escape(str(r['stop_reason']))}) after "
-        f"{r['evaluations']} evaluations, {r['restarts']} restarts, {_n(r['wall_s'], '.1f')} s; start: "
-        f"{escape(r['init'])}",
+        f"run {r['run_id']} {escape(r['task'])}{speed}: {r['status']} in {_n(r['wall_s'], '.1f')} s; "
+        f"{escape(r['search'])}",
         f"  zero CMRT:      objective {_n(r['baseline_objective'], '.4f')}  "
         f"{_outcome_word(r['baseline_success'], r['baseline_fell'])}",
         f"  {kind} objective {_n(r['best_objective'], '.4f')}  {_outcome_word(r['success'], r['fell'])}"
@@ -418,8 +420,9 @@ def _opt_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=inputs.arg(inputs.SEED), default=_SETTINGS.seed, help="CMA-ES's seed")
     p.add_argument("--max-evals", type=inputs.arg(inputs.MAX_EVALS), default=_SETTINGS.max_evals,
                    help="evaluation budget (restarts included)")
-    p.add_argument("--min-evals", type=inputs.arg(inputs.MIN_EVALS), default=_SETTINGS.min_evals,
-                   help="no slow-convergence stop before this")
+    p.add_argument("--min-evals", type=inputs.arg(inputs.MIN_EVALS), default=None,
+                   help=f"no slow-convergence stop before this (default: {_SETTINGS.min_evals}, or --max-evals if "
+                   "smaller; more than --max-evals is refused)")
     p.add_argument("--popsize", type=inputs.arg(inputs.POPSIZE), default=_SETTINGS.popsize,
                    help="CMA-ES population of the first search")
     p.add_argument("--stall-generations", type=inputs.arg(inputs.STALL_GENERATIONS),

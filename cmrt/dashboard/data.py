@@ -25,7 +25,7 @@ from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.task import Task
 from cmrt.service.interpolate import blend
-from cmrt.service.query import run_details, run_summary, stored_curve, task_of
+from cmrt.service.query import run_details, run_summary, search_summary, stored_curve, task_of
 from cmrt.service.store import Run, Store, StoredEvaluation
 from cmrt.sim.objective import evaluate
 from cmrt.sim.report import evaluation_dict
@@ -109,7 +109,7 @@ def run_row(run: Run) -> dict:
         robustness=run.robustness, init=run.init_source, created_at=run.created_at, finished_at=run.finished_at,
         improvement_over_zero=(None if run.baseline_objective is None or run.best_objective is None
                                else run.baseline_objective - run.best_objective),
-        error=run.error,
+        error=run.error, search=search_summary(run),
     )
     return inputs.json_safe(row)
 

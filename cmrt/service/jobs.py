@@ -69,7 +69,19 @@ def given_back(fault: TransientFault, run_id: int, back: bool) -> TransientFault
     return type(fault)(f"{fault}; {where}")
 
 
-def check_settings(*, seed: int, max_evals: int, popsize: int, sigma0: float, min_evals: int,
+def budget_min_evals(max_evals: int, min_evals: int | None) -> int:
+    """The evaluations before which a stalled search may not stop: ``OptimizeSettings.min_evals`` (700, the
+    paper's), or the budget if that is smaller; one given explicitly above the budget contradicts it (the run
+    would end on its budget before it could ever stop as converged) and is refused."""
+    if min_evals is None:
+        return min(_DEFAULTS.min_evals, max_evals)
+    if min_evals > max_evals:
+        raise CmrtError(f"min-evals {min_evals} is more than the budget, max-evals {max_evals}: a stalled search "
+                        f"could never stop before the budget ran out; give min-evals <= max-evals")
+    return min_evals
+
+
+def check_settings(*, seed: int, max_evals: int, popsize: int, sigma0: float, min_evals: int | None,
                    stall_generations: int) -> None:
     """The optimizer settings a run may be queued with (the CLI checks them before it opens the store)."""
     # the same ranges as the CLI's (cmrt.inputs): nothing non-finite or out of range reaches the store
@@ -77,10 +89,12 @@ def check_settings(*, seed: int, max_evals: int, popsize: int, sigma0: float, mi
                                   (popsize, "popsize", inputs.POPSIZE), (sigma0, "sigma0", inputs.SIGMA0),
                                   (min_evals, "min_evals", inputs.MIN_EVALS),
                                   (stall_generations, "stall_generations", inputs.STALL_GENERATIONS)):
-        allowed.check(value, where, text=False)
+        if value is not None:
+            allowed.check(value, where, text=False)
     if max_evals < popsize:  # a generation is popsize evaluations: the budget would be overrun, not kept
         raise CmrtError(f"a budget of {max_evals} evaluations (max-evals) is less than one generation of "
                         f"{popsize} (popsize): give at least {popsize}, or a smaller popsize")
+    budget_min_evals(max_evals, min_evals)
 
 
 def submit(
@@ -91,7 +105,7 @@ def submit(
     max_evals: int = _DEFAULTS.max_evals,
     popsize: int = _DEFAULTS.popsize,
     sigma0: float = _DEFAULTS.sigma0,
-    min_evals: int = _DEFAULTS.min_evals,
+    min_evals: int | None = None,
     init: str | int | None = "auto",
     backend: str = "batch",
     stall_generations: int = _DEFAULTS.stall_generations,
@@ -100,14 +114,16 @@ def submit(
     :class:`OptimizeSettings`'.
 
     ``init``: "auto" starts from the nearest known successful CMRT of the task (store, then
-    library; cold if none), "none" from the zero CMRT, a run id from that run's best."""
+    library; cold if none), "none" from the zero CMRT, a run id from that run's best. ``min_evals``: None is
+    :func:`budget_min_evals`' default (700, or the budget if smaller); more than ``max_evals`` is refused."""
     check_settings(seed=seed, max_evals=max_evals, popsize=popsize, sigma0=sigma0, min_evals=min_evals,
                    stall_generations=stall_generations)
     start = resolve_init(store, task, init)
     return store.add_run(RunSpec(
         task=task.name, speed=task.speed, params=task.params, task_hash=task.content_hash(),
         task_definition=task.to_dict(), seed=seed, max_evals=max_evals, popsize=popsize, sigma0=sigma0,
-        min_evals=min_evals, stop_threshold=task.stop_threshold, stall_generations=stall_generations,
+        min_evals=budget_min_evals(max_evals, min_evals), stop_threshold=task.stop_threshold,
+        stall_generations=stall_generations,
         backend=backend, init_source=start.source, init_params=start.params,
         init_run=init if isinstance(init, int) and not isinstance(init, bool) else None,
         robust=task.robust.to_table() if task.robust.enabled else None, reference=task.reference_mode,

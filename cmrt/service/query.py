@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 from cmrt import inputs
 from cmrt.errors import CmrtError
 from cmrt.inputs import shown
+from cmrt.optimize.settings import OptimizeSettings
 from cmrt.service.store import Run, Store
 
 if TYPE_CHECKING:
@@ -26,10 +27,47 @@ def run_summary(run: Run) -> dict:
     return {k: getattr(run, k) for k in SUMMARY_KEYS}
 
 
+def search_start(run: Run) -> str:
+    """Where a run's search started, in words (its ``init_source``)."""
+    source = run.init_source or "none"
+    if source == "none":
+        return f"started cold from the zero CMRT (sigma {run.sigma0:g})"
+    if source.startswith("library"):
+        kind, _, where = source.partition(" (")
+        return f"started from the {kind} CMRT" + (f" ({where}" if where else "")
+    return f"started from {source}'s best CMRT"
+
+
+def search_summary(run: Run) -> str:
+    """Where a run's search started and why it stopped, in one sentence - the line a worker, ``optimize``,
+    ``best``, ``show`` and the dashboard print - with the flag that asks for a search when a warm start ended it
+    at once."""
+    start, n = search_start(run), run.evaluations
+    if run.status in ("queued", "running"):
+        return f"{start}; {run.status}, {n} evaluations so far"
+    if run.status == "failed":
+        return f"{start}; failed after {n} evaluations: {run.error}"
+    why = run.stop_reason or ""
+    threshold = "-" if run.stop_threshold is None else f"{run.stop_threshold:g}"
+    if why == "threshold" and run.generations <= 1 and (run.init_source or "none") != "none":
+        return (f"{start}; it already met the stop threshold {threshold}: {n} evaluations (a search of its own: "
+                f"--init none; below the threshold: --set stop_threshold=0)")
+    if why == "threshold":
+        return f"{start}; stopped at the stop threshold {threshold} after {n} evaluations"
+    if why == "budget":
+        return f"{start}; its budget ran out: {n} of {run.max_evals} evaluations"
+    if why.startswith("converged"):
+        stall = run.stall_generations or OptimizeSettings.stall_generations
+        return (f"{start}; it stopped improving over {stall} generations with no restart left that fits: "
+                f"{n} evaluations, {run.restarts or 0} restarts")
+    return f"{start}; stopped ({why}) after {n} evaluations"
+
+
 def run_details(store: Store, run_id: int) -> dict:
-    """Everything ``cmrt show`` prints: the run decoded, with its throughput."""
+    """Everything ``cmrt show`` prints: the run decoded, with its throughput and :func:`search_summary`."""
     run = store.run(run_id)
     out = run.to_dict()
+    out["search"] = search_summary(run)
     eval_s = run.eval_s or 0.0
     out["evaluations_per_s"] = run.evaluations / run.wall_s if run.wall_s else None
     out["mean_eval_s"] = eval_s / run.evaluations if run.evaluations else None

@@ -82,6 +82,23 @@ def test_submit_and_worker(tmp_path):
     assert cmrt("best", "bend", "--speed", "0.5", "--set", "cop_sample_step_s=0.02", store=path).returncode == 0
 
 
+@pytest.mark.slow  # two worker processes
+def test_a_worker_says_where_each_search_started_and_why_it_stopped(tmp_path):
+    """A warm start that already meets the threshold says so, and names the flags that ask for a search; a cold
+    search with no threshold says its budget ran out."""
+    path = tmp_path / "q.sqlite"
+    cmrt("submit", "punch", store=path, check=True)
+    line = cmrt("worker", "--until-idle", "--backend", "serial", store=path, check=True).stdout
+    assert "started from the library CMRT (duration_s 0.4); it already met the stop threshold 0.6" in line, line
+    assert "--init none" in line and "--set stop_threshold=0" in line
+    cmrt("submit", "punch", "--init", "none", "--set", "stop_threshold=0", "--max-evals", "20", store=path,
+         check=True)
+    line = cmrt("worker", "--until-idle", "--backend", "serial", store=path, check=True).stdout
+    assert "started cold from the zero CMRT (sigma 0.5); its budget ran out: 20 of 20 evaluations" in line, line
+    show = json.loads(cmrt("show", "2", "--json", store=path, check=True).stdout)
+    assert show["search"] in line
+
+
 def digest(path):
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
@@ -99,6 +116,7 @@ def digest(path):
     (("submit", "bend", "--init", "sometimes"), "must be auto, none or a run id"),
     (("submit", "bend", "--init", "999"), "no run 999"),
     (("submit", "bend", "--stall-generations", "0"), "--stall-generations: must be an integer in [1, 100000]"),
+    (("submit", "bend", "--max-evals", "20", "--min-evals", "30"), "min-evals 30 is more than the budget"),
     (("submit", "BADROBUST"), "robust: worst_weight"),
 ])
 @pytest.mark.slow  # shares an optimization run; two cmrt processes per case

@@ -9,6 +9,7 @@ import pytest
 
 from cmrt.cli.commands import build_parser, help_reference
 from cmrt.optimize.settings import FAMILY_SIGMA0, STALE_AFTER_S, OptimizeSettings
+from cmrt.service.jobs import budget_min_evals
 
 
 def _verbs() -> dict[str, argparse.ArgumentParser]:
@@ -30,8 +31,10 @@ def test_every_option_with_a_default_shows_it(verb):
 def test_the_optimizer_options_default_to_its_settings():
     settings = OptimizeSettings()
     args = build_parser().parse_args(["optimize", "bend"])
-    for name in ("seed", "max_evals", "min_evals", "popsize", "stall_generations", "sigma0"):
+    for name in ("seed", "max_evals", "popsize", "stall_generations", "sigma0"):
         assert getattr(args, name) == getattr(settings, name), name
+    assert args.min_evals is None  # the settings' 700, or the budget if smaller (jobs.budget_min_evals)
+    assert budget_min_evals(args.max_evals, args.min_evals) == settings.min_evals
     assert args.family_sigma0 == FAMILY_SIGMA0
     assert build_parser().parse_args(["worker"]).stale_after == STALE_AFTER_S
     submitted = build_parser().parse_args(["submit", "bend"])

@@ -187,3 +187,42 @@ def test_a_run_is_never_worse_than_no_cmrt(tmp_path):
     assert stop_reason(state, OptimizeSettings(stop_threshold=0.7)) == "threshold"
     again = CmaState.loads(state.dumps(), OptimizeSettings(stop_threshold=0.7))
     assert again.zero_success_objective == 0.58  # checkpointed
+
+
+def test_the_slow_convergence_floor_follows_a_smaller_budget_and_a_contradiction_is_refused(tmp_path):
+    """``submit(max_evals=60)`` stores min_evals 60 (it stored the default 700 without a word); a min_evals given
+    above the budget is refused in one line before anything is written."""
+    task = load_task("bend").with_speed(0.4)
+    with open_store(tmp_path / "s.sqlite") as store:
+        run = store.run(submit(store, task, max_evals=60))
+        assert run.min_evals == 60
+        assert store.run(submit(store, task)).min_evals == 700
+        with pytest.raises(CmrtError, match="min-evals 100 is more than the budget, max-evals 60"):
+            submit(store, task, max_evals=60, min_evals=100)
+        assert len(store.runs()) == 2
+
+
+def test_the_search_summary_names_the_start_and_the_stop(tmp_path):
+    """What a worker, ``optimize``, ``best``, ``show`` and the dashboard say about a run's search
+    (``query.search_summary``), for each start and stop reason."""
+    import dataclasses
+
+    from cmrt.service.query import search_summary
+
+    with open_store(tmp_path / "s.sqlite") as store:
+        queued = store.run(submit(store, load_task("bend").with_speed(0.6), init="none"))
+    run = dataclasses.replace(queued, status="done", evaluations=10, generations=1, stop_reason="threshold",
+                              stop_threshold=0.7, init_source="library (duration_s 0.6)", max_evals=3000)
+    assert search_summary(run) == (
+        "started from the library CMRT (duration_s 0.6); it already met the stop threshold 0.7: 10 evaluations (a "
+        "search of its own: --init none; below the threshold: --set stop_threshold=0)")
+    later = dataclasses.replace(run, generations=30, evaluations=300, init_source="run 12")
+    assert search_summary(later) == ("started from run 12's best CMRT; stopped at the stop threshold 0.7 after 300 "
+                                     "evaluations")
+    cold = dataclasses.replace(run, init_source="none", stop_reason="budget", evaluations=3000, sigma0=0.5)
+    assert search_summary(cold) == ("started cold from the zero CMRT (sigma 0.5); its budget ran out: 3000 of 3000 "
+                                    "evaluations")
+    stalled = dataclasses.replace(cold, stop_reason="converged", evaluations=900, restarts=2, stall_generations=20)
+    assert search_summary(stalled).endswith("it stopped improving over 20 generations with no restart left that "
+                                            "fits: 900 evaluations, 2 restarts")
+    assert search_summary(queued) == "started cold from the zero CMRT (sigma 0.5); queued, 0 evaluations so far"

@@ -33,7 +33,7 @@ function verdictCell(success, fell) {
 
 function robustnessText(r) {
   if (!r) return "-";
-  return `${r.validation_survived}/${r.validation_total} clips`;
+  return `${r.validation_survived}/${r.validation_total}`;
 }
 
 function statusCell(run) {
@@ -249,11 +249,11 @@ async function refreshRun(id, tracesLoaded) {
   document.title = `CMRT dashboard: run ${id}`;
   document.getElementById("title").textContent = `Run ${id}: ${page.task.label}`;
   const summary = document.getElementById("summary");
-  summary.replaceChildren(statusCell(r), ` (${r.stop_reason || "-"}), ${r.evaluations} evaluations, ` +
-    `${r.restarts} restarts, reference ${r.reference}, seed ${r.seed}. Best objective ${num(r.best_objective)} `,
+  summary.replaceChildren(statusCell(r), `: ${r.search}. ${r.restarts} restarts, reference ${r.reference}, ` +
+    `seed ${r.seed}. Best objective ${num(r.best_objective)} `,
   verdictCell(r.best_success, r.best_fell), `; no CMRT ${num(r.baseline_objective)} `,
   verdictCell(r.baseline_success, r.baseline_fell), `; improvement ${num(r.improvement_over_zero)}; robustness: ` +
-    (r.robustness ? `${robustnessText(r.robustness)} of the perturbed validation clips succeed` : "-"));
+    (r.robustness ? `${robustnessText(r.robustness)} of its perturbed validation clips succeed` : "-"));
   drawConvergence(page.convergence);
   drawCurves(page);
   document.getElementById("task").textContent = JSON.stringify(page.task_definition, null, 2);
