@@ -286,26 +286,25 @@ def _result_text(r: dict) -> str:
     return "\n".join(lines)
 
 
-class _Progress:
-    """tqdm bar on stderr: generation, evaluations, best objective, sigma, evaluations/s."""
-
-    def __init__(self, total: int, enabled: bool):
-        from tqdm import tqdm  # only verbs that optimize pay for it
-
-        self.bar = tqdm(total=total, unit="eval", file=sys.stderr, disable=not enabled, dynamic_ncols=True)
+class _Quiet:
+    """No progress (``--no-progress``)."""
 
     def __call__(self, state, records, wall_s) -> None:
-        if state.evaluations < self.bar.n:  # the next member of a family
-            self.bar.reset(total=self.bar.total)
-        self.bar.n = min(state.evaluations, self.bar.total)
-        self.bar.set_postfix_str(
-            f"gen {state.generation} best {state.best_objective:.4f} sigma {state.es.sigma:.3f} "
-            f"{state.evaluations / max(wall_s, 1e-9):.1f} eval/s",
-            refresh=True,
-        )
+        pass
 
     def close(self) -> None:
-        self.bar.close()
+        pass
+
+
+def _progress(total_evals: int, label: str, enabled: bool, stream=None):
+    """A run's progress on stderr (``stream``): a bar on a terminal, a line every few generations otherwise
+    (``cmrt.service.progress``)."""
+    from cmrt.service.progress import GenerationProgress
+
+    if not enabled:
+        return _Quiet()
+    stream = sys.stderr if stream is None else stream
+    return GenerationProgress(total_evals, label, bar=stream.isatty(), stream=stream)
 
 
 # --- inputs ------------------------------------------------------------------------
@@ -604,7 +603,8 @@ class Optimize(Command):
         p.add_argument("--family-sigma0", type=inputs.arg(inputs.SIGMA0), default=FAMILY_SIGMA0,
                        help="step size of the warm-started members")
         _backend_args(p)
-        p.add_argument("--no-progress", action="store_true", help="no progress bar")
+        p.add_argument("--no-progress", action="store_true",
+                       help="no progress on stderr (default: a bar on a terminal, else a line every 10 generations)")
 
     def run(self, args):
         if args.speeds:
@@ -617,7 +617,7 @@ class Optimize(Command):
         evaluator = Evaluator(args.backend, args.workers, args.scheduler)  # fails before the store is touched
         try:
             with _store(args.store) as store:
-                progress = _Progress(args.max_evals, enabled=not args.no_progress)
+                progress = _progress(args.max_evals, task.name, enabled=not args.no_progress)
                 try:
                     run = jobs.optimize_now(store, task, evaluator, progress, **kwargs)
                 finally:
@@ -650,7 +650,7 @@ class Optimize(Command):
         evaluator = Evaluator(args.backend, args.workers, args.scheduler)
         try:
             with _store(args.store) as store:
-                progress = _Progress(args.max_evals, enabled=not args.no_progress)
+                progress = _progress(args.max_evals, tasks[0].name, enabled=not args.no_progress)
                 try:
                     runs = jobs.optimize_family(store, tasks, evaluator, family_sigma0=args.family_sigma0,
                                                 on_generation=progress, on_run=on_run, **kwargs)
@@ -671,19 +671,31 @@ class Worker(Command):
                        default=STALE_AFTER_S,
                        help="resume a running job whose heartbeat is older than this")
         _backend_args(p)
+        p.add_argument("--no-progress", action="store_true",
+                       help="no progress on stderr (default: a bar on a terminal, else a line every 10 generations)")
 
     def run(self, args):
         from cmrt.optimize.parallel import Evaluator
         from cmrt.service import jobs
 
+        shown_progress = [_Quiet()]  # the running run's bar or lines (on stderr: stdout stays the runs' lines)
+
         def on_claim(c):
             if not args.json:
                 print(f"worker {jobs.worker_id()}: run {c.run_id} (attempt {c.attempt})", flush=True)
+            shown_progress[0].close()
+            shown_progress[0] = _progress(store.run(c.run_id).max_evals, f"run {c.run_id}",
+                                          enabled=not args.no_progress)
+
+        def on_generation(state, records, wall_s) -> None:
+            shown_progress[0](state, records, wall_s)
 
         def on_failure(run_id: int, message: str) -> None:
             print(f"cmrt: worker: run {run_id}: {message}", file=sys.stderr, flush=True)
 
         def on_done(run: Run) -> None:
+            shown_progress[0].close()
+            shown_progress[0] = _Quiet()
             if not args.json:
                 print(f"  {_run_line(run)}", flush=True)
 
@@ -699,8 +711,9 @@ class Worker(Command):
             with _store(args.store, create=False) as store:
                 done = jobs.work(store, evaluator, until_idle=args.until_idle, once=args.once,
                                  stale_after_s=args.stale_after, on_claim=on_claim, on_failure=on_failure,
-                                 on_done=on_done, on_idle=on_idle)
+                                 on_done=on_done, on_idle=on_idle, on_generation=on_generation)
         finally:
+            shown_progress[0].close()
             evaluator.close()
         return Output({"finished": done}, f"worker finished runs: {', '.join(map(str, done)) or 'none'}")
 
@@ -1034,7 +1047,7 @@ class Demo(Command):
         evaluator = Evaluator(args.backend, args.workers, args.scheduler)
         try:
             with _store(args.store) as store:
-                progress = _Progress(_SETTINGS.max_evals, enabled=sys.stderr.isatty())
+                progress = _progress(_SETTINGS.max_evals, task.name, enabled=sys.stderr.isatty())
                 try:
                     run = jobs.optimize_now(store, task, evaluator, progress, seed=1, init="none")
                 finally:

@@ -37,6 +37,7 @@ from cmrt.optimize.driver import (
 from cmrt.optimize.parallel import Evaluator
 from cmrt.optimize.settings import FAMILY_SIGMA0, STALE_AFTER_S, OptimizeSettings
 from cmrt.service.known import start_point
+from cmrt.service.progress import GenerationProgress, interactive
 from cmrt.service.query import task_of
 from cmrt.service.store import Claim, Generation, LostClaim, Run, RunProgress, RunSpec, Store, StoredEvaluation
 from cmrt.service.warmstart import resolve_init
@@ -226,6 +227,8 @@ def optimize_now(
     task: Task,
     evaluator: Evaluator | None = None,
     on_generation: ProgressFn | None = None,
+    *,
+    progress: bool | None = None,
     **submit_kwargs,
 ) -> Run:
     """Submit a run and optimize it in this process (``cmrt optimize``); returns the finished run.
@@ -233,13 +236,16 @@ def optimize_now(
     Args:
         evaluator: how candidates are simulated (default: the batched evaluator, closed afterwards).
         on_generation: called after every committed generation with (state, records, wall_s).
+        progress: a progress bar on stderr (``cmrt.service.progress``) when no ``on_generation`` is given: None
+            shows one in an interactive session (a Python prompt, IPython, Jupyter), True always, False never.
         submit_kwargs: as :func:`submit` (seed, max_evals, popsize, sigma0, min_evals, init, ...).
     """
     with _evaluator(evaluator) as ev:
         run_id = submit(store, task, backend=ev.backend, **submit_kwargs)
         c = claim(store, worker_id(), run_id=run_id)
         try:
-            return run_claimed(store, c, ev, on_generation)
+            with _shown(store, run_id, on_generation, progress) as report:
+                return run_claimed(store, c, ev, report)
         except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM: back in the queue, a worker resumes it
             store.release(c)
             raise released(exc, run_id) from None
@@ -261,13 +267,15 @@ def optimize_family(
     family_sigma0: float = FAMILY_SIGMA0,
     on_generation: ProgressFn | None = None,
     on_run: Callable[[Run], None] | None = None,
+    progress: bool | None = None,
     **submit_kwargs,
 ) -> list[Run]:
     """Optimize a family of tasks (e.g. one task at several speeds) in order, each member after the first
     warm-started from the previous member's best with step size ``family_sigma0``: the members stay near
     their neighbour, one family shape that interpolates well (ABC section 5).
 
-    ``submit_kwargs`` apply to every member (its ``init`` and ``sigma0`` to the first only)."""
+    ``submit_kwargs`` apply to every member (its ``init`` and ``sigma0`` to the first only); ``progress`` as
+    :func:`optimize_now`'s, a bar per member."""
     inputs.SIGMA0.check(family_sigma0, "family_sigma0", text=False)
     if isinstance(submit_kwargs.get("init"), int) and not isinstance(submit_kwargs.get("init"), bool):
         raise CmrtError("a family's members start from each other: give no run id as init")
@@ -277,10 +285,25 @@ def optimize_family(
             kwargs = dict(submit_kwargs)
             if runs:
                 kwargs.update(init=runs[-1].id, sigma0=family_sigma0)
-            runs.append(optimize_now(store, task, ev, on_generation, **kwargs))
+            runs.append(optimize_now(store, task, ev, on_generation, progress=progress, **kwargs))
             if on_run:
                 on_run(runs[-1])
     return runs
+
+
+@contextlib.contextmanager
+def _shown(store: Store, run_id: int, on_generation: ProgressFn | None, progress: bool | None
+           ) -> Iterator[ProgressFn | None]:
+    """The caller's ``on_generation``, or a progress bar of run ``run_id`` (``progress``: None shows one in an
+    interactive session) closed when the run ends."""
+    if on_generation is not None or not (progress or (progress is None and interactive())):
+        yield on_generation
+        return
+    bar = GenerationProgress(store.run(run_id).max_evals, f"run {run_id}", bar=True)
+    try:
+        yield bar
+    finally:
+        bar.close()
 
 
 @contextlib.contextmanager
@@ -309,6 +332,7 @@ def work(
     on_failure: Callable[[int, str], None] | None = None,
     on_done: Callable[[Run], None] | None = None,
     on_idle: Callable[[], None] | None = None,
+    progress: bool | None = None,
 ) -> list[int]:
     """The worker loop: claim, optimize, repeat. Returns the ids of the runs it finished.
 
@@ -319,7 +343,7 @@ def work(
     queue - it resumes from its last checkpoint - a bounded number of times (``store.MAX_RETRIES``); any
     other error marks it failed with the message (``on_failure(run_id, message)``) and the worker goes on.
     Ctrl-C and SIGTERM give the current run back to the queue and stop the worker. ``evaluator`` defaults
-    to the batched one, as in :func:`optimize_now`.
+    to the batched one, as in :func:`optimize_now`; ``progress`` as there (a bar per run).
     """
     inputs.STALE_AFTER_S.check(stale_after_s, "stale_after_s", text=False)
     me = worker_id()
@@ -340,7 +364,8 @@ def work(
             if on_claim:
                 on_claim(c)
             try:
-                run = run_claimed(store, c, ev, on_generation, heartbeat_s=stale_after_s / 4)
+                with _shown(store, c.run_id, on_generation, progress) as report:
+                    run = run_claimed(store, c, ev, report, heartbeat_s=stale_after_s / 4)
                 finished.append(c.run_id)
                 if on_done:
                     on_done(run)
