@@ -540,6 +540,26 @@ def test_cli_reference_tool(tmp_path):
     assert run_tool_here("cli_reference.py", "--check", "--out", str(out)).returncode == 0
 
 
+def test_api_reference_tool_builds_the_reference_with_every_link_resolved(tmp_path):
+    """pdoc builds the API reference from the signatures and docstrings; every name of ``cmrt.__all__`` has its
+    entry (with a signature), the records and ``Store.run`` too, and no link of the pages leads nowhere."""
+    import cmrt
+
+    _ok(run_tool_here("api_reference.py", "--out", str(tmp_path)))
+    page = (tmp_path / "cmrt.html").read_text()
+    anchors = set(re.findall(r'\bid="([^"]+)"', page))
+    assert set(cmrt.__all__) <= anchors, set(cmrt.__all__) - anchors
+    assert {"Store.run", "Store.runs", "Store.evaluations", "Run.best_objective", "Generation.sigma",
+            "StoredEvaluation.objective", "Evaluation.success"} <= anchors
+    assert "def optimize_now( store: Store, task: Task," in re.sub(r"\s+", " ", re.sub(r"<[^>]+>", "", page))
+    spec = importlib.util.spec_from_file_location("api_reference", TOOLS / "api_reference.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    assert tool.check_links(tmp_path) == []
+    (tmp_path / "broken.html").write_text('<a href="#nowhere">x</a><a href="missing.html">y</a>')
+    assert sorted(tool.check_links(tmp_path)) == ["broken.html: #nowhere", "broken.html: missing.html"]
+
+
 def test_every_tool_has_a_fast_test_that_runs_it():
     """``pytest -m "not slow" -k tools`` runs every script in tools/: a refactor cannot break one unseen."""
     tree = ast.parse(Path(__file__).read_text())

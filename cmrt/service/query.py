@@ -76,7 +76,8 @@ def run_details(store: Store, run_id: int) -> dict:
 
 def best_run(store: Store, task: Task) -> Run:
     """The best finished run for exactly this task (same physics hash): successes first, then the
-    lowest objective."""
+    lowest objective - of every run of the task in the store, not necessarily one you just submitted
+    (``store.run(run_id)`` reads that one). CmrtError if the task has no finished run."""
     run = store.best_run(task.content_hash())
     if run is None:
         speed = f" at speed {task.speed:g}" if task.speed is not None else ""

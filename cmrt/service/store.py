@@ -706,7 +706,8 @@ class Store:
 
     # --- reads -----------------------------------------------------------------------
     def run(self, run_id: int) -> Run:
-        """The run ``run_id``; CmrtError if there is none."""
+        """The run ``run_id`` as it is now (queued, running, done or failed: ``Run.status``); CmrtError if there
+        is none. ``cmrt.best_run`` is the task's best finished run instead."""
         return self._run_in(self.conn, run_id)
 
     def _run_in(self, conn: sqlite3.Connection, run_id: int) -> Run:
