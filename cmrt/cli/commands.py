@@ -407,7 +407,8 @@ def _task_args(p: argparse.ArgumentParser) -> None:
 
 def _reference_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument("--reference", choices=REFERENCE_MODES, default=None,
-                   help="where the controller's reference CoM/CoP come from: center (the support centre; ABC) or "
+                   help="where the controller's reference CoM/CoP come from: center (the support centre, as in "
+                   "Anticipatory Balance Control, Rabbani et al. 2014: ABC) or "
                    "yu (GRF-weighted feet and Winter's CoP, reactive); default: the task file's, else center")
 
 
@@ -496,8 +497,9 @@ class Tasks(Command):
                          "params": t.params, "param_ranges": {k: list(v) for k, v in t.param_ranges.items()}})
 
         def text(rows):
+            width = max((len(r["name"]) for r in rows), default=0)
             return "\n".join(
-                f"{r['name']:<10} {r['summary']}"
+                f"{r['name']:<{width}}  {r['summary']}"
                 + (f" (speed: {r['speed_param']} = {r['speed']:g})" if r["speed_param"] else "") for r in rows)
 
         return Output(rows, text)
@@ -813,7 +815,7 @@ class Export(Command):
             text = query.export_run(store, args.run, args.format)
         if args.out is not None:
             inputs.write_text(args.out, text, "--out")
-            return None
+            return Output(None, f"wrote {escape(args.out)} ({args.format}, run {args.run})")
         return Output(None, text.rstrip("\n"))
 
 
@@ -854,7 +856,7 @@ class Interpolate(Command):
             f"from {src} (weight {r.weight:.3f})\n"
             f"  knots {', '.join(f'{t:.3f}' for t in r.curve.knot_times_s)} s; values "
             f"{', '.join(f'{100 * v:+.2f}' for v in r.curve.values_m)} cm"
-            + (f"; written to {escape(args.out)}" if args.out is not None else "")
+            + (f"\nwrote {escape(args.out)}" if args.out is not None else "")
         )
         return Output(json.loads(text), human)
 
@@ -865,7 +867,8 @@ class Sequence(Command):
     def add_arguments(self, p):
         p.add_argument("file", help="a shipped sequence's name (four-poses) or the path of a .toml sequence file")
         p.add_argument("--curve", choices=("superposed", "zero"), default="superposed",
-                       help="superposed: each motion's CMRT shifted to its start and summed (ABC 4.2)")
+                       help="superposed: each motion's CMRT shifted to its start and summed (Anticipatory Balance "
+                       "Control, section 4.2)")
         p.add_argument("--trace", metavar="FILE.npz")
         _force_arg(p)
 
@@ -894,27 +897,35 @@ class Plot(Command):
     name, help = "plot", "figures of a stored run (CoP error, CMRT, convergence)"
 
     def add_arguments(self, p):
-        p.add_argument("run", type=inputs.run_id_arg, nargs="?")
-        p.add_argument("--family", metavar="TASK", help="the task's speed family from the library (ABC Fig. 5)")
-        p.add_argument("--sequence", metavar="FILE", help="a sequence's superposed CMRTs (ABC Fig. 6)")
-        p.add_argument("--out", default="plots", metavar="DIR", help="the directory the figures are written to")
+        p.add_argument("run", type=inputs.run_id_arg, nargs="?",
+                       help="a stored run: its CoP error, CMRT and convergence figures")
+        p.add_argument("--family", metavar="TASK", help="the task's speed family from the library (Anticipatory "
+                       "Balance Control, Fig. 5)")
+        p.add_argument("--sequence", metavar="FILE", help="a sequence's superposed CMRTs (Anticipatory Balance "
+                       "Control, Fig. 6)")
+        p.add_argument("--out-dir", dest="out", default="plots", metavar="DIR",
+                       help="the directory the figures are written to (--out names a file in every other verb)")
+        p.add_argument("--out", dest="out_file", help=argparse.SUPPRESS)
         _force_arg(p)
 
     def run(self, args):
         from cmrt.viz import plot  # matplotlib: only this verb pays for it
 
+        if args.out_file is not None:
+            raise CmrtError("plot writes several figures into a directory: give --out-dir DIR (--out is a file "
+                            "in the other verbs)")
         if args.run is None and not args.family and not args.sequence:
             raise CmrtError("plot what? give a RUN, --family TASK or --sequence FILE")
         if Path(args.out).suffix.lower() in FILE_SUFFIXES:  # plot x.png made a directory named x.png
-            raise CmrtError(f"--out is the directory the figures go into, not a file: {shown(args.out)} "
-                            "(give a directory, e.g. --out plots)")
-        out = inputs.output_dir(args.out, "--out")  # created and checked before anything is simulated
+            raise CmrtError(f"--out-dir is the directory the figures go into, not a file: {shown(args.out)} "
+                            "(give a directory, e.g. --out-dir plots)")
+        out = inputs.output_dir(args.out, "--out-dir")  # created and checked before anything is simulated
         family = out / f"{Path(args.family).stem}_family.png" if args.family else None
         sequence = out / f"{Path(args.sequence).stem}_sequence.png" if args.sequence else None
         targets = (plot.run_figure_paths(args.run, out) if args.run is not None else []) + [
             t for t in (family, sequence) if t is not None]
         for target in targets:  # every file it would write, before anything is simulated
-            _check_out(args, str(target), "--out")
+            _check_out(args, str(target), "--out-dir")
         paths = []
         if args.run is not None:
             with _store(args.store, readonly=True) as store:
@@ -923,7 +934,7 @@ class Plot(Command):
             paths.append(str(plot.plot_family(args.family, family)))
         if sequence:
             paths.append(str(plot.plot_sequence(args.sequence, sequence)))
-        return Output({"run_id": args.run, "files": paths}, "\n".join(map(escape, paths)))
+        return Output({"run_id": args.run, "files": paths}, "\n".join(f"wrote {escape(p)}" for p in paths))
 
 
 class Render(Command):
@@ -933,7 +944,8 @@ class Render(Command):
         _task_args(p)
         p.add_argument("--curve", default="library", help="zero | library | RUN | FILE.json")
         p.add_argument("--compare", help="a second CMRT to show beside it (e.g. zero)")
-        p.add_argument("--out", required=True, metavar="FILE.png|FILE.mp4")
+        p.add_argument("--out", required=True, metavar="FILE.png|FILE.mp4",
+                       help="the file to write: a PNG filmstrip or an MP4 video")
         p.add_argument("--frames", type=inputs.arg(inputs.FRAMES), default=8, help="filmstrip frames (PNG)")
         p.add_argument("--fps", type=inputs.arg(inputs.FPS), default=30, help="video frame rate (MP4)")
         _force_arg(p, curves=True)

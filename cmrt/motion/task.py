@@ -253,6 +253,10 @@ class Task:
             return self
         if not self.speed_param:
             raise CmrtError(f"task '{self.name}' has no speed parameter")
+        lo, hi = self.param_ranges.get(self.speed_param, (-math.inf, math.inf))
+        if isinstance(speed, int | float) and math.isfinite(speed) and not lo <= speed <= hi:  # the task's own
+            # range, the one message for a speed it cannot take (not the parameter's wider documented limit)
+            raise CmrtError(f"{self.speed_param} = {speed:g} is outside task {shown(self.name)} range [{lo:g}, {hi:g}]")
         return self.with_params(**{self.speed_param: speed})
 
     def validate(self) -> None:

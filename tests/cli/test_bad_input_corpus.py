@@ -239,7 +239,7 @@ def _cases() -> list[Case]:
         lambda f: ("render", f, "--out", "{d}/o.png"),
         lambda f: ("interpolate", f, "--speed", "0.5"),
         lambda f: ("bench", "--task", f, "--backends", "batch"),
-        lambda f: ("plot", "--family", f, "--out", "{d}/outdir"),
+        lambda f: ("plot", "--family", f, "--out-dir", "{d}/outdir"),
         lambda f: ("check", f),
     ]
     names = list(TASK_FILES) + ["fifo.toml", "dir.toml", "big.toml", "missing.toml"]
@@ -312,7 +312,7 @@ def _cases() -> list[Case]:
             add(Case((verb, rid), words="run"))
     add(Case(("show", "99"), words="no run 99"))
     add(Case(("export", "99"), words="no run 99"))
-    add(Case(("plot", "2", "--out", "{d}/outdir"), words="no result"))
+    add(Case(("plot", "2", "--out-dir", "{d}/outdir"), words="no result"))
     add(Case(("export", "1", "--format", "xml"), words="--format"))
     add(Case(("jobs", "--status", "weird"), words="--status"))
     add(Case(("runs", "--bogus"), words="unrecognized"))
@@ -334,14 +334,15 @@ def _cases() -> list[Case]:
     add(Case(("render", "bend", "--out", "{d}/x.gif"), words=".png or .mp4"))
     add(Case(("render", "bend", "--frames", "0", "--out", "{d}/o.png"), words="--frames"))
     add(Case(("render", "bend", "--fps", "1e9", "--out", "{d}/o.mp4"), words="--fps"))
-    add(Case(("plot", "1", "--out", "/proc/x"), words="--out"))
-    add(Case(("plot", "1", "--out", "{d}/c_list.json"), words="directory the figures go into"))
-    add(Case(("plot", "--family", "bend", "--out", "/dev/full"), words="not a directory"))
+    add(Case(("plot", "1", "--out-dir", "/proc/x"), words="--out-dir"))
+    add(Case(("plot", "1", "--out", "{d}/plots"), words="give --out-dir DIR"))
+    add(Case(("plot", "1", "--out-dir", "{d}/c_list.json"), words="directory the figures go into"))
+    add(Case(("plot", "--family", "bend", "--out-dir", "/dev/full"), words="not a directory"))
     add(Case(("plot",), words="plot what"))
-    add(Case(("plot", "--family", "stand", "--out", "{d}/outdir"), words="no speed parameter"))
-    add(Case(("plot", "--family", "nosuch", "--out", "{d}/outdir"), words="unknown task"))
-    add(Case(("plot", "--sequence", "{d}/fifo.toml", "--out", "{d}/outdir"), words="fifo.toml"))
-    add(Case(("plot", "--sequence", "{d}/s_start_nan.toml", "--out", "{d}/outdir"), words="start_s"))
+    add(Case(("plot", "--family", "stand", "--out-dir", "{d}/outdir"), words="no speed parameter"))
+    add(Case(("plot", "--family", "nosuch", "--out-dir", "{d}/outdir"), words="unknown task"))
+    add(Case(("plot", "--sequence", "{d}/fifo.toml", "--out-dir", "{d}/outdir"), words="fifo.toml"))
+    add(Case(("plot", "--sequence", "{d}/s_start_nan.toml", "--out-dir", "{d}/outdir"), words="start_s"))
     # sequences
     for name in [*SEQUENCE_FILES, "fifo.toml", "dir.toml", "missing.toml"]:
         add(Case(("sequence", "{d}/" + name), words=name))
@@ -359,7 +360,7 @@ def _cases() -> list[Case]:
     # store kinds: read verbs refuse what is not a CMRT store, without creating or changing anything
     reads = [("jobs",), ("runs",), ("show", "1"), ("best", "bend"), ("export", "1"),
              ("simulate", "bend", "--curve", "1"), ("interpolate", "bend", "--speed", "0.5", "--from", "store"),
-             ("plot", "1", "--out", "{d}/outdir")]
+             ("plot", "1", "--out-dir", "{d}/outdir")]
     for kind, words in [("missing", "no CMRT store"), ("directory", "directory"), ("empty", "empty"),
                         ("text", "not a CMRT store"), ("foreign", "not a CMRT store"),
                         ("truncated", "corrupted"), ("flipped-header", "corrupted"),

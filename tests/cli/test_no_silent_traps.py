@@ -69,7 +69,7 @@ def test_speed_and_set_of_the_same_parameter_are_refused(tmp_path, capsys):
 def test_plot_out_is_a_directory_not_a_file_name(tmp_path, capsys):
     (tmp_path / "x.png").mkdir()
     for out in ("x.png", "y.pdf"):  # an existing directory named like a file, and a new name
-        assert main(["plot", "--family", "bend", "--out", str(tmp_path / out)]) == 2
+        assert main(["plot", "--family", "bend", "--out-dir", str(tmp_path / out)]) == 2
         err = capsys.readouterr().err
         assert one_line(err) and "directory the figures go into" in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["x.png"]
@@ -141,8 +141,8 @@ def test_the_worker_says_what_it_waits_for_and_each_run_it_finishes(tmp_path):
     finally:
         proc.terminate()
         proc.communicate(timeout=60)
-    assert any(re.search(rf"run {rid} bend --speed 1.2: done \(\w+\), best objective [\d.]+ .*, 6 evaluations", x)
-               for x in lines), lines
+    assert any(re.search(rf"run {rid} bend --speed 1.2: done, best objective [\d.]+ .*; started cold from the zero "
+                         rf"CMRT \(sigma 0.5\); .*6 evaluations", x) for x in lines), lines
     assert "no queued job" in lines[-1] and "Ctrl-C stops" in lines[-1], lines
 
 

@@ -76,7 +76,7 @@ def test_plot_and_render_and_trace_refuse_existing_files_before_any_work(store, 
     plots.mkdir()
     mine = plots / "run1_cmrt.png"  # one of the three files `plot 1` writes
     mine.write_bytes(b"mine")
-    _refused(run("plot", "1", "--out", str(plots), "--store", str(store)), mine, digest(mine), "add --force")
+    _refused(run("plot", "1", "--out-dir", str(plots), "--store", str(store)), mine, digest(mine), "add --force")
     assert sorted(p.name for p in plots.iterdir()) == ["run1_cmrt.png"]  # nothing else written
 
 

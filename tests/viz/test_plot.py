@@ -22,7 +22,7 @@ def test_plot_writes_three_valid_pngs(tmp_path):
     store = tmp_path / "s.sqlite"
     run = json.loads(cmrt("optimize", *FAST_BEND, "--max-evals", "10", "--popsize", "5", "--json", "--no-progress",
                           store=store, check=True).stdout)
-    r = cmrt("plot", str(run["run_id"]), "--out", str(tmp_path / "figs"), "--json", store=store, check=True)
+    r = cmrt("plot", str(run["run_id"]), "--out-dir", str(tmp_path / "figs"), "--json", store=store, check=True)
     files = json.loads(r.stdout)["files"]
     assert len(files) >= 3
     for f in files:
@@ -43,7 +43,7 @@ def test_plot_unknown_run_in_process(tmp_path, capsys):
     store = tmp_path / "s.sqlite"
     with open_store(store) as s:
         rid = submit(s, load_task("bend").with_speed(0.4), init="none")
-    assert main(["plot", str(rid), "--out", str(tmp_path / "figs"), "--store", str(store)]) == 2
+    assert main(["plot", str(rid), "--out-dir", str(tmp_path / "figs"), "--store", str(store)]) == 2
     assert "no result" in capsys.readouterr().err
 
 

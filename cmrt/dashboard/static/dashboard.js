@@ -306,7 +306,7 @@ async function comparePage() {
       el("td", {}, "-")));
     document.getElementById("objectives").replaceChildren(head, ...rows, ...between);
     note.textContent = data.interpolated.length
-      ? "dashed: members halfway between neighbouring speeds, their CMRTs blended (ABC 4.2) and simulated"
+      ? "dashed: members halfway between neighbouring speeds, their CMRTs blended (Anticipatory Balance Control, section 4.2) and simulated"
       : "";
   } catch (err) {
     note.textContent = err.message;
