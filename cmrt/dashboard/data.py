@@ -58,6 +58,12 @@ def _limit(limit: float | str, report: dict) -> float | None:
     return bounds.get(limit, report.get(limit))
 
 
+def _either(limits) -> float | None:
+    """The first known limit of a figure over the clips: a clip that fell has no tracking or timing bound (its
+    motion was not done), the other clip of the page has."""
+    return next((v for v in limits if v is not None), None)
+
+
 class NotFound(CmrtError):
     """What a URL names is not there (an unknown run id): a 404, not a damaged store."""
 
@@ -178,7 +184,8 @@ def run_page(store: Store, run_id: int) -> dict:
     task = task_of(run)
     best = curve_points(stored_curve(run)) if run.best_cmrt else None
     return inputs.json_safe({
-        "run": run_row(run), "details": details, "task": _task_info(task), "task_definition": run.task_definition,
+        "store": str(store.path), "run": run_row(run), "details": details, "task": _task_info(task),
+        "task_definition": run.task_definition,
         "convergence": _convergence(run, evaluations), "best_cmrt": best,
         "zero_cmrt": curve_points(Cmrt.zero(task.clip_s)),
     })
@@ -215,7 +222,7 @@ def run_traces(store: Store, run_id: int, cache: SimCache) -> dict:
         best = stored_curve(run)
         clips = [_trace(task, Cmrt.zero(task.clip_s), "zero CMRT"), _trace(task, best, f"run {run_id} best CMRT")]
         return {"run_id": run_id, "task": _task_info(task), "clips": clips,
-                "plausibility_fields": [{"key": k, "label": lab, "limit": clips[0]["limits"][k]}
+                "plausibility_fields": [{"key": k, "label": lab, "limit": _either(c["limits"][k] for c in clips)}
                                         for k, lab, _ in PLAUSIBILITY]}
 
     return cache.get(_key("traces", run.task_definition, run.best_cmrt), make)

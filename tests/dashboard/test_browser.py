@@ -80,6 +80,15 @@ def test_the_demo_store_in_a_headless_browser(tmp_path, monkeypatch):
             assert wait_for(driver, f"{plotted(div)}") >= 2, div
         assert "SUCCESS" in driver.find_element("id", "summary").text
         assert driver.execute_script("return document.querySelectorAll('#plausibility tr').length") > 3
+        assert driver.find_element("id", "store").text == str(store)  # the page names its store
+        limits = driver.execute_script("return [...document.querySelectorAll('#plausibility tr')].slice(1)"
+                                       ".map(r => [r.cells[0].innerText, r.cells[r.cells.length - 1].innerText])")
+        assert len(limits) == 8 and all(limit != "-" for _, limit in limits), limits  # every rule's bound shown
+        assert "started cold from the zero CMRT" in driver.find_element("id", "summary").text
+        legend = driver.execute_script(
+            "return [...document.querySelectorAll('#cop .legendtext')].map(e => e.textContent)")
+        assert any(t.startswith("the motion [") for t in legend), legend
+        assert "params.clip_s" in driver.find_element("id", "task").text
         driver.save_screenshot(str(tmp_path / "run.png"))
 
         driver.get(url + "/compare?runs=1")

@@ -141,6 +141,20 @@ function runId() {
   return Number(window.location.pathname.split("/").pop());
 }
 
+function definitionRows(def, prefix = "") {
+  // a task definition as rows of name and value, its tables (params, timing, ...) one level down
+  return Object.entries(def).flatMap(([k, v]) => (v !== null && typeof v === "object" && !Array.isArray(v))
+    ? definitionRows(v, `${prefix}${k}.`)
+    : [el("tr", {}, el("td", {}, prefix + k), el("td", { class: "value" },
+      typeof v === "string" ? v : JSON.stringify(v)))]);
+}
+
+function motionLegend(task) {
+  // the shaded window's legend entry (a shape has none of its own)
+  return { x: [null], y: [null], name: `the motion [${task.preparation_s}, ${task.preparation_s + task.duration_s}] s`,
+    mode: "markers", type: "scatter", marker: { symbol: "square", size: 12, color: "#e6e6e6" }, hoverinfo: "skip" };
+}
+
 function motionShapes(task, y0 = 0, y1 = 1) {
   // the motion's window [P, P + T], shaded as the matplotlib figures do
   return [{ type: "rect", xref: "x", yref: "paper", x0: task.preparation_s, x1: task.preparation_s + task.duration_s,
@@ -189,6 +203,7 @@ function drawCurves(page) {
     traces.push({ x: b.knot_times_s, y: b.knot_values_cm, name: "knots", mode: "markers", type: "scatter",
       marker: { color: "#1565c0", size: 8 } });
   }
+  traces.push(motionLegend(page.task));
   Plotly.react("cmrt", traces, layout({ shapes: motionShapes(page.task),
     xaxis: Object.assign({ title: { text: "time (s)" }, range: [0, page.task.clip_s] }, AXIS),
     yaxis: Object.assign({ title: { text: "d(t) (cm)" } }, AXIS) }), PLOT_CONFIG);
@@ -209,6 +224,7 @@ function drawTraces(t) {
     type: "scatter", line: { color: "#000", dash: "dash", width: 0.8 } });
   traces.push({ x: edge.time_s, y: edge.support_hi_cm, showlegend: false, mode: "lines", type: "scatter",
     line: { color: "#000", dash: "dash", width: 0.8 } });
+  traces.push(motionLegend(t.task));
   Plotly.react("cop", traces, layout({ shapes, xaxis: Object.assign({ title: { text: "time (s)" } }, AXIS),
     yaxis: Object.assign({ title: { text: "CoP error p - s (cm)" } }, AXIS) }), PLOT_CONFIG);
   const head = el("tr", {}, el("th", {}, "figure"), ...t.clips.map((c) => el("th", {}, c.label)), el("th", {}, "limit"));
@@ -256,7 +272,8 @@ async function refreshRun(id, tracesLoaded) {
     (r.robustness ? `${robustnessText(r.robustness)} of its perturbed validation clips succeed` : "-"));
   drawConvergence(page.convergence);
   drawCurves(page);
-  document.getElementById("task").textContent = JSON.stringify(page.task_definition, null, 2);
+  document.getElementById("store").textContent = page.store;
+  document.getElementById("task").replaceChildren(...definitionRows(page.task_definition));
   document.getElementById("details").textContent = JSON.stringify(page.details, null, 2);
   const active = r.status === "queued" || r.status === "running";
   if (!tracesLoaded && !active && page.best_cmrt) loadTraces(id);
