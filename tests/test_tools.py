@@ -560,6 +560,16 @@ def test_api_reference_tool_builds_the_reference_with_every_link_resolved(tmp_pa
     assert sorted(tool.check_links(tmp_path)) == ["broken.html: #nowhere", "broken.html: missing.html"]
 
 
+def test_first_run_tool_times_a_clip_of_an_installed_cmrt():
+    """The tool behind README's first-run figure, on this environment with its cache as it is (its full form
+    installs into a fresh venv: minutes)."""
+    r = run_tool_here("first_run.py", "--venv", sys.prefix, "--warm-only", "--json")
+    _ok(r)
+    row = json.loads(r.stdout)
+    assert row["warm_s"] > 0 and isinstance(row["warm_noted_compile"], bool) and row["warm_success"] is False
+    assert "CPUs" in row["machine"]
+
+
 def test_every_tool_has_a_fast_test_that_runs_it():
     """``pytest -m "not slow" -k tools`` runs every script in tools/: a refactor cannot break one unseen."""
     tree = ast.parse(Path(__file__).read_text())

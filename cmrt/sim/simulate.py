@@ -44,6 +44,7 @@ from cmrt.body.props import CONTACT_FORCE_N, model_values, prop_class
 from cmrt.body.stance import leg_offsets
 from cmrt.body.surface import Support, body_inertia_yy, frame_field, lean_rate, lean_x, tilt_pose, uniform_field
 from cmrt.control import ControllerConfig, MomentumBalanceController
+from cmrt.control.compiled import note_first_compile
 from cmrt.control.controller import read_only
 from cmrt.control.gait import GaitTracker, KeyedSwings
 from cmrt.control.planar import PlanarKinematics
@@ -724,6 +725,7 @@ def simulate_batch(
     members = list(perturbations) if perturbations is not None else [NOMINAL] * n
     if len(members) != n:
         raise ValueError("one perturbation per CMRT")
+    note_first_compile()  # the first clip after an install compiles the controller: say so, once
     groups = min(n, threads or thread_count(n))
     if groups <= 1:
         return _simulate_group(task, curves, config, record, limits, members)
