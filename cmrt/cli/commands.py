@@ -523,7 +523,8 @@ class Simulate(Command):
         task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None))
         curve, name = _curve(args, args.curve, task)
         _warn_if_not_feasible(args.task, task)
-        return Output(simulate_report(task, curve, name, args.trace), _report_text)
+        wrote = "" if args.trace is None else f"\nwrote {escape(args.trace)}"
+        return Output(simulate_report(task, curve, name, args.trace), lambda r: _report_text(r) + wrote)
 
 
 class Check(Command):
@@ -887,7 +888,8 @@ class Sequence(Command):
                       f"curve={args.curve}: {_outcome(r)}\n  objective {_n(r['objective'], '.4f')}  max |CoP error| "
                       f"{_n(r['max_cop_error_m'], '.4f')} m  final pose error {_n(r['final_pose_error_rad'], '.4f')} "
                       f"rad  timing lag {_n(r['timing_lag_s'], '.3f')} s"
-                      + ("" if r["fall_direction"] is None else "\n" + _after_fall_text(r)))
+                      + ("" if r["fall_direction"] is None else "\n" + _after_fall_text(r))
+                      + ("" if args.trace is None else f"\nwrote {escape(args.trace)}"))
 
 
 FILE_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg", ".mp4", ".json", ".csv", ".npz", ".sqlite", ".toml")

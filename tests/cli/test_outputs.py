@@ -53,6 +53,19 @@ def test_export_replaces_an_existing_file_only_with_force(store, tmp_path):
     assert isinstance(json.loads(out.read_text()), dict | list)
 
 
+def test_every_verb_that_writes_a_file_says_which(store, tmp_path):
+    """export, interpolate, simulate --trace (and plot, render: tests/viz) print ``wrote PATH`` on success."""
+    out = tmp_path / "runs.json"
+    r = run("export", "1", "--out", str(out), "--store", str(store))
+    assert r.returncode == 0 and r.stdout.strip() == f"wrote {out} (json, run 1)", r
+    out = tmp_path / "half.json"
+    r = run("interpolate", "bend", "--speed", "0.5", "--out", str(out))
+    assert r.returncode == 0 and r.stdout.strip().splitlines()[-1] == f"wrote {out}", r
+    out = tmp_path / "t.npz"
+    r = run("simulate", "stand", "--set", "clip_s=0.5", "--trace", str(out))
+    assert r.returncode == 0 and r.stdout.strip().splitlines()[-1] == f"wrote {out}" and out.exists(), r
+
+
 def test_interpolate_never_writes_over_a_task_file(tmp_path):
     task = tmp_path / "mine.toml"
     task.write_text("name = 'mine'\n")

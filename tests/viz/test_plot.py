@@ -28,6 +28,9 @@ def test_plot_writes_three_valid_pngs(tmp_path):
     for f in files:
         img = mpimg.imread(f)
         assert img.ndim == 3 and img.shape[0] > 100 and img[..., :3].std() > 0.01
+    text = cmrt("plot", str(run["run_id"]), "--out-dir", str(tmp_path / "figs"), "--force", store=store,
+                check=True).stdout
+    assert text.splitlines() == [f"wrote {f}" for f in files]  # says what it wrote
 
 
 @pytest.mark.slow  # two cmrt processes
