@@ -16,25 +16,25 @@ def _state(gen: int, popsize: int = 10) -> SimpleNamespace:
                            es=SimpleNamespace(sigma=0.5))
 
 
-def test_without_a_terminal_a_line_every_ten_generations_with_one_rate():
+def _shown(bar: bool, generations: int) -> str:
+    """What a run of ``generations`` generations (10 evaluations, 2 s each) shows on the stream."""
     out = io.StringIO()
-    progress = GenerationProgress(300, "run 7", bar=False, stream=out)
-    for gen in range(1, 26):
+    progress = GenerationProgress(300, "run 7", bar=bar, stream=out)
+    for gen in range(1, generations + 1):
         progress(_state(gen), [], wall_s=gen * 2.0)
     progress.close()
-    lines = out.getvalue().splitlines()
+    return out.getvalue()
+
+
+def test_without_a_terminal_a_line_every_ten_generations_with_one_rate():
+    lines = _shown(False, 25).splitlines()
     assert [line.split(",")[0] for line in lines] == ["  run 7: gen 10", "  run 7: gen 20"]
     assert lines[0] == "  run 7: gen 10, 100/300 evaluations, best 0.1000, sigma 0.500, 5.0 eval/s"
     assert all(line.count("/s") == 1 for line in lines)
 
 
 def test_a_bar_shows_one_rate():
-    out = io.StringIO()
-    progress = GenerationProgress(300, "run 7", bar=True, stream=out)
-    for gen in range(1, 4):
-        progress(_state(gen), [], wall_s=gen * 2.0)
-    progress.close()
-    frames = [f for f in re.split(r"[\r\n]", out.getvalue()) if f.strip()]
+    frames = [f for f in re.split(r"[\r\n]", _shown(True, 3)) if f.strip()]
     assert frames and all(f.count("/s") <= 1 for f in frames), frames
     assert "30/300" in frames[-1] and "gen 3" in frames[-1] and "5.0 eval/s" in frames[-1]
 
