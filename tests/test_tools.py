@@ -168,34 +168,49 @@ def test_success_rate_bad_seeds_exit_2():
 
 # --- tools/peer_benchmark.py ---------------------------------------------------------------------
 
-def test_peer_benchmark_counts_the_first_success_and_the_first_under_the_threshold():
+def test_peer_benchmark_records_the_best_so_far_and_the_first_success():
     from cmrt.motion.taskfile import load_task
 
     tool = load_tool("peer_benchmark.py")
-    budget = tool.Budget(load_task("bend").with_speed(0.4), evaluator=None, max_evals=5)  # threshold 0.7
+    budget = tool.Budget(load_task("bend").with_speed(0.4), evaluator=None, max_evals=5)
     for objective, success in ((9.0, False), (0.9, True), (0.5, False), (0.6, True), (0.1, True)):
         budget.note(objective, success)
-    assert budget.first_success == 2 and budget.first_under == 4 and budget.done
-    assert budget.best_objective == 0.1 and budget.best_success
+    assert budget.best_so_far == [9.0, 0.9, 0.5, 0.5, 0.1] and budget.first_success == 2 and budget.done
+    assert budget.reached("success")[0] == 2 and budget.reached(0.55)[0] == 3 and budget.reached(0.05) is None
+    assert budget.best_success
 
 
-def test_peer_benchmark_tool_runs_every_optimizer_on_the_same_budget():
-    """A real run of every optimizer (optuna and cmaes are test extras) on a tiny budget."""
-    r = _ok(run_tool("peer_benchmark.py", "--tasks", "bend:1.2", "--seeds", "1-2", "--max-evals", "12",
-                     "--json", "--quiet"))
+def test_peer_benchmark_ert_charges_a_failed_run_the_whole_budget():
+    """ERT = what every run spent (to its hit, or the whole budget) over the runs that hit (COCO's)."""
+    tool = load_tool("peer_benchmark.py")
+    assert tool.ert(np.array([10.0, 20.0, 3000.0]), np.array([True, True, False])) == 1515.0
+    assert tool.ert(np.array([3000.0]), np.array([False])) == float("inf")
+    value, (lo, hi) = tool.ert_with_interval(np.array([10.0, 20.0, 3000.0]), np.array([True, True, False]),
+                                             np.random.default_rng(0))
+    assert lo <= value <= hi and hi == float("inf")  # a resample of the failed run alone never hits
+    assert tool._ratio(100.0, 200.0) == 0.5 and tool._ratio(float("inf"), 10.0) == float("inf")
+
+
+def test_peer_benchmark_tool_runs_every_optimizer_from_the_same_start_on_the_same_budget():
+    """A real run of every optimizer (optuna and cmaes are test extras) on a tiny budget: each one's first
+    evaluation is the flat CMRT - optuna's first trial too - and none spends more than the budget."""
+    r = _ok(run_tool("peer_benchmark.py", "--tasks", "bend:0.4", "--seeds", "1-2", "--max-evals", "24",
+                     "--targets", "0.7", "--json", "--quiet"))
     out = json.loads(r.stdout)
-    assert [row["optimizer"] for row in out["rows"]] == ["cmrt", "optuna", "cmaes", "random"]
+    assert [row["optimizer"] for row in out["rows"]] == ["cmrt", "optuna", "cmaes", "cmaes-lra", "pycma-bipop",
+                                                        "random"]
+    flat = {round(run["first_objective"], 9) for row in out["rows"] for run in row["runs"]}
+    assert len(flat) == 1  # every optimizer's first evaluation: the flat CMRT
     for row in out["rows"]:
-        assert len(row["runs"]) == 2 and all(run["evaluations"] <= 12 for run in row["runs"])
-        assert row["under_threshold_rate"] <= row["success_rate"]
-        firsts = [run["first_success_evals"] for run in row["runs"]]
-        assert row["success_rate"] == sum(f is not None for f in firsts) / 2
-    # the slow bend's flat start is a success below its threshold: every optimizer that samples the flat
-    # CMRT first stops there; the project's driver always evaluates its mean's neighbourhood
-    assert out["rows"][0]["success_rate"] == 1.0
-    text = _ok(run_tool_here("peer_benchmark.py", "--tasks", "bend:1.2", "--optimizers", "random", "--seeds", "1",
-                        "--max-evals", "10", "--quiet"))
-    assert "random" in text.stdout and "1/1" in text.stdout
+        assert len(row["runs"]) == 2 and all(run["evaluations"] <= 24 for run in row["runs"])
+        assert set(row["ert"]) == {"success", "0.7"}
+        for value in row["ert"].values():
+            assert value["evals_ci"][0] <= value["evals"] <= value["evals_ci"][1]
+    assert all(run["first_trial"] == [0.0] * 8 for run in out["rows"][1]["runs"])  # optuna: the flat CMRT
+    assert {c["target"] for c in out["comparison"]} == {"success", "0.7"}
+    text = _ok(run_tool_here("peer_benchmark.py", "--tasks", "bend:1.2", "--optimizers", "random,cmrt", "--seeds",
+                             "1", "--max-evals", "11", "--quiet"))
+    assert "random" in text.stdout and "success: 1 [1, 1] (1/1)" in text.stdout  # the slow bend's flat CMRT
 
 
 def test_peer_benchmark_bad_input_exit_2():
