@@ -268,8 +268,8 @@ def _result_text(r: dict) -> str:
     speed = f" --speed {r['speed']:g}" if r["speed"] is not None else ""
     kind = "robust CMRT:   " if r["robust"] else "optimized CMRT:"
     lines = [
-        f"run {r['run_id']} {escape(r['task'])}{speed}: {r['status']} in {_n(r['wall_s'], '.1f')} s; "
-        f"{escape(r['search'])}",
+        f"run {r['run_id']} {escape(r['task'])}{speed}: {r['status']} in {_n(r['wall_s'], '.1f')} s, "
+        f"{r['restarts']} restarts; {escape(r['search'])}",
         f"  zero CMRT:      objective {_n(r['baseline_objective'], '.4f')}  "
         f"{_outcome_word(r['baseline_success'], r['baseline_fell'])}",
         f"  {kind} objective {_n(r['best_objective'], '.4f')}  {_outcome_word(r['success'], r['fell'])}"

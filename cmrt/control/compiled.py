@@ -11,6 +11,8 @@ import os
 import sys
 from typing import TextIO
 
+from cmrt.control import kernel
+
 _noted = False
 
 
@@ -18,8 +20,6 @@ def kernels_cached() -> bool | None:
     """Whether numba's cache holds the controller's main kernel (``kernel.control_step``) compiled for this
     machine; None if numba does not say (its cache's layout is not public API)."""
     try:
-        from cmrt.control import kernel
-
         return os.path.exists(kernel.control_step._cache._cache_file._index_path)
     except Exception:  # noqa: BLE001 - another numba: no note rather than a wrong one
         return None
