@@ -214,8 +214,9 @@ def test_peer_benchmark_tool_runs_every_optimizer_from_the_same_start_on_the_sam
 
 
 def test_peer_benchmark_bad_input_exit_2():
-    r = run_tool_here("peer_benchmark.py", "--optimizers", "nelder-mead", "--quiet")
-    assert r.returncode == 2 and r.stderr.startswith("error: ") and len(r.stderr.splitlines()) == 1
+    for args in (("--optimizers", "nelder-mead"), ("--seeds", "x"), ("--targets", "low"), ("--optuna-box", "0")):
+        r = run_tool_here("peer_benchmark.py", *args, "--quiet")
+        assert r.returncode == 2 and r.stderr.startswith("error: ") and len(r.stderr.splitlines()) == 1, args
 
 
 # --- every other tool: run once as its docstring says, on the cheapest arguments -----------------

@@ -125,13 +125,13 @@ def run_cmrt(budget: Budget, seed: int, sigma: float, popsize: int) -> dict:
     return {"stop_reason": run.stop_reason, "restarts": run.restarts}
 
 
-def run_optuna(budget: Budget, seed: int, sigma: float, popsize: int) -> dict:
+def run_optuna(budget: Budget, seed: int, sigma: float, popsize: int, box: float = BOX) -> dict:
     import optuna
 
     optuna.logging.set_verbosity(optuna.logging.ERROR)
     sampler = optuna.samplers.CmaEsSampler(seed=seed, popsize=popsize)
     study = optuna.create_study(sampler=sampler, direction="minimize")
-    dists = {f"u{i}": optuna.distributions.FloatDistribution(-BOX, BOX) for i in range(N_PARAMS)}
+    dists = {f"u{i}": optuna.distributions.FloatDistribution(-box, box) for i in range(N_PARAMS)}
     study.enqueue_trial({f"u{i}": 0.0 for i in range(N_PARAMS)})  # the flat CMRT first, told alone
     first = True
     while not budget.done:
@@ -300,7 +300,7 @@ def compare(rows: list[dict], targets: list[float | str], rng: np.random.Generat
 
 
 def benchmark(tasks: list[Task], optimizers: list[str], seeds: list[int], max_evals: int,
-              targets: list[float | str], progress: bool = False) -> dict:
+              targets: list[float | str], progress: bool = False, optuna_box: float = BOX) -> dict:
     rows = []
     popsize, sigma = OptimizeSettings().popsize, OptimizeSettings().sigma0  # the project's, for every peer
     rng = np.random.default_rng(0)  # the bootstrap's
@@ -312,7 +312,8 @@ def benchmark(tasks: list[Task], optimizers: list[str], seeds: list[int], max_ev
                 for seed in seeds:
                     t0 = time.perf_counter()
                     budget = Budget(unstopped, ev, max_evals)
-                    extra = RUNNERS[name](budget, seed, sigma, popsize)
+                    extra = (run_optuna(budget, seed, sigma, popsize, optuna_box) if name == "optuna"
+                             else RUNNERS[name](budget, seed, sigma, popsize))
                     extras.append({**extra, "wall_s": round(time.perf_counter() - t0, 2)})
                     runs.append(budget)
                     if progress:
@@ -326,7 +327,7 @@ def benchmark(tasks: list[Task], optimizers: list[str], seeds: list[int], max_ev
     comparison = compare(rows, targets, rng)
     for row in rows:
         del row["_spent"]
-    return {"max_evals": max_evals, "seeds": seeds, "popsize": popsize, "sigma0": sigma, "optuna_box": BOX,
+    return {"max_evals": max_evals, "seeds": seeds, "popsize": popsize, "sigma0": sigma, "optuna_box": optuna_box,
             "targets": [str(t) for t in targets], "rows": rows, "comparison": comparison,
             "machine": f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"}
 
@@ -361,6 +362,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", default="41-60")
     p.add_argument("--targets", default="", help="objective targets besides the first success, e.g. 0.9,0.8")
     p.add_argument("--max-evals", type=int, default=OptimizeSettings().max_evals)
+    p.add_argument("--optuna-box", type=float, default=BOX,
+                   help="optuna's search box, +- parameter units: its step size is a sixth of the box (its own "
+                   "rule; 1.5 gives the project's 0.5)")
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true", help="no per-run lines on stderr")
     args = p.parse_args(argv)
@@ -375,13 +379,15 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError:
             raise CmrtError(f"--seeds like 41-60 or 1,3,5 and --targets like 0.9,0.8, not {args.seeds!r} and "
                             f"{args.targets!r}") from None
-        if not seeds or args.max_evals < 1:
-            raise CmrtError("--seeds and --max-evals must name at least one seed and one evaluation")
+        if not seeds or args.max_evals < 1 or not args.optuna_box > 0:
+            raise CmrtError("--seeds and --max-evals must name at least one seed and one evaluation, "
+                            "--optuna-box a box > 0")
         tasks = []
         for spec in args.tasks.split(","):
             name, _, speed = spec.partition(":")
             tasks.append(resolve_task(name, float(speed) if speed else None))
-        result = benchmark(tasks, optimizers, seeds, args.max_evals, targets, progress=not args.quiet)
+        result = benchmark(tasks, optimizers, seeds, args.max_evals, targets, progress=not args.quiet,
+                           optuna_box=args.optuna_box)
     except (CmrtError, ValueError) as exc:
         print(f"error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
