@@ -586,6 +586,20 @@ def test_first_run_tool_times_a_clip_of_an_installed_cmrt():
     assert "CPUs" in row["machine"]
 
 
+def test_family_benchmark_tool_compares_a_family_with_its_members_solved_cold():
+    """Two speeds of the slow bend (its flat CMRT already a success: one generation each): both arms' evaluations
+    per member, their totals and the ratio."""
+    r = _ok(run_tool_here("family_benchmark.py", "--speeds", "1.2,1.4", "--seeds", "1", "--max-evals", "40",
+                          "--json"))
+    out = json.loads(r.stdout)
+    (row,) = out["rows"]
+    assert [m["speed"] for m in row["members"]] == [1.2, 1.4]
+    assert row["family_total"] == sum(m["family_evals"] for m in row["members"]) and row["cold_total"] > 0
+    assert out["ratio"] == out["family_total"] / out["cold_total"]
+    assert all(m["family_success"] and m["cold_success"] for m in row["members"])
+    assert run_tool_here("family_benchmark.py", "--speeds", "fast").returncode == 2
+
+
 def test_every_tool_has_a_fast_test_that_runs_it():
     """``pytest -m "not slow" -k tools`` runs every script in tools/: a refactor cannot break one unseen."""
     tree = ast.parse(Path(__file__).read_text())
