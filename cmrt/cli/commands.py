@@ -430,8 +430,9 @@ def _opt_args(p: argparse.ArgumentParser) -> None:
                    help="a search whose best and best generation median improved < 0.1%% over this many "
                    "generations has stalled: it restarts (BIPOP: a doubled population, or a small one around "
                    "the best success) while budget remains")
-    p.add_argument("--sigma0", type=inputs.arg(inputs.SIGMA0), default=_SETTINGS.sigma0,
-                   help="CMA-ES's initial step size (parameter units: 0.5 is 2.5 cm of CoM shift)")
+    p.add_argument("--sigma0", type=inputs.arg(inputs.SIGMA0), default=None,
+                   help=f"CMA-ES's initial step size (parameter units: 0.5 is 2.5 cm of CoM shift; default: "
+                   f"{_SETTINGS.sigma0} from the zero CMRT, {FAMILY_SIGMA0} from a known one)")
     p.add_argument("--robust", action="store_true",
                    help="score every candidate on the task's ensemble of perturbed clips ([robust] table)")
     p.add_argument("--init", type=_init_arg, default="auto", metavar="auto|none|RUN",

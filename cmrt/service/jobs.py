@@ -82,7 +82,7 @@ def budget_min_evals(max_evals: int, min_evals: int | None) -> int:
     return min_evals
 
 
-def check_settings(*, seed: int, max_evals: int, popsize: int, sigma0: float, min_evals: int | None,
+def check_settings(*, seed: int, max_evals: int, popsize: int, sigma0: float | None, min_evals: int | None,
                    stall_generations: int) -> None:
     """The optimizer settings a run may be queued with (the CLI checks them before it opens the store)."""
     # the same ranges as the CLI's (cmrt.inputs): nothing non-finite or out of range reaches the store
@@ -105,7 +105,7 @@ def submit(
     seed: int = _DEFAULTS.seed,
     max_evals: int = _DEFAULTS.max_evals,
     popsize: int = _DEFAULTS.popsize,
-    sigma0: float = _DEFAULTS.sigma0,
+    sigma0: float | None = None,
     min_evals: int | None = None,
     init: str | int | None = "auto",
     backend: str = "batch",
@@ -115,11 +115,17 @@ def submit(
     :class:`OptimizeSettings`'.
 
     ``init``: "auto" starts from the nearest known successful CMRT of the task (store, then
-    library; cold if none), "none" from the zero CMRT, a run id from that run's best. ``min_evals``: None is
+    library; cold if none), "none" from the zero CMRT, a run id from that run's best. ``sigma0``: None is
+    ``OptimizeSettings.sigma0`` (0.5) from the zero CMRT and ``FAMILY_SIGMA0`` (0.15) from a known CMRT - a warm
+    start searched with the cold step size loses its lead after its first candidate (measured on the bend at 0.5 s
+    from 0.4 s's CMRT, to an objective of 0.40: cold 98-126 evaluations, warm with 0.5 80-121, with 0.15 5-15;
+    docs/optimizer.md). ``min_evals``: None is
     :func:`budget_min_evals`' default (700, or the budget if smaller); more than ``max_evals`` is refused."""
     check_settings(seed=seed, max_evals=max_evals, popsize=popsize, sigma0=sigma0, min_evals=min_evals,
                    stall_generations=stall_generations)
     start = resolve_init(store, task, init)
+    if sigma0 is None:
+        sigma0 = _DEFAULTS.sigma0 if start.params is None else FAMILY_SIGMA0
     return store.add_run(RunSpec(
         task=task.name, speed=task.speed, params=task.params, task_hash=task.content_hash(),
         task_definition=task.to_dict(), seed=seed, max_evals=max_evals, popsize=popsize, sigma0=sigma0,

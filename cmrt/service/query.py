@@ -34,8 +34,8 @@ def search_start(run: Run) -> str:
         return f"started cold from the zero CMRT (sigma {run.sigma0:g})"
     if source.startswith("library"):
         kind, _, where = source.partition(" (")
-        return f"started from the {kind} CMRT" + (f" ({where}" if where else "")
-    return f"started from {source}'s best CMRT"
+        return f"started from the {kind} CMRT" + (f" ({where}" if where else "") + f", sigma {run.sigma0:g}"
+    return f"started from {source}'s best CMRT, sigma {run.sigma0:g}"
 
 
 def search_summary(run: Run) -> str:

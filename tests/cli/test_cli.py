@@ -138,6 +138,7 @@ def test_verbs_that_only_read_the_store_load_no_physics(tmp_path):
 def test_optimizer_defaults_come_from_optimize_settings(tmp_path):
     """The optimizer's options default to OptimizeSettings' values, filled in after parsing."""
     from cmrt.optimize.driver import OptimizeSettings
+    from cmrt.optimize.settings import FAMILY_SIGMA0
 
     r = run("submit", "bend", "--speed", "0.4", "--store", str(tmp_path / "s.sqlite"), "--json")
     assert r.returncode == 0, r.stderr
@@ -146,8 +147,9 @@ def test_optimizer_defaults_come_from_optimize_settings(tmp_path):
     with open_store(tmp_path / "s.sqlite", readonly=True) as store:
         run_ = store.run(json.loads(r.stdout)["run_id"])
     d = OptimizeSettings()
-    assert (run_.seed, run_.max_evals, run_.popsize, run_.sigma0, run_.min_evals, run_.stall_generations) == (
-        d.seed, d.max_evals, d.popsize, d.sigma0, d.min_evals, d.stall_generations)
+    assert (run_.seed, run_.max_evals, run_.popsize, run_.min_evals, run_.stall_generations) == (
+        d.seed, d.max_evals, d.popsize, d.min_evals, d.stall_generations)
+    assert run_.init_source.startswith("library") and run_.sigma0 == FAMILY_SIGMA0  # a warm start's step size
 
 
 def test_the_package_entry_runs_the_command(capsys):

@@ -89,7 +89,8 @@ def test_a_worker_says_where_each_search_started_and_why_it_stopped(tmp_path):
     path = tmp_path / "q.sqlite"
     cmrt("submit", "punch", store=path, check=True)
     line = cmrt("worker", "--until-idle", "--backend", "serial", store=path, check=True).stdout
-    assert "started from the library CMRT (duration_s 0.4); it already met the stop threshold 0.6" in line, line
+    assert ("started from the library CMRT (duration_s 0.4), sigma 0.15; it already met the stop threshold 0.6"
+            in line), line
     assert "--init none" in line and "--set stop_threshold=0" in line
     cmrt("submit", "punch", "--init", "none", "--set", "stop_threshold=0", "--max-evals", "20", store=path,
          check=True)

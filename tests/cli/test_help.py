@@ -31,8 +31,9 @@ def test_every_option_with_a_default_shows_it(verb):
 def test_the_optimizer_options_default_to_its_settings():
     settings = OptimizeSettings()
     args = build_parser().parse_args(["optimize", "bend"])
-    for name in ("seed", "max_evals", "popsize", "stall_generations", "sigma0"):
+    for name in ("seed", "max_evals", "popsize", "stall_generations"):
         assert getattr(args, name) == getattr(settings, name), name
+    assert args.sigma0 is None  # the settings' 0.5 from the zero CMRT, FAMILY_SIGMA0 from a known one (submit)
     assert args.min_evals is None  # the settings' 700, or the budget if smaller (jobs.budget_min_evals)
     assert budget_min_evals(args.max_evals, args.min_evals) == settings.min_evals
     assert args.family_sigma0 == FAMILY_SIGMA0

@@ -212,13 +212,14 @@ def test_the_search_summary_names_the_start_and_the_stop(tmp_path):
     with open_store(tmp_path / "s.sqlite") as store:
         queued = store.run(submit(store, load_task("bend").with_speed(0.6), init="none"))
     run = dataclasses.replace(queued, status="done", evaluations=10, generations=1, stop_reason="threshold",
-                              stop_threshold=0.7, init_source="library (duration_s 0.6)", max_evals=3000)
+                              stop_threshold=0.7, init_source="library (duration_s 0.6)", max_evals=3000,
+                              sigma0=0.15)
     assert search_summary(run) == (
-        "started from the library CMRT (duration_s 0.6); it already met the stop threshold 0.7: 10 evaluations (a "
-        "search of its own: --init none; below the threshold: --set stop_threshold=0)")
+        "started from the library CMRT (duration_s 0.6), sigma 0.15; it already met the stop threshold 0.7: 10 "
+        "evaluations (a search of its own: --init none; below the threshold: --set stop_threshold=0)")
     later = dataclasses.replace(run, generations=30, evaluations=300, init_source="run 12")
-    assert search_summary(later) == ("started from run 12's best CMRT; stopped at the stop threshold 0.7 after 300 "
-                                     "evaluations")
+    assert search_summary(later) == ("started from run 12's best CMRT, sigma 0.15; stopped at the stop threshold 0.7 "
+                                     "after 300 evaluations")
     cold = dataclasses.replace(run, init_source="none", stop_reason="budget", evaluations=3000, sigma0=0.5)
     assert search_summary(cold) == ("started cold from the zero CMRT (sigma 0.5); its budget ran out: 3000 of 3000 "
                                     "evaluations")
@@ -226,3 +227,17 @@ def test_the_search_summary_names_the_start_and_the_stop(tmp_path):
     assert search_summary(stalled).endswith("it stopped improving over 20 generations with no restart left that "
                                             "fits: 900 evaluations, 2 restarts")
     assert search_summary(queued) == "started cold from the zero CMRT (sigma 0.5); queued, 0 evaluations so far"
+
+
+def test_a_warm_start_keeps_a_small_step_size_unless_one_is_given(tmp_path):
+    """``sigma0`` None: 0.5 from the zero CMRT, ``FAMILY_SIGMA0`` (0.15) from a known CMRT (the library's for the
+    bend at 0.5 s); a step size given is kept either way."""
+    from cmrt.optimize.settings import FAMILY_SIGMA0
+
+    task = load_task("bend").with_speed(0.5)
+    with open_store(tmp_path / "s.sqlite") as store:
+        cold, warm = store.run(submit(store, task, init="none")), store.run(submit(store, task))
+        given = store.run(submit(store, task, sigma0=0.3))
+    assert cold.sigma0 == 0.5 and cold.init_source == "none"
+    assert warm.init_source.startswith("library") and warm.sigma0 == FAMILY_SIGMA0
+    assert given.sigma0 == 0.3
