@@ -33,10 +33,10 @@ from cmrt.body.character import GRAVITY_M_S2
 from cmrt.control import kernel
 from cmrt.control.stepping import (
     NO_SWING,
-    STEP_ADJUST_GAIN,
     StepCommand,
     StepConfig,
     stance_support,
+    step_adjustment_m,
     swinging_feet,
     with_landing,
 )
@@ -142,8 +142,7 @@ class GaitTracker:
             xi = com_x[r] + vel_x[r] / omega - ankle
             xi_ref = g.foot_to_com_x_m[k_felt, stance] + g.foot_to_com_vel_x_m_s[k_felt, stance] / omega
             error_td = (xi - xi_ref) * np.exp(omega * (g.swing_s - elapsed + g.delay_s))
-            error_td = np.copysign(max(abs(error_td) - ADJUST_DEAD_M, 0.0), error_td)
-            self.adjust_m[sim] = STEP_ADJUST_GAIN * error_td
+            self.adjust_m[sim] = step_adjustment_m(float(error_td), ADJUST_DEAD_M)
 
     def _touchdowns(self, ids: np.ndarray, time_s: float, contact: np.ndarray, point_x: np.ndarray) -> None:
         for r in np.flatnonzero(self.swing[ids] >= 0):

@@ -183,6 +183,14 @@ STEP_ADJUST_GAIN = 0.5  # a planned step in the first half of its swing lands th
 # the walk: without it +150 N at 2.0 s and +200 N at 1.5 s fell; with 0.5 both were survived; 1.0 fell at +200 N
 STEP_ADJUST_DEAD_M = 0.05  # errors smaller than this move no step: without the dead zone the unpushed two-step
 # plans of 0.3 m / 0.6 s and 0.4 m / 0.6 s fell (every small error moved a landing)
+
+
+def step_adjustment_m(error_td_m: float, dead_m: float = STEP_ADJUST_DEAD_M) -> float:
+    """How far a push moves a step's landing: ``STEP_ADJUST_GAIN`` of the capture point's error at touchdown beyond
+    a dead zone of ``dead_m`` (a footstep plan's and a tracked gait's steps alike)."""
+    return STEP_ADJUST_GAIN * math.copysign(max(abs(error_td_m) - dead_m, 0.0), error_td_m)
+
+
 DCM_GAIN = 2.0  # the CoP moves (1 + DCM_GAIN) times the capture point's error beyond the plan's anchor (1, 4
 # and 6 measured: no better)
 SWING_KNEE_BEND_RAD = 1.0  # added to the swing knee of a plan's step at mid-swing (a bell, with the lift): a
@@ -497,10 +505,9 @@ class StepSupervisor:
                 # a push: the capture point's error, grown to touchdown, moves this step's landing (the plan's
                 # later steps are where they were: the capture-point plan reaches them from the new footprint)
                 error_td = (xi - xi_ref) * math.exp(omega * length)
-                error_td = math.copysign(max(abs(error_td) - STEP_ADJUST_DEAD_M, 0.0), error_td)
                 pivot = self.pivot_x[sim]
                 planned = self.origin_x[sim] + plan.x_m[j - 1] + self.plan_offset_m[sim]
-                landing = np.clip(planned + STEP_ADJUST_GAIN * error_td, pivot - self.config.max_back_step_m,
+                landing = np.clip(planned + step_adjustment_m(error_td), pivot - self.config.max_back_step_m,
                                   pivot + self.config.max_step_m)
                 self.target_heel_x[sim] = landing - self.heel_to_center_m
             accel = omega * omega * (com_x[r] - cop)

@@ -106,10 +106,10 @@ def test_without_the_step_adjustment_a_push_in_the_swing_falls(monkeypatch):
     """+150 N x 0.1 s at 1.5 s, a third into the second swing: the swing's landing moved by the felt capture
     point's error makes it a success; with the adjustment's gain at 0 (the keyed step where the gait put it) the
     body falls forward after that step lands (measured: the capture point left the feet at 2.02 s)."""
-    import cmrt.control.gait as gait_control
+    import cmrt.control.stepping as stepping
 
     assert _pushed(150.0, 1.5).success
-    monkeypatch.setattr(gait_control, "STEP_ADJUST_GAIN", 0.0)
+    monkeypatch.setattr(stepping, "STEP_ADJUST_GAIN", 0.0)
     e = _pushed(150.0, 1.5)
     assert e.fell and not e.success, e
 
