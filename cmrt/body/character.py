@@ -17,6 +17,14 @@ from scipy.optimize import brentq
 from cmrt.errors import CmrtError
 
 MODEL_PATH = Path(__file__).parent / "humanoid.xml"
+MODEL3D_PATH = Path(__file__).parent / "humanoid3d.xml"
+#: Rows of the spatial momentum [L_x, L_y, L_z, H_x, H_y, H_z] (and of a frame's [linear, angular] velocity) a body
+#: moves in: the sagittal plane's L_x, L_z, H_y, or all six. The controller's arithmetic is written once in 6D
+#: (``cmrt.control.kernel.centroidal_spatial``); a planar body is its rows.
+PLANAR_ROWS = (0, 2, 4)
+SPATIAL_ROWS = (0, 1, 2, 3, 4, 5)
+#: The bodies a task may name: (MJCF, momentum rows). ``planar`` is the default and the paper's.
+BODIES = {"planar": (MODEL_PATH, PLANAR_ROWS), "humanoid3d": (MODEL3D_PATH, SPATIAL_ROWS)}
 
 #: Joints a task pose may name; a bare name ("hip") sets both sides.
 POSE_JOINTS = ("lumbar", "neck", "shoulder", "elbow", "hip", "knee", "ankle")
@@ -49,6 +57,8 @@ class Character:
     floor_geom: int
     thorax_body: int
     dof_names: tuple[str, ...]
+    body: str = "planar"  # a key of ``BODIES``
+    momentum_rows: tuple[int, ...] = PLANAR_ROWS  # of the spatial momentum (``PLANAR_ROWS``, ``SPATIAL_ROWS``)
 
     @property
     def nv(self) -> int:
@@ -62,7 +72,8 @@ class Character:
 
     @property
     def foot_point_geoms(self) -> tuple[int, ...]:
-        """Geom ids of the heel and toe spheres (right heel, right toe, left heel, left toe)."""
+        """Geom ids of the feet's contact spheres, right foot's first (planar: right heel, right toe, left heel,
+        left toe; 3D: each foot's heel_in, heel_out, toe_in, toe_out)."""
         return tuple(g for pair in self.foot_points for g in pair)
 
     def joint_range_rad(self) -> tuple[np.ndarray, np.ndarray]:
@@ -77,25 +88,39 @@ class Character:
         return int(self.model.joint(joint_name).dofadr[0])
 
 
+def character(body: str = "planar") -> Character:
+    """A body's names and indices, built once per process from its MJCF (``BODIES``): the same path for every body.
+
+    The root's dofs are the pelvis's joints (planar: slide x, slide z, pitch; 3D: a free joint's six), a foot's
+    contact points its contact spheres in MJCF order."""
+    if body not in BODIES:
+        raise CmrtError(f"unknown body {body!r} (known: {', '.join(BODIES)})")
+    return _character(body)
+
+
 @functools.cache
-def character() -> Character:
-    """The humanoid's names and indices, built once per process from ``humanoid.xml``."""
-    m = load_model()
+def _character(body: str) -> Character:
+    path, rows = BODIES[body]
+    m = load_model(str(path))
     name = lambda obj, i: mujoco.mj_id2name(m, obj, i)  # noqa: E731
     dof_names = tuple(name(mujoco.mjtObj.mjOBJ_JOINT, int(m.dof_jntid[i])) for i in range(m.nv))
     gid = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n)  # noqa: E731
     bid = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n)  # noqa: E731
+    feet = (bid("foot_r"), bid("foot_l"))
     return Character(
         model=m,
         mass_kg=float(m.body_subtreemass[0]),
-        root_dofs=(0, 1, 2),
+        root_dofs=tuple(j for j in range(m.nv) if m.dof_bodyid[j] == bid("pelvis")),
         actuated_dofs=tuple(int(m.jnt_dofadr[m.actuator_trnid[a, 0]]) for a in range(m.nu)),
         torque_limit_nm=m.actuator_ctrlrange[:, 1].copy(),
-        foot_bodies=(bid("foot_r"), bid("foot_l")),
-        foot_points=((gid("heel_r"), gid("toe_r")), (gid("heel_l"), gid("toe_l"))),
+        foot_bodies=feet,
+        foot_points=tuple(tuple(g for g in range(m.ngeom) if m.geom_bodyid[g] == foot and m.geom_contype[g])
+                          for foot in feet),
         floor_geom=gid("floor"),
         thorax_body=bid("thorax"),
         dof_names=dof_names,
+        body=body,
+        momentum_rows=rows,
     )
 
 

@@ -67,30 +67,64 @@ SPLIT_STANCE_M = 0.05
 
 
 @njit(cache=True, nogil=True)
-def centroidal(cdof, cdof_dot, cvel, cinert, qvel, chain):
-    """A (3, nv) with rows [L_x, L_z, H_y] and its bias (3,), for one simulation."""
+def centroidal_spatial(cdof, cdof_dot, cvel, cinert, qvel, chain, full=True):
+    """A (6, nv) with rows [L_x, L_y, L_z, H_x, H_y, H_z] and its bias (6,), for one simulation of any body.
+
+    A body's ``cinert`` (I, m r, m) maps a twist (omega, v) to L = m v + omega x m r and H = I omega + m r x v; the
+    bias adds v x* (P v): (omega x L, omega x H + v x L). ``full`` False leaves rows L_y, H_x, H_z at zero: a planar
+    body's joints (omega_x = omega_z = v_y = 0) keep it in its plane, whatever its H_x and H_z, and its rows L_x,
+    L_z, H_y are then summed in the order the planar formulas always were - bit for bit, at the planar cost."""
     nb, nv = chain.shape
-    A = np.zeros((3, nv))
-    bias = np.zeros(3)  # (L_x, L_z, H_y) rates at qdd = 0
+    A = np.zeros((6, nv))
+    bias = np.zeros(6)
     for b in range(nb):
         ci = cinert[b]
-        inertia, mrz, mrx, m = ci[1], ci[8], ci[6], ci[9]
-        ab0 = ab1 = ab2 = 0.0
+        ixx, iyy, izz, ixy, ixz, iyz = ci[0], ci[1], ci[2], ci[3], ci[4], ci[5]
+        cx, cy, cz, m = ci[6], ci[7], ci[8], ci[9]
+        a0 = a1 = a2 = a3 = a4 = a5 = 0.0  # the body's bias acceleration, sum of cdof_dot qd above it
         for j in range(nv):
             if chain[b, j]:
-                s0, s1, s2 = cdof[j, 1], cdof[j, 3], cdof[j, 5]
-                A[2, j] += inertia * s0 + mrz * s1 - mrx * s2  # P s: (H, L_x, L_z)
-                A[0, j] += mrz * s0 + m * s1
-                A[1, j] += -mrx * s0 + m * s2
-                ab0 += cdof_dot[j, 1] * qvel[j]
-                ab1 += cdof_dot[j, 3] * qvel[j]
-                ab2 += cdof_dot[j, 5] * qvel[j]
-        v0, v1, v2 = cvel[b, 1], cvel[b, 3], cvel[b, 5]
-        pv1 = mrz * v0 + m * v1
-        pv2 = -mrx * v0 + m * v2
-        bias[2] += inertia * ab0 + mrz * ab1 - mrx * ab2 + v2 * pv1 - v1 * pv2  # P abias + v x* (P v)
-        bias[0] += mrz * ab0 + m * ab1 + v0 * pv2
-        bias[1] += -mrx * ab0 + m * ab2 - v0 * pv1
+                w0, w1, w2, u0, u1, u2 = cdof[j, 0], cdof[j, 1], cdof[j, 2], cdof[j, 3], cdof[j, 4], cdof[j, 5]
+                A[0, j] += m * u0 + (w1 * cz - w2 * cy)
+                A[2, j] += m * u2 + (w0 * cy - w1 * cx)
+                A[4, j] += ixy * w0 + iyy * w1 + iyz * w2 + cz * u0 - cx * u2
+                a1 += cdof_dot[j, 1] * qvel[j]
+                a3 += cdof_dot[j, 3] * qvel[j]
+                a5 += cdof_dot[j, 5] * qvel[j]
+                if full:
+                    A[1, j] += m * u1 + (w2 * cx - w0 * cz)
+                    A[3, j] += ixx * w0 + ixy * w1 + ixz * w2 + cy * u2 - cz * u1
+                    A[5, j] += ixz * w0 + iyz * w1 + izz * w2 + cx * u1 - cy * u0
+                    a0 += cdof_dot[j, 0] * qvel[j]
+                    a2 += cdof_dot[j, 2] * qvel[j]
+                    a4 += cdof_dot[j, 4] * qvel[j]
+        w0, w1, w2, u0, u1, u2 = cvel[b, 0], cvel[b, 1], cvel[b, 2], cvel[b, 3], cvel[b, 4], cvel[b, 5]
+        lx = m * u0 + (w1 * cz - w2 * cy)  # P v
+        ly = m * u1 + (w2 * cx - w0 * cz)
+        lz = m * u2 + (w0 * cy - w1 * cx)
+        hx = ixx * w0 + ixy * w1 + ixz * w2 + cy * u2 - cz * u1
+        hy = ixy * w0 + iyy * w1 + iyz * w2 + cz * u0 - cx * u2
+        hz = ixz * w0 + iyz * w1 + izz * w2 + cx * u1 - cy * u0
+        bias[0] += m * a3 + (a1 * cz - a2 * cy) + (w1 * lz - w2 * ly)
+        bias[2] += m * a5 + (a0 * cy - a1 * cx) + (w0 * ly - w1 * lx)
+        bias[4] += ixy * a0 + iyy * a1 + iyz * a2 + cz * a3 - cx * a5 + w2 * hx - w0 * hz + u2 * lx - u0 * lz
+        if full:
+            bias[1] += m * a4 + (a2 * cx - a0 * cz) + (w2 * lx - w0 * lz)
+            bias[3] += ixx * a0 + ixy * a1 + ixz * a2 + cy * a5 - cz * a4 + w1 * hz - w2 * hy + u1 * lz - u2 * ly
+            bias[5] += ixz * a0 + iyz * a1 + izz * a2 + cx * a4 - cy * a3 + w0 * hy - w1 * hx + u0 * ly - u1 * lx
+    return A, bias
+
+
+@njit(cache=True, nogil=True)
+def centroidal(cdof, cdof_dot, cvel, cinert, qvel, chain):
+    """A (3, nv) with rows [L_x, L_z, H_y] and its bias (3,), for one simulation of the planar body: the spatial
+    rows of the sagittal plane (``cmrt.body.character.PLANAR_ROWS``)."""
+    A6, bias6 = centroidal_spatial(cdof, cdof_dot, cvel, cinert, qvel, chain, False)
+    A = np.empty((3, A6.shape[1]))
+    bias = np.empty(3)
+    for r in range(3):
+        A[r] = A6[2 * r]
+        bias[r] = bias6[2 * r]
     return A, bias
 
 

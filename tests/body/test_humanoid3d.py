@@ -1,0 +1,155 @@
+"""The 3D body (``humanoid3d.xml``): the planar body's segments with a person's out-of-plane joints, and its
+centroidal momentum - the kernel's spatial formulas - against MuJoCo's own."""
+
+import mujoco
+import numpy as np
+import pytest
+
+from cmrt.body.character import BODIES, PLANAR_ROWS, SPATIAL_ROWS, character
+from cmrt.control import kernel
+from cmrt.control.momentum import KinematicsScratch, centroidal_momentum_matrix, foot_jacobian
+from cmrt.control.planar import PlanarKinematics
+from cmrt.errors import CmrtError
+
+
+@pytest.fixture(scope="module")
+def body3d():
+    return character("humanoid3d")
+
+
+def _random_state(m, rng, scale_q=0.4, scale_qd=2.0):
+    """A random configuration (a unit root quaternion, joints inside their ranges) and velocity."""
+    d = mujoco.MjData(m)
+    d.qpos[:3] = rng.normal(scale=0.3, size=3) + [0.0, 0.0, 0.93]
+    quat = rng.normal(size=4)
+    d.qpos[3:7] = quat / np.linalg.norm(quat)
+    for j in range(1, m.njnt):
+        lo, hi = m.jnt_range[j]
+        d.qpos[m.jnt_qposadr[j]] = np.clip(rng.normal(scale=scale_q), lo, hi)
+    d.qvel[:] = rng.normal(scale=scale_qd, size=m.nv)
+    mujoco.mj_forward(m, d)
+    return d
+
+
+def _mujoco_momentum(m, d):
+    """[L, H] of the whole body about its CoM, from MuJoCo's subtree quantities."""
+    mujoco.mj_subtreeVel(m, d)
+    return np.concatenate([m.body_subtreemass[1] * d.subtree_linvel[1], d.subtree_angmom[1]])
+
+
+def test_the_bodies_a_task_may_name():
+    assert set(BODIES) == {"planar", "humanoid3d"}
+    assert character() is character("planar")
+    assert character().momentum_rows == PLANAR_ROWS and character("humanoid3d").momentum_rows == SPATIAL_ROWS
+    with pytest.raises(CmrtError, match="unknown body 'robot'"):
+        character("robot")
+
+
+def test_dimensions_dofs_and_the_planar_segments(body3d):
+    m, planar = body3d.model, character().model
+    assert (m.nq, m.nv, m.nu) == (32, 31, 25)  # a free root (7 qpos, 6 dof) and 25 actuated hinges
+    assert len(body3d.root_dofs) == 6 and len(body3d.actuated_dofs) == 25
+    assert abs(body3d.mass_kg - 70.0) < 0.05
+    for b in range(1, planar.nbody):  # the same segments, masses and places as the planar body's
+        name = planar.body(b).name
+        assert m.body(name).mass[0] == pytest.approx(planar.body(b).mass[0], abs=1e-12), name
+        np.testing.assert_allclose(m.body(name).pos, planar.body(b).pos, atol=1e-12)
+    for j in range(3, planar.njnt):  # every planar joint is there with its range and torque limit
+        name = planar.joint(j).name
+        np.testing.assert_allclose(m.joint(name).range, planar.joint(j).range, atol=1e-12)
+        np.testing.assert_allclose(m.actuator(name).ctrlrange, planar.actuator(name).ctrlrange, atol=1e-12)
+    per_joint = {"lumbar": 3, "neck": 2, "shoulder_r": 3, "shoulder_l": 3, "elbow_r": 1, "elbow_l": 1,
+                 "hip_r": 3, "hip_l": 3, "knee_r": 1, "knee_l": 1, "ankle_r": 2, "ankle_l": 2}
+    for segment_joint, count in per_joint.items():
+        body = m.joint(segment_joint).bodyid[0]
+        assert sum(1 for j in range(m.njnt) if m.jnt_bodyid[j] == body) == count, segment_joint
+
+
+def test_feet_are_flat_boxes_on_four_points(body3d):
+    m = body3d.model
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    for foot in body3d.foot_points:
+        assert len(foot) == 4
+        points = d.geom_xpos[list(foot)]
+        assert np.ptp(points[:, 2]) < 1e-12  # one sole: all four at one height in the zero pose
+        assert np.ptp(points[:, 0]) == pytest.approx(0.24) and np.ptp(points[:, 1]) == pytest.approx(0.08)
+    assert m.nsensor == 8  # a touch sensor per point: the CoP from the feet's contacts alone
+
+
+def test_mirrored_axes_mean_one_motion_on_both_sides(body3d):
+    """A positive hip roll abducts both legs, a positive hip yaw turns both toes in."""
+    m = body3d.model
+    d = mujoco.MjData(m)
+    for joint in ("hip_roll_r", "hip_roll_l"):
+        d.qpos[m.joint(joint).qposadr[0]] = 0.3
+    for joint in ("hip_yaw_r", "hip_yaw_l"):
+        d.qpos[m.joint(joint).qposadr[0]] = 0.3
+    mujoco.mj_forward(m, d)
+    right, left = d.body("foot_r"), d.body("foot_l")
+    assert right.xpos[1] < -0.09 - 0.1 and left.xpos[1] > 0.09 + 0.1  # feet out past the hips
+    toe_r = d.geom("toe_in_r").xpos - d.geom("heel_in_r").xpos
+    toe_l = d.geom("toe_in_l").xpos - d.geom("heel_in_l").xpos
+    assert toe_r[1] > 0.0 and toe_l[1] < 0.0  # toes toward the midline
+
+
+def test_joint_ranges_are_a_persons(body3d):
+    """The out-of-plane ranges (AAOS normal ranges, rounded; humanoid3d.xml) in degrees: abduction, adduction..."""
+    expected_deg = {"hip_roll_r": (-30, 45), "hip_yaw_r": (-45, 45), "ankle_roll_r": (-35, 15),
+                    "shoulder_roll_r": (-30, 180), "shoulder_yaw_r": (-90, 70), "lumbar_roll": (-35, 35),
+                    "lumbar_yaw": (-45, 45), "neck_yaw": (-60, 60)}
+    for joint, (lo, hi) in expected_deg.items():
+        for name in {joint, joint[:-2] + "_l" if joint.endswith("_r") else joint}:
+            np.testing.assert_allclose(np.degrees(body3d.model.joint(name).range), (lo, hi), atol=0.5)
+
+
+def test_centroidal_momentum_equals_mujocos_over_a_random_motion(body3d):
+    """The kernel's spatial momentum matrix times qd is MuJoCo's [L, H] within 1e-9, along a random motion (the
+    body falling with random torques from random states), and its bias is the rate: A qdd + a = d/dt (A qd)."""
+    m = body3d.model
+    chain = PlanarKinematics(m).chain
+    rng = np.random.default_rng(7)
+    checked = 0
+    for _ in range(4):
+        d = _random_state(m, rng)
+        for _ in range(25):
+            d.ctrl[:] = rng.uniform(-1, 1, m.nu) * m.actuator_ctrlrange[:, 1]
+            mujoco.mj_step(m, d)
+            mujoco.mj_forward(m, d)
+            A, bias = kernel.centroidal_spatial(d.cdof, d.cdof_dot, d.cvel, d.cinert, d.qvel.copy(), chain)
+            np.testing.assert_allclose(A @ d.qvel, _mujoco_momentum(m, d), rtol=0, atol=1e-9)
+            np.testing.assert_allclose(A, centroidal_momentum_matrix(m, d, rows=SPATIAL_ROWS), rtol=0, atol=1e-12)
+            checked += 1
+        qdd = rng.normal(scale=5.0, size=m.nv)
+        h = 1e-6
+        plus, minus = mujoco.MjData(m), mujoco.MjData(m)
+        for side, sign in ((plus, 1.0), (minus, -1.0)):
+            side.qpos[:] = d.qpos
+            mujoco.mj_integratePos(m, side.qpos, d.qvel + sign * 0.5 * h * qdd, sign * h)  # q +- h qd + h^2/2 qdd
+            side.qvel[:] = d.qvel + sign * h * qdd
+            mujoco.mj_forward(m, side)
+        rate = (_mujoco_momentum(m, plus) - _mujoco_momentum(m, minus)) / (2 * h)
+        np.testing.assert_allclose(A @ qdd + bias, rate, rtol=1e-6, atol=1e-5)
+        a_fd, _ = KinematicsScratch(m, body3d.foot_bodies, SPATIAL_ROWS).biases(d.qpos.copy(), d.qvel.copy())
+        np.testing.assert_allclose(bias, a_fd, rtol=1e-6, atol=1e-6)
+    assert checked == 100
+
+
+def test_the_planar_momentum_is_the_spatial_rows_bit_for_bit():
+    """One set of formulas: the planar kernel's [L_x, L_z, H_y] are the spatial function's rows, identical."""
+    ch = character()
+    m = ch.model
+    chain = PlanarKinematics(m).chain
+    rng = np.random.default_rng(3)
+    d = mujoco.MjData(m)
+    for _ in range(20):
+        d.qpos[:] = rng.normal(scale=0.5, size=m.nq)
+        d.qvel[:] = rng.normal(scale=2.0, size=m.nv)
+        mujoco.mj_forward(m, d)
+        A, bias = kernel.centroidal(d.cdof, d.cdof_dot, d.cvel, d.cinert, d.qvel.copy(), chain)
+        A6, bias6 = kernel.centroidal_spatial(d.cdof, d.cdof_dot, d.cvel, d.cinert, d.qvel.copy(), chain)
+        assert np.array_equal(A, A6[list(PLANAR_ROWS)]) and np.array_equal(bias, bias6[list(PLANAR_ROWS)])
+        assert not A6[1].any()  # no sideways momentum; H_x and H_z it has (legs and arms off the plane), but its
+        # joints keep it in the plane: the world takes those up, and the controller does not ask for them
+        np.testing.assert_array_equal(foot_jacobian(m, d, ch.foot_bodies[0]),
+                                      foot_jacobian(m, d, ch.foot_bodies[0], SPATIAL_ROWS)[list(PLANAR_ROWS)])
