@@ -129,28 +129,56 @@ def centroidal(cdof, cdof_dot, cvel, cinert, qvel, chain):
 
 
 @njit(cache=True, nogil=True)
-def point_frame(cdof, cdof_dot, cvel, qvel, chain_row, body, point, com):
-    """Jacobian (3, nv) of (x, z, pitch) of a body's frame placed at ``point``, and its bias (3,)."""
+def point_frame_spatial(cdof, cdof_dot, cvel, qvel, chain_row, body, point, com, full=True):
+    """Jacobian (6, nv) of the [linear, angular] velocity of a body's frame placed at ``point``, and its bias (6,):
+    the point moves at v + omega x r (r from the CoM, the com-based twists' origin) and accelerates, at qdd = 0, at
+    alpha_v + alpha_omega x r + omega x v_point. ``full`` False leaves the rows a planar body has no use for (y, roll,
+    yaw) at zero and sums x, z and pitch in the order the planar formulas always were (bit for bit)."""
     nv = chain_row.size
-    rx, rz = point[0] - com[0], point[2] - com[2]
-    J = np.zeros((3, nv))
-    alpha = np.zeros(3)
+    rx, ry, rz = point[0] - com[0], point[1] - com[1], point[2] - com[2]
+    J = np.zeros((6, nv))
+    a0 = a1 = a2 = a3 = a4 = a5 = 0.0
     for j in range(nv):
         if chain_row[j]:
-            s0, s1, s2 = cdof[j, 1], cdof[j, 3], cdof[j, 5]
-            J[0, j] = s1 + s0 * rz
-            J[1, j] = s2 - s0 * rx
-            J[2, j] = s0
-            alpha[0] += cdof_dot[j, 1] * qvel[j]
-            alpha[1] += cdof_dot[j, 3] * qvel[j]
-            alpha[2] += cdof_dot[j, 5] * qvel[j]
-    w, vx, vz = cvel[body, 1], cvel[body, 3], cvel[body, 5]
-    vpx = vx + w * rz
-    vpz = vz - w * rx
+            w0, w1, w2, u0, u1, u2 = cdof[j, 0], cdof[j, 1], cdof[j, 2], cdof[j, 3], cdof[j, 4], cdof[j, 5]
+            J[0, j] = u0 + (w1 * rz - w2 * ry)
+            J[2, j] = u2 + (w0 * ry - w1 * rx)
+            J[4, j] = w1
+            a1 += cdof_dot[j, 1] * qvel[j]
+            a3 += cdof_dot[j, 3] * qvel[j]
+            a5 += cdof_dot[j, 5] * qvel[j]
+            if full:
+                J[1, j] = u1 + (w2 * rx - w0 * rz)
+                J[3, j] = w0
+                J[5, j] = w2
+                a0 += cdof_dot[j, 0] * qvel[j]
+                a2 += cdof_dot[j, 2] * qvel[j]
+                a4 += cdof_dot[j, 4] * qvel[j]
+    w0, w1, w2, u0, u1, u2 = cvel[body, 0], cvel[body, 1], cvel[body, 2], cvel[body, 3], cvel[body, 4], cvel[body, 5]
+    vpx = u0 + (w1 * rz - w2 * ry)
+    vpy = u1 + (w2 * rx - w0 * rz)
+    vpz = u2 + (w0 * ry - w1 * rx)
+    bias = np.zeros(6)
+    bias[0] = a3 + (a1 * rz - a2 * ry) + (w1 * vpz - w2 * vpy)
+    bias[2] = a5 + (a0 * ry - a1 * rx) + (w0 * vpy - w1 * vpx)
+    bias[4] = a1
+    if full:
+        bias[1] = a4 + (a2 * rx - a0 * rz) + (w2 * vpx - w0 * vpz)
+        bias[3] = a0
+        bias[5] = a2
+    return J, bias
+
+
+@njit(cache=True, nogil=True)
+def point_frame(cdof, cdof_dot, cvel, qvel, chain_row, body, point, com):
+    """Jacobian (3, nv) of (x, z, pitch) of a body's frame placed at ``point``, and its bias (3,): the planar rows
+    of ``point_frame_spatial``."""
+    J6, bias6 = point_frame_spatial(cdof, cdof_dot, cvel, qvel, chain_row, body, point, com, False)
+    J = np.empty((3, J6.shape[1]))
     bias = np.empty(3)
-    bias[0] = alpha[1] + alpha[0] * rz + w * vpz
-    bias[1] = alpha[2] - alpha[0] * rx - w * vpx
-    bias[2] = alpha[0]
+    for r in range(3):
+        J[r] = J6[2 * r]
+        bias[r] = bias6[2 * r]
     return J, bias
 
 

@@ -153,3 +153,53 @@ def test_the_planar_momentum_is_the_spatial_rows_bit_for_bit():
         # joints keep it in the plane: the world takes those up, and the controller does not ask for them
         np.testing.assert_array_equal(foot_jacobian(m, d, ch.foot_bodies[0]),
                                       foot_jacobian(m, d, ch.foot_bodies[0], SPATIAL_ROWS)[list(PLANAR_ROWS)])
+
+
+def test_a_foot_points_frame_matches_mujoco_in_3d(body3d):
+    """The kernel's spatial point Jacobian is MuJoCo's ``mj_jac`` at a 3D foot's contact point, and its bias the
+    material point's acceleration at qdd = 0 (central differences along a random qdd)."""
+    m = body3d.model
+    chain = PlanarKinematics(m).chain
+    rng = np.random.default_rng(11)
+    for k in range(8):
+        d = _random_state(m, rng)
+        foot = body3d.foot_bodies[k % 2]
+        point = d.geom_xpos[body3d.foot_points[k % 2][k % 4]].copy()
+        J, bias = kernel.point_frame_spatial(d.cdof, d.cdof_dot, d.cvel, d.qvel.copy(), chain[foot], foot, point,
+                                             d.subtree_com[1])
+        jacp, jacr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+        mujoco.mj_jac(m, d, jacp, jacr, point, foot)
+        np.testing.assert_allclose(J, np.vstack([jacp, jacr]), rtol=0, atol=1e-12)
+        local = d.xmat[foot].reshape(3, 3).T @ (point - d.xpos[foot])
+        qdd, h = rng.normal(scale=5.0, size=m.nv), 1e-6
+
+        def velocity(sign):  # [linear, angular] velocity of the material point at q(t +- h)
+            s = mujoco.MjData(m)
+            s.qpos[:] = d.qpos
+            mujoco.mj_integratePos(m, s.qpos, d.qvel + sign * 0.5 * h * qdd, sign * h)
+            s.qvel[:] = d.qvel + sign * h * qdd
+            mujoco.mj_forward(m, s)
+            p = s.xpos[foot] + s.xmat[foot].reshape(3, 3) @ local
+            jp, jr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+            mujoco.mj_jac(m, s, jp, jr, p, foot)
+            return np.concatenate([jp @ s.qvel, jr @ s.qvel])
+
+        np.testing.assert_allclose(J @ qdd + bias, (velocity(1.0) - velocity(-1.0)) / (2 * h), rtol=1e-6, atol=1e-5)
+
+
+def test_the_planar_point_frame_is_the_spatial_rows_bit_for_bit():
+    ch = character()
+    m = ch.model
+    chain = PlanarKinematics(m).chain
+    rng = np.random.default_rng(5)
+    d = mujoco.MjData(m)
+    for k in range(20):
+        d.qpos[:] = rng.normal(scale=0.5, size=m.nq)
+        d.qvel[:] = rng.normal(scale=2.0, size=m.nv)
+        mujoco.mj_forward(m, d)
+        foot = ch.foot_bodies[k % 2]
+        point = d.geom_xpos[ch.foot_points[k % 2][0]]
+        args = (d.cdof, d.cdof_dot, d.cvel, d.qvel.copy(), chain[foot], foot, point, d.subtree_com[1])
+        J, bias = kernel.point_frame(*args)
+        J6, bias6 = kernel.point_frame_spatial(*args)
+        assert np.array_equal(J, J6[list(PLANAR_ROWS)]) and np.array_equal(bias, bias6[list(PLANAR_ROWS)])
