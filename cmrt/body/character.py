@@ -124,36 +124,50 @@ def _character(body: str) -> Character:
     )
 
 
-def joint_angles_from_pose(pose_rad: dict[str, float]) -> dict[str, float]:
-    """Expand a pose (bare names set both sides) into per-joint angles; unknown names fail."""
-    ch = character()
-    out = {n: 0.0 for n in ch.dof_names[3:]}
+def joint_angles_from_pose(pose_rad: dict[str, float], body: str = "planar") -> dict[str, float]:
+    """Expand a pose (bare names set both sides: ``hip``, and on the 3D body ``hip_roll``...) into per-joint
+    angles; unknown names fail."""
+    ch = character(body)
+    out = {n: 0.0 for j, n in enumerate(ch.dof_names) if j not in ch.root_dofs}
     for key, value in pose_rad.items():
-        if key in SIDED_JOINTS:
+        if f"{key}_r" in out and f"{key}_l" in out:
             out[f"{key}_r"] = out[f"{key}_l"] = float(value)
         elif key in out:
             out[key] = float(value)
         else:
-            raise CmrtError(f"unknown joint '{key}' in pose (known: {', '.join(POSE_JOINTS)} or *_r/*_l)")
+            known = POSE_JOINTS if body == "planar" else sorted({n[:-2] if n[-2:] in ("_r", "_l") else n for n in out})
+            raise CmrtError(f"unknown joint '{key}' in pose (known: {', '.join(known)} or *_r/*_l)")
     return out
 
 
-def support_interval_x(data: mujoco.MjData, foot: int | None = None) -> tuple[float, float]:
+def _root_pose(ch: Character, qpos: np.ndarray, x_m: float, z_m: float, pitch_rad: float) -> None:
+    """Put the root at (x, z) pitched by ``pitch_rad`` about y, in place: the planar body's slides and hinge, or
+    the 3D body's free joint (position, unit quaternion)."""
+    if len(ch.root_dofs) == 3:
+        qpos[0], qpos[1], qpos[2] = x_m, z_m, pitch_rad
+    else:
+        qpos[0], qpos[2] = x_m, z_m
+        qpos[3:7] = (np.cos(0.5 * pitch_rad), 0.0, np.sin(0.5 * pitch_rad), 0.0)
+
+
+def support_interval_x(data: mujoco.MjData, foot: int | None = None, body: str = "planar") -> tuple[float, float]:
     """[heel x, toe x] over both feet (or one): the support interval of flat feet."""
-    ch = character()
+    ch = character(body)
     feet = ch.foot_points if foot is None else (ch.foot_points[foot],)
     xs = [data.geom_xpos[g, 0] for pair in feet for g in pair]
     return float(min(xs)), float(max(xs))
 
 
-def feet_flat_qpos(angles_rad: dict[str, float], balance_joint: str | None = "ankle") -> np.ndarray:
+def feet_flat_qpos(angles_rad: dict[str, float], balance_joint: str | None = "ankle", body: str = "planar"
+                   ) -> np.ndarray:
     """qpos for a pose with both feet flat on the floor, right heel point at x = -0.06 m.
 
-    Root pitch follows from the right leg (foot pitch = root + hip + knee + ankle = 0).
+    Root pitch follows from the right leg (foot pitch = root + hip + knee + ankle = 0; a pose's out-of-plane
+    joints are the 3D body's own business: its feet are flat if they leave the soles level).
     If ``balance_joint`` is given (both sides of it), its angle is solved so that the
     CoM lies over the centre of the support interval: a statically balanced pose.
     """
-    ch = character()
+    ch = character(body)
     m = ch.model
     d = mujoco.MjData(m)
     angles = dict(angles_rad)
@@ -168,14 +182,14 @@ def feet_flat_qpos(angles_rad: dict[str, float], balance_joint: str | None = "an
         d.qpos[:] = 0.0
         for jname, val in a.items():
             d.qpos[m.joint(jname).qposadr[0]] = val
-        d.qpos[2] = -(a["hip_r"] + a["knee_r"] + a["ankle_r"])
+        pitch = -(a["hip_r"] + a["knee_r"] + a["ankle_r"])
+        _root_pose(ch, d.qpos, 0.0, 0.0, pitch)
         mujoco.mj_kinematics(m, d)
         heel = d.geom_xpos[ch.foot_points[0][0]]
-        d.qpos[0] += STANCE_HEEL_X_M - heel[0]
-        d.qpos[1] += FOOT_POINT_RADIUS_M - heel[2]
+        _root_pose(ch, d.qpos, STANCE_HEEL_X_M - heel[0], FOOT_POINT_RADIUS_M - heel[2], pitch)
         mujoco.mj_kinematics(m, d)
         mujoco.mj_comPos(m, d)
-        lo, hi = support_interval_x(d)
+        lo, hi = support_interval_x(d, body=body)
         return float(d.subtree_com[0, 0] - 0.5 * (lo + hi))
 
     if balance_joint:

@@ -172,19 +172,21 @@ def test_a_foot_points_frame_matches_mujoco_in_3d(body3d):
         np.testing.assert_allclose(J, np.vstack([jacp, jacr]), rtol=0, atol=1e-12)
         local = d.xmat[foot].reshape(3, 3).T @ (point - d.xpos[foot])
         qdd, h = rng.normal(scale=5.0, size=m.nv), 1e-6
+        rate = (_point_velocity(m, d, foot, local, qdd, h) - _point_velocity(m, d, foot, local, qdd, -h)) / (2 * h)
+        np.testing.assert_allclose(J @ qdd + bias, rate, rtol=1e-6, atol=1e-5)
 
-        def velocity(sign):  # [linear, angular] velocity of the material point at q(t +- h)
-            s = mujoco.MjData(m)
-            s.qpos[:] = d.qpos
-            mujoco.mj_integratePos(m, s.qpos, d.qvel + sign * 0.5 * h * qdd, sign * h)
-            s.qvel[:] = d.qvel + sign * h * qdd
-            mujoco.mj_forward(m, s)
-            p = s.xpos[foot] + s.xmat[foot].reshape(3, 3) @ local
-            jp, jr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
-            mujoco.mj_jac(m, s, jp, jr, p, foot)
-            return np.concatenate([jp @ s.qvel, jr @ s.qvel])
 
-        np.testing.assert_allclose(J @ qdd + bias, (velocity(1.0) - velocity(-1.0)) / (2 * h), rtol=1e-6, atol=1e-5)
+def _point_velocity(m, d, foot, local, qdd, h):
+    """[linear, angular] velocity of a foot's material point (``local`` in its frame) at q(t + h), qd(t + h)."""
+    s = mujoco.MjData(m)
+    s.qpos[:] = d.qpos
+    mujoco.mj_integratePos(m, s.qpos, d.qvel + 0.5 * h * qdd, h)  # q + h qd + h^2/2 qdd
+    s.qvel[:] = d.qvel + h * qdd
+    mujoco.mj_forward(m, s)
+    p = s.xpos[foot] + s.xmat[foot].reshape(3, 3) @ local
+    jp, jr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+    mujoco.mj_jac(m, s, jp, jr, p, foot)
+    return np.concatenate([jp @ s.qvel, jr @ s.qvel])
 
 
 def test_the_planar_point_frame_is_the_spatial_rows_bit_for_bit():
@@ -203,3 +205,34 @@ def test_the_planar_point_frame_is_the_spatial_rows_bit_for_bit():
         J, bias = kernel.point_frame(*args)
         J6, bias6 = kernel.point_frame_spatial(*args)
         assert np.array_equal(J, J6[list(PLANAR_ROWS)]) and np.array_equal(bias, bias6[list(PLANAR_ROWS)])
+
+
+def test_a_standing_pose_of_the_3d_body_is_the_planar_one(body3d):
+    """Feet flat, CoM over the support's centre: the 3D body stands as the planar body does (same root place and
+    pitch, same joint angles, the balance joint solved to the same angle), its CoM on the midline."""
+    from cmrt.body.character import feet_flat_qpos, joint_angles_from_pose, support_interval_x
+
+    pose = {"hip": -0.3, "knee": 0.5, "lumbar": 0.2, "shoulder": -0.4}
+    q3 = feet_flat_qpos(joint_angles_from_pose(pose, "humanoid3d"), body="humanoid3d")
+    q2 = feet_flat_qpos(joint_angles_from_pose(pose))
+    m = body3d.model
+    d = mujoco.MjData(m)
+    d.qpos[:] = q3
+    mujoco.mj_forward(m, d)
+    points = d.geom_xpos[list(body3d.foot_points[0] + body3d.foot_points[1])]
+    np.testing.assert_allclose(points[:, 2], 0.01, atol=1e-9)  # all eight points on the floor: feet flat
+    lo, hi = support_interval_x(d, body="humanoid3d")
+    assert abs(d.subtree_com[1, 0] - 0.5 * (lo + hi)) < 1e-9 and abs(d.subtree_com[1, 1]) < 1e-12
+    pitch3 = 2.0 * np.arctan2(q3[5], q3[3])  # the root quaternion turns about y only
+    assert q3[4] == q3[6] == 0.0
+    pelvis_z = character().model.body("pelvis").pos[2]  # the planar slides move the pelvis from its MJCF place,
+    np.testing.assert_allclose([q3[0], q3[2], pitch3], [q2[0], q2[1] + pelvis_z, q2[2]], atol=1e-9)  # a free joint
+    # places it absolutely
+    planar = character().model
+    for j in range(3, planar.njnt):
+        name = planar.joint(j).name
+        assert q3[m.joint(name).qposadr[0]] == pytest.approx(q2[planar.joint(j).qposadr[0]], abs=1e-9), name
+    sided = joint_angles_from_pose({"hip_roll": 0.1, "ankle_roll_l": -0.2}, "humanoid3d")
+    assert (sided["hip_roll_r"], sided["hip_roll_l"], sided["ankle_roll_l"]) == (0.1, 0.1, -0.2)
+    with pytest.raises(CmrtError, match="unknown joint 'hip_roll'"):
+        joint_angles_from_pose({"hip_roll": 0.1})  # the planar body has none
