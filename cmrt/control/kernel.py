@@ -120,12 +120,18 @@ def centroidal(cdof, cdof_dot, cvel, cinert, qvel, chain):
     """A (3, nv) with rows [L_x, L_z, H_y] and its bias (3,), for one simulation of the planar body: the spatial
     rows of the sagittal plane (``cmrt.body.character.PLANAR_ROWS``)."""
     A6, bias6 = centroidal_spatial(cdof, cdof_dot, cvel, cinert, qvel, chain, False)
-    A = np.empty((3, A6.shape[1]))
-    bias = np.empty(3)
+    return _planar_rows(A6, bias6)
+
+
+@njit(cache=True, nogil=True)
+def _planar_rows(M6, v6):
+    """Rows 0, 2, 4 (x, z, pitch: ``cmrt.body.character.PLANAR_ROWS``) of a spatial matrix and vector."""
+    M = np.empty((3, M6.shape[1]))
+    v = np.empty(3)
     for r in range(3):
-        A[r] = A6[2 * r]
-        bias[r] = bias6[2 * r]
-    return A, bias
+        M[r] = M6[2 * r]
+        v[r] = v6[2 * r]
+    return M, v
 
 
 @njit(cache=True, nogil=True)
@@ -174,12 +180,7 @@ def point_frame(cdof, cdof_dot, cvel, qvel, chain_row, body, point, com):
     """Jacobian (3, nv) of (x, z, pitch) of a body's frame placed at ``point``, and its bias (3,): the planar rows
     of ``point_frame_spatial``."""
     J6, bias6 = point_frame_spatial(cdof, cdof_dot, cvel, qvel, chain_row, body, point, com, False)
-    J = np.empty((3, J6.shape[1]))
-    bias = np.empty(3)
-    for r in range(3):
-        J[r] = J6[2 * r]
-        bias[r] = bias6[2 * r]
-    return J, bias
+    return _planar_rows(J6, bias6)
 
 
 @njit(cache=True, nogil=True)

@@ -31,6 +31,17 @@ def _random_state(m, rng, scale_q=0.4, scale_qd=2.0):
     return d
 
 
+def _planar_states(m, seed, count=20):
+    """Random configurations and velocities of the planar body (its joints are hinges and slides)."""
+    rng = np.random.default_rng(seed)
+    for _ in range(count):
+        d = mujoco.MjData(m)
+        d.qpos[:] = rng.normal(scale=0.5, size=m.nq)
+        d.qvel[:] = rng.normal(scale=2.0, size=m.nv)
+        mujoco.mj_forward(m, d)
+        yield d
+
+
 def _mujoco_momentum(m, d):
     """[L, H] of the whole body about its CoM, from MuJoCo's subtree quantities."""
     mujoco.mj_subtreeVel(m, d)
@@ -140,12 +151,7 @@ def test_the_planar_momentum_is_the_spatial_rows_bit_for_bit():
     ch = character()
     m = ch.model
     chain = PlanarKinematics(m).chain
-    rng = np.random.default_rng(3)
-    d = mujoco.MjData(m)
-    for _ in range(20):
-        d.qpos[:] = rng.normal(scale=0.5, size=m.nq)
-        d.qvel[:] = rng.normal(scale=2.0, size=m.nv)
-        mujoco.mj_forward(m, d)
+    for d in _planar_states(m, seed=3):
         A, bias = kernel.centroidal(d.cdof, d.cdof_dot, d.cvel, d.cinert, d.qvel.copy(), chain)
         A6, bias6 = kernel.centroidal_spatial(d.cdof, d.cdof_dot, d.cvel, d.cinert, d.qvel.copy(), chain)
         assert np.array_equal(A, A6[list(PLANAR_ROWS)]) and np.array_equal(bias, bias6[list(PLANAR_ROWS)])
@@ -193,12 +199,7 @@ def test_the_planar_point_frame_is_the_spatial_rows_bit_for_bit():
     ch = character()
     m = ch.model
     chain = PlanarKinematics(m).chain
-    rng = np.random.default_rng(5)
-    d = mujoco.MjData(m)
-    for k in range(20):
-        d.qpos[:] = rng.normal(scale=0.5, size=m.nq)
-        d.qvel[:] = rng.normal(scale=2.0, size=m.nv)
-        mujoco.mj_forward(m, d)
+    for k, d in enumerate(_planar_states(m, seed=5)):
         foot = ch.foot_bodies[k % 2]
         point = d.geom_xpos[ch.foot_points[k % 2][0]]
         args = (d.cdof, d.cdof_dot, d.cvel, d.qvel.copy(), chain[foot], foot, point, d.subtree_com[1])
