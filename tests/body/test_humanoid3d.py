@@ -237,3 +237,31 @@ def test_a_standing_pose_of_the_3d_body_is_the_planar_one(body3d):
     assert (sided["hip_roll_r"], sided["hip_roll_l"], sided["ankle_roll_l"]) == (0.1, 0.1, -0.2)
     with pytest.raises(CmrtError, match="unknown joint 'hip_roll'"):
         joint_angles_from_pose({"hip_roll": 0.1})  # the planar body has none
+
+
+def test_the_feet_sense_the_ground_in_3d(body3d):
+    """Held in its standing pose by stiff joint springs (no balance controller yet), the 3D body's eight touch
+    sensors carry its weight, and the CoP they give in x and y is the CoP of MuJoCo's contact forces."""
+    from cmrt.body.character import feet_flat_qpos, joint_angles_from_pose
+
+    m = body3d.model
+    d = mujoco.MjData(m)
+    d.qpos[:] = feet_flat_qpos(joint_angles_from_pose({"knee": 0.2, "hip": -0.1}, "humanoid3d"), body="humanoid3d")
+    q_hold = d.qpos.copy()
+    joints = m.actuator_trnid[:, 0]
+    qadr, dadr = m.jnt_qposadr[joints], m.jnt_dofadr[joints]
+    points = [g for foot in body3d.foot_points for g in foot]
+    for _ in range(250):  # 0.5 s
+        d.ctrl[:] = np.clip(2000.0 * (q_hold[qadr] - d.qpos[qadr]) - 50.0 * d.qvel[dadr], *m.actuator_ctrlrange.T)
+        mujoco.mj_step(m, d)
+    mujoco.mj_forward(m, d)
+    sensed = d.sensordata[:8].copy()
+    xy = d.geom_xpos[points, :2]
+    assert abs(sensed.sum() - body3d.mass_kg * 9.81) < 0.05 * body3d.mass_kg * 9.81  # standing still: the weight
+    f6, normal, moment = np.zeros(6), 0.0, np.zeros(2)
+    for i in range(d.ncon):
+        mujoco.mj_contactForce(m, d, i, f6)
+        normal += f6[0]
+        moment += f6[0] * d.contact[i].pos[:2]
+    assert sensed.sum() == pytest.approx(normal, rel=1e-9)
+    np.testing.assert_allclose(sensed @ xy / sensed.sum(), moment / normal, atol=1e-6)
