@@ -83,6 +83,12 @@ class Character:
         limited = m.jnt_limited[joints].astype(bool)
         return (np.where(limited, m.jnt_range[joints, 0], -np.inf), np.where(limited, m.jnt_range[joints, 1], np.inf))
 
+    @property
+    def leg_dofs(self) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
+        """The dofs of each leg's sagittal chain, (hip, knee, ankle), right leg first: the same joints on every
+        body (the 3D body's roll and yaw hinges are others)."""
+        return tuple(tuple(self.dof(f"{j}_{s}") for j in ("hip", "knee", "ankle")) for s in ("r", "l"))
+
     def dof(self, joint_name: str) -> int:
         """The dof index of a joint by name."""
         return int(self.model.joint(joint_name).dofadr[0])

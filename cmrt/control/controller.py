@@ -179,9 +179,7 @@ class MomentumBalanceController:
         self.mass = ch.mass_kg
         self.points = np.array(ch.foot_point_geoms, dtype=np.int64)  # heel_r, toe_r, heel_l, toe_l
         self.point_bodies = ch.model.geom_bodyid[self.points].astype(np.int64)
-        names = ch.dof_names
-        self.leg_dofs = np.array([[names.index(f"{j}_{s}") for j in ("hip", "knee", "ankle")] for s in ("r", "l")],
-                                 dtype=np.int64)
+        self.leg_dofs = np.array(ch.leg_dofs, dtype=np.int64)
         c = config
         params = np.zeros(kernel.N_PARAMS)
         for index, value in ((kernel.P_KL, c.k_l), (kernel.P_DL, c.d_l), (kernel.P_KT, c.k_t), (kernel.P_DT, c.d_t),

@@ -164,7 +164,7 @@ class _Geometry:
         self.body_geoms = np.array(body)
         self.radius = m.geom_size[body, 0]
         self.half = m.geom_size[body, 1]
-        self.leg_dofs = np.array([[ch.dof(f"{j}_{s}") for j in ("hip", "knee", "ankle")] for s in ("r", "l")])
+        self.leg_dofs = np.array(ch.leg_dofs)
         self.root_pitch = ch.root_dofs[2]
 
     def lowest_body_z(self, geom_xpos: np.ndarray, geom_xmat: np.ndarray) -> np.ndarray:

@@ -265,3 +265,10 @@ def test_the_feet_sense_the_ground_in_3d(body3d):
         moment += f6[0] * d.contact[i].pos[:2]
     assert sensed.sum() == pytest.approx(normal, rel=1e-9)
     np.testing.assert_allclose(sensed @ xy / sensed.sum(), moment / normal, atol=1e-6)
+
+
+def test_each_leg_names_its_sagittal_chain_on_both_bodies(body3d):
+    planar = character()
+    for ch in (planar, body3d):
+        names = [[ch.dof_names[j] for j in leg] for leg in ch.leg_dofs]
+        assert names == [["hip_r", "knee_r", "ankle_r"], ["hip_l", "knee_l", "ankle_l"]]
