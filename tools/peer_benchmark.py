@@ -21,6 +21,9 @@ default):
   made for multimodal and noisy problems);
 * ``pycma-bipop``: pycma's ``fmin2`` with BIPOP restarts (Hansen 2009), the same start, step size and first
   population, whole generations evaluated as one batch;
+* ``pycma-lq``: pycma's surrogate-assisted lq-CMA-ES (``fmin_lq_surr2``, Hansen 2019: a linear-quadratic model
+  of the objective decides which candidates are evaluated), the same start, step size and population, IPOP
+  restarts; it evaluates one candidate at a time, so each evaluation is a generation of its own;
 * ``random``: independent draws from N(0, sigma^2 I) around the flat CMRT.
 
 The measure (``ert``): the expected running time to a target - the evaluations (and generations: evaluator
@@ -50,7 +53,7 @@ import numpy as np
 from cmrt import CmrtError, Evaluator, OptimizeSettings, Task, open_store, optimize_now, resolve_task
 from cmrt.optimize.driver import N_PARAMS
 
-OPTIMIZERS = ("cmrt", "optuna", "cmaes", "cmaes-lra", "pycma-bipop", "random")
+OPTIMIZERS = ("cmrt", "optuna", "cmaes", "cmaes-lra", "pycma-bipop", "pycma-lq", "random")
 BOX = 10.0  # optuna's search box, +- parameter units (+-0.5 m of CoM shift): wider than any shipped CMRT (<= 7.5)
 STALL_GENERATIONS = 20  # the cmaes peers restart when the best improved < 0.1 % over this many generations (the
 STALL_IMPROVEMENT = 1e-3  # project's own stagnation rule, OptimizeSettings.stall_generations)
@@ -198,6 +201,28 @@ def run_pycma_bipop(budget: Budget, seed: int, sigma: float, popsize: int) -> di
     return {}  # fmin2 may end before the budget (its restarts spent): ``_spent`` charges the rest
 
 
+def run_pycma_lq(budget: Budget, seed: int, sigma: float, popsize: int) -> dict:
+    import cma
+
+    def objective(x) -> float:
+        fs = budget([np.asarray(x, float)])
+        if not fs:
+            raise BudgetSpent
+        return fs[0]
+
+    state = np.random.get_state()  # pycma seeds numpy's global generator: leave it as it was
+    budget.start()
+    try:
+        cma.fmin_lq_surr2(objective, np.zeros(N_PARAMS), sigma, restarts=9, incpopsize=2,
+                          options={"popsize": popsize, "seed": seed, "maxfevals": budget.max_evals, "verbose": -9,
+                                   "verb_log": 0, "verb_disp": 0})
+    except BudgetSpent:
+        pass
+    finally:
+        np.random.set_state(state)
+    return {}
+
+
 def run_random(budget: Budget, seed: int, sigma: float, popsize: int) -> dict:
     rng = np.random.default_rng(seed)
     budget.start()
@@ -208,7 +233,7 @@ def run_random(budget: Budget, seed: int, sigma: float, popsize: int) -> dict:
 
 RUNNERS: dict[str, Callable[[Budget, int, float, int], dict]] = {
     "cmrt": run_cmrt, "optuna": run_optuna, "cmaes": run_cmaes, "cmaes-lra": run_cmaes_lra,
-    "pycma-bipop": run_pycma_bipop, "random": run_random}
+    "pycma-bipop": run_pycma_bipop, "pycma-lq": run_pycma_lq, "random": run_random}
 
 
 def ert(spent: np.ndarray, hit: np.ndarray) -> float:
