@@ -1,4 +1,5 @@
-"""The planar humanoid: model loading, names and indices, and feet-flat poses.
+"""The humanoids (``BODIES``: the planar one, the default, and the 3D one): model loading, names and indices,
+and feet-flat poses.
 
 Everything that knows the MJCF's names lives here, so the controller and the
 simulator work with integer indices only.

@@ -32,9 +32,10 @@ ANKLE_HEIGHT_M = FOOT_POINT_RADIUS_M - ANKLE_TO_HEEL_M[1]  # ankle above the flo
 
 @functools.cache
 def _leg_dofs() -> tuple[tuple[int, int, int], tuple[int, int, int]]:
-    m = character().model
-    return tuple(tuple(int(m.joint(f"{j}_{s}").qposadr[0]) for j in ("hip", "knee", "ankle"))
-                 for s in ("r", "l"))
+    """The qpos addresses of each leg's (hip, knee, ankle): ``Character.leg_dofs``'s joints."""
+    ch = character()
+    m = ch.model
+    return tuple(tuple(int(m.jnt_qposadr[m.dof_jntid[dof]]) for dof in leg) for leg in ch.leg_dofs)
 
 
 @functools.cache
