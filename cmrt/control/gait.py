@@ -33,6 +33,7 @@ from cmrt.body.character import GRAVITY_M_S2
 from cmrt.control import kernel
 from cmrt.control.stepping import (
     NO_SWING,
+    LandingWatch,
     StepCommand,
     StepConfig,
     stance_support,
@@ -90,6 +91,7 @@ class GaitTracker:
         self.footprints: list[list[tuple[int, float, float]]] = [[] for _ in range(n)]  # (foot, time, heel x)
         self.placement_error_m: list[list[tuple[float, float]]] = [[] for _ in range(n)]  # (touchdown s, landed
         # - targeted heel m): the step's length against the gait's, from where the stance foot stood
+        self.flat = LandingWatch(n)
 
     def _relative(self, j: int, s: np.ndarray) -> tuple[np.ndarray, ...]:
         """The gait's swing ankle relative to its stance ankle along step j at progress ``s`` (k,): x, z and their
@@ -145,6 +147,7 @@ class GaitTracker:
             self.adjust_m[sim] = step_adjustment_m(float(error_td), ADJUST_DEAD_M)
 
     def _touchdowns(self, ids: np.ndarray, time_s: float, contact: np.ndarray, point_x: np.ndarray) -> None:
+        self.flat.update(ids, time_s, contact)
         for r in np.flatnonzero(self.swing[ids] >= 0):
             sim = ids[r]
             foot = self.swing[sim]
@@ -152,6 +155,7 @@ class GaitTracker:
             if late_enough and (contact[r, 2 * foot] or contact[r, 2 * foot + 1]):
                 heel = float(point_x[r, 2 * foot])
                 self.footprints[sim].append((int(foot), time_s, heel))
+                self.flat.landed(sim, int(foot), time_s)
                 self.placement_error_m[sim].append((time_s, heel - float(self.target_heel_x[sim])))
                 self.swing[sim] = NO_SWING
 

@@ -34,11 +34,14 @@ N_PARAMS = 26
 # The swing foot's task-space target (cmrt.control.stepping): heel point x, z, foot pitch; their rates
 # and accelerations; then the bend added to the stance knee's reference while the foot swings (rad).
 # ``swing_foot`` per simulation: -1 (both feet support), 0 (right swings), 1 (left).
-N_SWING = 22
+N_SWING = 27
 S_CROUCH = 9
 S_SWING_KNEE = 10  # the bend added to the swing knee's reference (rad; a straight knee cannot lift its foot)
 S_SWING_GAINS = 12  # (weight, stiffness 1/s^2, damping 1/s) of this swing's foot objective; 0: the controller's
 S_SETTLED = 15  # nonzero: both feet down after a step; S_STANCE.. S_STANCE + 5 then hold the right and left leg's
+S_LANDING = 22  # (foot + 1, pitch rad, weight, stiffness 1/s^2, damping 1/s): a foot landed heel first lowers its
+# toe toward this pitch (+ toe down, past flat: a heel sunk under the body's weight leaves a foot at pitch 0 with its
+# toe still off the floor) instead of the rolling foot's soft return to flat; 0: none
 S_STANCE = 16  # (hip, knee, ankle) offsets from the reference to the stance over the landed feet (rad)
 S_SWING_TRACKED = 11  # nonzero: the swing leg tracks the reference motion's own swing at full weight (a keyed
 # gait, cmrt.control.gait: its knee bends in the reference) instead of leaving the leg to the foot's target
@@ -445,9 +448,14 @@ def _support_rows(state, frames, qd, q, params, leg_dofs, swing, swing_target_ro
         elif s != FLAT:
             jp = Jp[heel, 2]
             pitch = q[2] + q[leg_dofs[foot, 0]] + q[leg_dofs[foot, 1]] + q[leg_dofs[foot, 2]]
-            target = -params[P_RK] * pitch - params[P_RD] * (jp @ qd) - bp[heel, 2]
-            Q += params[P_RW] * np.outer(jp, jp)
-            g += params[P_RW] * target * jp
+            if swing_target_row[S_LANDING] == foot + 1:  # landed heel first: the toe comes down to the floor
+                aim, w_r = swing_target_row[S_LANDING + 1], swing_target_row[S_LANDING + 2]
+                k_r, d_r = swing_target_row[S_LANDING + 3], swing_target_row[S_LANDING + 4]
+            else:
+                aim, w_r, k_r, d_r = 0.0, params[P_RW], params[P_RK], params[P_RD]
+            target = -k_r * (pitch - aim) - d_r * (jp @ qd) - bp[heel, 2]
+            Q += w_r * np.outer(jp, jp)
+            g += w_r * target * jp
     return E, e, ne, lo, hi, n_flat, n_points
 
 

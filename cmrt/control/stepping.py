@@ -69,6 +69,15 @@ class StepConfig:
     swing_weight: float = 100.0
     swing_k: float = 900.0
     swing_d: float = 60.0
+    # a planned step forward lands heel first: its foot pitches toe-up over the second half of the swing to this at
+    # touchdown (0: lands flat), then lowers its toe toward ``landing_pitch_rad`` past flat with the pitch objective
+    # (weight, stiffness 1/s^2, damping 1/s). Flat, the walk landed at 1.78 body weights and its stance feet's CoP
+    # rolled 0.14 of heel to toe; heel first, 1.5-1.6 and 0.7 (docs/stepping.md, *Landings*)
+    heel_strike_rad: float = 0.05
+    landing_pitch_rad: float = 0.03
+    landing_weight: float = 100.0
+    landing_k: float = 9.0
+    landing_d: float = 6.0
     min_step_m: float = 0.10  # the foot's centre lands at least this far from the pivot foot's centre
     max_step_m: float = 0.45  # and at most this far forward (0.86 m hip to ankle)
     max_back_step_m: float = 0.30  # and backward: the swing leg's reach behind a hip the push left over the
@@ -114,6 +123,16 @@ def swing_profile(s: np.ndarray, width: float) -> tuple[np.ndarray, ...]:
     scale = 1.0 / (1.0 - floor)
     return (phi, dphi, ddphi, (bell - floor) * scale, -u / sigma * bell * scale,
             (u * u - 1.0) / sigma**2 * bell * scale)
+
+
+def _toe_up(s: np.ndarray, start: float = 0.5, end: float = 0.95) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A smoothstep from 0 at ``start`` to 1 at ``end`` of the step's phase ``s``, with its first and second
+    derivatives in s: how far a planned foot has pitched toe-up toward its heel strike."""
+    span = end - start
+    u = np.clip((s - start) / span, 0.0, 1.0)
+    inside = (s > start) & (s < end)
+    return (u * u * (3.0 - 2.0 * u), np.where(inside, 6.0 * u * (1.0 - u) / span, 0.0),
+            np.where(inside, (6.0 - 12.0 * u) / span**2, 0.0))
 
 
 def bezier(s: np.ndarray, p0, p1, p2) -> tuple[np.ndarray, np.ndarray]:
@@ -212,6 +231,36 @@ PLANNED_TOUCHDOWN_AFTER = 0.85  # a planned swing foot touching the floor counts
 # mid-swing and "landed" 35 cm short
 
 
+FLAT_WATCH_S = 0.3  # a landed foot standing on all its points this soon after its touchdown landed in two contacts
+
+
+class LandingWatch:
+    """When each landed foot first stands on both its points: a foot that lands heel first meets the floor twice,
+    and its toe's contact is an impact of its own (``cmrt.sim.objective``: its plan gap is not judged). Watched by
+    the steppers from the contacts they are given, so a recorded clip and an unrecorded one are judged alike."""
+
+    def __init__(self, n: int):
+        self.foot = np.full(n, NO_SWING)  # the foot watched since its touchdown, per simulation
+        self.since_s = np.zeros(n)
+        self.times: list[list[float]] = [[] for _ in range(n)]  # when a landed foot first stood on both points
+
+    def landed(self, sim: int, foot: int, time_s: float) -> None:
+        self.foot[sim], self.since_s[sim] = foot, time_s
+
+    def update(self, ids: np.ndarray, time_s: float, contact: np.ndarray) -> None:
+        """Look at rows ``ids``' contacts (k, 4) now, before this control step's touchdowns."""
+        rows = np.flatnonzero(self.foot[ids] >= 0)
+        if rows.size == 0:
+            return
+        foot, since = self.foot[ids[rows]], self.since_s[ids[rows]]
+        flat = contact[rows, 2 * foot].astype(bool) & contact[rows, 2 * foot + 1].astype(bool)
+        flat &= time_s > since + 1e-9
+        expired = time_s >= since + FLAT_WATCH_S
+        for r in rows[flat & ~expired]:
+            self.times[ids[r]].append(time_s)
+        self.foot[ids[rows[flat | expired]]] = NO_SWING
+
+
 class StepSupervisor:
     """Per-simulation stepping state of a batch of n clips, advanced every control step by ``update``. With a
     ``plan`` it takes those steps, each when it is due, moving a pushed step's landing; a push the plan cannot
@@ -224,6 +273,7 @@ class StepSupervisor:
         self.stance = stance  # the legs' offsets from the reference (right, left x hip, knee, ankle; rad) to stand
         # over feet with heel points at (right x, left x) m (``cmrt.body.stance``); None: the reference's legs
         self.stance_offsets = np.zeros((n, 6))  # those of the feet where the last step landed
+        self.heel_first = np.zeros(n, bool)  # the step under way, or the last one, lands heel first
         self.arm_from_rad = np.zeros((n, 2))  # a planned step's shoulders (right, left) at its lift-off ...
         self.arm_to_rad = np.zeros((n, 2))  # ... and at its touchdown (ARM_SWING_RAD_PER_M)
         self.plan = plan
@@ -250,6 +300,7 @@ class StepSupervisor:
         self.last_touchdown_s = np.full(n, -np.inf)
         self.step_times: list[list[float]] = [[] for _ in range(n)]  # lift-off times
         self.footprints: list[list[tuple[int, float, float]]] = [[] for _ in range(n)]  # (foot, time, heel x)
+        self.flat = LandingWatch(n)
 
     def _gains(self, com_z: np.ndarray, place: bool) -> tuple[np.ndarray, np.ndarray]:
         c = self.config
@@ -323,7 +374,7 @@ class StepSupervisor:
                 # from a walk's split stance had 0.65 m to swing: the foot dragged on the floor)
                 nxt = self.plan.duration_s[np.minimum(self.next_planned[sims], self.plan.foot.size - 1)]
                 self.duration_s[sims] = np.where(self.recovering[sims], nxt, c.step_time_s)
-            self.planned[sims] = False
+            self.planned[sims] = self.heel_first[sims] = False  # a reactive step lands flat
             for s in sims:
                 self.step_times[s].append(time_s)
             swing = self.swing[ids]
@@ -348,6 +399,7 @@ class StepSupervisor:
     def _touchdowns(self, ids: np.ndarray, time_s: float, contact: np.ndarray, point_x: np.ndarray) -> None:
         """End the steps of rows ``ids`` whose swing foot is on the floor late enough in its step, recording the
         footprint (and, for a planned step, where it landed against its target)."""
+        self.flat.update(ids, time_s, contact)
         swing = self.swing[ids]
         rows = np.flatnonzero(swing >= 0)
         if rows.size == 0:
@@ -359,6 +411,7 @@ class StepSupervisor:
         for r in rows[down]:
             sim = ids[r]
             self.footprints[sim].append((int(swing[r]), time_s, float(point_x[r, 2 * swing[r]])))
+            self.flat.landed(sim, int(swing[r]), time_s)
             if self.planned[sim]:  # where its centre landed against where it was asked to
                 landed = 0.5 * (point_x[r, 2 * swing[r]] + point_x[r, 2 * swing[r] + 1])
                 self.placement_error_m[sim].append(
@@ -396,6 +449,7 @@ class StepSupervisor:
         self.target_heel_x[sims] = target_center - self.heel_to_center_m
         self.duration_s[sims] = plan.duration_s[j]
         self.planned[sims] = True
+        self.heel_first[sims] = (direction > 0) & (c.heel_strike_rad > 0.0)
         self.next_planned[sims] = j + 1
         # the arms swing opposite the legs: at touchdown the swinging leg's arm is back (+), the other forward;
         # the plan's last step brings them back to hang
@@ -533,6 +587,12 @@ class StepSupervisor:
             target[rows, 3] = dist * dphi / T
             target[rows, 6] = dist * ddphi / T**2
             target[rows, kernel.S_SWING_GAINS:kernel.S_SWING_GAINS + 3] = (c.swing_weight, c.swing_k, c.swing_d)
+            heel_first = np.flatnonzero(self.heel_first[sims])
+            if heel_first.size:  # toe-up over the swing's second half (a smoothstep), to land heel first
+                target[rows[heel_first], 2], target[rows[heel_first], 5], target[rows[heel_first], 8] = (
+                    v * scale for v, scale in zip(_toe_up(sr[heel_first]), (-c.heel_strike_rad,
+                                                  -c.heel_strike_rad / T[heel_first],
+                                                  -c.heel_strike_rad / T[heel_first] ** 2), strict=True))
             late = phase[rows] > 1.0  # not down yet: aim a few millimetres into the floor, gently
             target[rows, 1] = np.where(late, -0.005, c.lift_m * h)
             target[rows, 4] = np.where(late, 0.0, c.lift_m * dh / T)
@@ -559,6 +619,11 @@ class StepSupervisor:
         settled = np.flatnonzero((swing < 0) & np.isfinite(self.last_touchdown_s[ids]))
         target[settled, kernel.S_SETTLED] = 1.0  # both feet down after a step: stand over them
         target[settled, kernel.S_STANCE:kernel.S_STANCE + 6] = self.stance_offsets[ids[settled]]
+        landed = settled[self.heel_first[ids[settled]]]
+        if landed.size:  # the foot that landed heel first lowers its toe to the floor
+            target[landed, kernel.S_LANDING] = [self.footprints[sim][-1][0] + 1.0 for sim in ids[landed]]
+            target[landed, kernel.S_LANDING + 1:kernel.S_LANDING + 5] = (c.landing_pitch_rad, c.landing_weight,
+                                                                          c.landing_k, c.landing_d)
         return StepCommand(swing.astype(float), target, com_ref, com_vel,
                            None if self.plan is None else np.full(k, np.nan), self._arms(ids, s, rows))
 

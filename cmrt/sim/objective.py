@@ -430,6 +430,7 @@ def _impact_windows(traj: Trajectory, first_contact_s: float | None, touchdowns:
     starts = [] if first_contact_s is None else [first_contact_s]
     if touchdowns:
         starts += [float(f[1]) for f in traj.footprints]
+        starts += list(traj.flat_times_s)  # a heel-first landing's toe: its own impact
     for start in starts:
         inside |= (t >= start - 1e-9) & (t < start + IMPACT_WINDOW_S)
     return inside

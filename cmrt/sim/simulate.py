@@ -118,6 +118,8 @@ class Trajectory:
     task_success: bool | None = None  # goal reached (ball caught and held, slab toppled, pad struck)
     step_times_s: tuple[float, ...] = ()  # lift-off of every step the supervisor took (stepping tasks)
     footprints: tuple[tuple[int, float, float], ...] = ()  # (foot 0 right / 1 left, touchdown s, heel x m)
+    flat_times_s: tuple[float, ...] = ()  # when a landed foot first stood on both its points (a heel-first landing's
+    # second contact: ``cmrt.control.stepping.LandingWatch``)
     prop_extras: dict[str, float] = field(default_factory=dict)  # e.g. grip_s, ball_sag_m for a ball
     fall_capture_point_x_m: float | None = None  # at the fall (the direction of a fall not played out)
     fall_com_vel_x_m_s: float | None = None
@@ -148,6 +150,7 @@ class Trajectory:
         out["step_times_s"] = np.array(self.step_times_s, float)
         out["footprints"] = np.array(self.footprints, float).reshape(-1, 3)
         out["footstep_errors_m"] = np.array(self.footstep_errors_m, float)
+        out["flat_times_s"] = np.array(self.flat_times_s, float)
         return out
 
 
@@ -1331,6 +1334,8 @@ def _trajectories(task: Task, rec: _Recorder, times: np.ndarray, last: np.ndarra
                                                           if not code or t <= times[falls.step[i]]),
             footprints=() if stepper is None else tuple(f for f in stepper.footprints[i]
                                                         if not code or f[1] <= times[falls.step[i]]),
+            flat_times_s=() if stepper is None else tuple(t for t in stepper.flat.times[i]
+                                                          if not code or t <= times[falls.step[i]]),
             footstep_errors_m=() if stepper is None else tuple(e for t, e in stepper.placement_error_m[i]
                                                                if not code or t <= times[falls.step[i]]),
             support_pose=None if poses is None else poses[min(i, poses.shape[0] - 1), : last[i]].copy(),
