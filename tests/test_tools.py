@@ -698,7 +698,7 @@ def test_stepping_table_measures_plans_pushes_and_yus_walk():
         assert r["outcome"] in ("success", "survived") and r["footsteps_landed"] == r["planned_steps"]
         assert r["max_footstep_error_m"] < 0.02 and r["peak_touchdown_force_bw"] <= 2.5
         assert 0.0 < r["max_touchdown_speed_m_s"] < 0.3  # heel-first or flat, gently (docs/stepping.md)
-        assert 0.0 <= r["max_timing_error_s"] < 0.3
+        assert -0.05 <= r["max_timing_error_s"] < 0.3  # a heel-first landing touches a little early
     (push,) = result["pushes"]
     assert (push["push_n"], push["push_start_s"]) == (100.0, 1.0)
     assert push["outcome"] in ("success", "survived", "fell") and push["steps"] >= 1
