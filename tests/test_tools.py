@@ -393,6 +393,40 @@ def test_find_library_curve_tool_writes_a_plans_steps_into_its_entry():
     assert entry["params"]["planned_step_s"] == 0.5
 
 
+def test_rescore_library_measures_each_entry_again_and_keeps_its_curve(tmp_path):
+    """After a physics change the library's figures are measured again on the entries' own CMRTs: a rise entry
+    whose stored figures were spoiled gets its real ones back (the shipped values, within 1 % on another machine),
+    its knots and provenance untouched and a ``rescored`` stamp; an entry that is no longer a success (the fast
+    bend's zero CMRT recorded as one) makes the tool exit 1; no library: exit 2."""
+    shipped = json.loads((ROOT / "cmrt" / "motion" / "library.json").read_text())["entries"]
+    rise = next(e for e in shipped if e["task"] == "rise" and not e.get("robust"))
+    spoiled = {**rise, "objective": 99.0, "success": False, "zero_cmrt_objective": 0.0}
+    spoiled.pop("robustness")  # no validation ensemble: a quick test
+    library = tmp_path / "library.json"
+    library.write_text(json.dumps({"entries": [spoiled]}))
+    r = run_tool("rescore_library.py", "--library", str(library), "--when", "test", "--json")
+    assert r.returncode == 0, r.stderr
+    (entry,) = json.loads(library.read_text())["entries"]
+    assert entry["objective"] == pytest.approx(rise["objective"], rel=0.01) and entry["success"]
+    assert entry["zero_cmrt_objective"] == pytest.approx(rise["zero_cmrt_objective"], rel=0.01)
+    assert entry["cmrt"] == rise["cmrt"] and entry["evaluations"] == rise["evaluations"]
+    assert entry["rescored"] == "test" and "robustness" not in entry
+    (row,) = json.loads(r.stdout)["rows"]
+    assert (row["old_objective"], row["old_success"], row["success"]) == (99.0, False, True)
+
+    bend = next(e for e in shipped if e["task"] == "bend" and e["speed"] == 0.4 and not e.get("robust")
+                and "reference" not in e)
+    zero = {**bend, "cmrt": {**bend["cmrt"], "values_m": [0.0] * 4}, "success": True}
+    zero.pop("robustness")
+    library.write_text(json.dumps({"entries": [zero]}))
+    before = library.read_bytes()
+    r = run_tool("rescore_library.py", "--library", str(library), "--dry-run")
+    assert r.returncode == 1 and "True -> False" in r.stdout
+    assert library.read_bytes() == before  # --dry-run writes nothing
+    r = run_tool("rescore_library.py", "--library", str(tmp_path / "none.json"))
+    assert r.returncode == 2 and "no library" in r.stderr
+
+
 def test_interpolation_table_tool():
     rows = json.loads(_ok(run_tool("interpolation_table.py", "--between", "0.5", "--beyond", "0.35",
                                    "--max-evals", "10", "--json")).stdout)

@@ -49,3 +49,17 @@ def test_balanced_pose_puts_com_over_support_center():
 def test_the_gravity_constant_is_the_models():
     """One gravity for the whole package (controller, fall monitor, props, objective): the MJCF's."""
     assert character().model.opt.gravity.tolist() == [0.0, 0.0, -GRAVITY_M_S2]
+
+
+def test_the_foot_points_are_a_heel_pads_contact():
+    """MuJoCo averages two geoms' solref (solmix 1 each): foot points at 0.02 s on the 0.01 s floor are a 0.015 s
+    contact (the heel pad of humanoid.xml), not the 0.02 s their class names - on both bodies."""
+    for body in ("planar", "humanoid3d"):
+        ch = character(body)
+        m, d = ch.model, mujoco.MjData(ch.model)
+        d.qpos[:] = feet_flat_qpos(joint_angles_from_pose({}), balance_joint=None, body=body)
+        d.qpos[1 if body == "planar" else 2] -= 0.002  # the root 2 mm lower: every foot point 2 mm into the floor
+        mujoco.mj_forward(m, d)
+        feet = [c for c in d.contact[: d.ncon] if set(c.geom) & set(ch.foot_point_geoms)]
+        assert len(feet) == len(ch.foot_point_geoms), body
+        assert all(np.allclose(c.solref, [0.015, 1.0]) for c in feet), body
