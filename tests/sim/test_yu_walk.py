@@ -129,7 +129,7 @@ def _swing_leg_error_rad(task, traj) -> float:
 def test_the_swing_leg_follows_the_gait(walked, monkeypatch):
     """The swing leg tracks the gait's angles at full weight (kernel.S_SWING_TRACKED), its heel steered along the
     gait's path too. Measured: 0.029 rad RMS against the gait's angles over the swings, 0.060 rad with the leg left
-    to its heel's target as a footstep plan's is (and a peak ground force of 2.04 body weights instead of 1.88)."""
+    to its heel's target as a footstep plan's is (and a peak ground force of 1.67 body weights instead of 1.40)."""
     import cmrt.control.gait as gait_control
 
     task, traj, _ = walked
