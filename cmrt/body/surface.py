@@ -59,6 +59,7 @@ BOX_PARAMS = ("box_mass_kg", "box_stiffness_n_m", "box_damping_ratio")
 #: The one that changes the compiled model (the others act through ``Support.field``).
 MODEL_PARAMS = ("floor_friction",)
 FLOOR_PRIORITY = 1  # above the feet's and props' 0: the contact takes the floor's friction, not the larger of two
+PAD_GEOM = "heel_r"  # a foot point: its solref is the heel pad's
 # The contact model on any support but the still level floor of default friction (the floor of before keeps its
 # model, bit for bit: its tangential loads are brief). Measured on stand with a 100 N push, 4 s:
 # * MuJoCo's soft friction lets a contact creep under a lasting tangential load (the constraint is a damper on the
@@ -253,6 +254,10 @@ def add_to_spec(spec: mujoco.MjSpec, values: dict[str, float]) -> None:
         floor = spec.geom("floor")
         floor.friction[0] = values["floor_friction"]
         floor.priority = FLOOR_PRIORITY
+        # priority hands the floor every parameter of its contacts, solref too: without this the feet lost their heel
+        # pad (humanoid.xml) on any floor of another friction. The floor carries the pad's contact instead: the
+        # average MuJoCo takes of the two geoms' solref without priority (solmix 1 each)
+        floor.solref = 0.5 * (np.asarray(floor.solref) + np.asarray(spec.geom(PAD_GEOM).solref))
     if values.get("surface"):
         spec.option.cone = CONE
         spec.option.impratio = IMPRATIO

@@ -114,6 +114,20 @@ def test_the_floor_friction_is_the_floors():
     assert m.geom_friction[floor, 0] == pytest.approx(0.08) and m.geom_priority[floor] > 0
 
 
+def test_the_feet_keep_their_heel_pad_on_a_floor_of_another_friction():
+    """Priority hands the floor every contact parameter, solref too: the floor carries the heel pad's contact (the
+    0.015 s the feet have on the default floor), so a slippery floor is slippery, not also stiffer."""
+    for friction in (1.0, 0.08, 1.5):
+        m = load_task("stand").with_params(floor_friction=friction).model()
+        d = mujoco.MjData(m)
+        d.qpos[:] = load_task("stand").start_qpos()
+        d.qpos[1] -= 0.002  # every foot point 2 mm into the floor
+        mujoco.mj_forward(m, d)
+        feet = [c for c in d.contact[: d.ncon] if m.geom("floor").id in c.geom]
+        assert len(feet) == 4 and all(np.allclose(c.solref, [0.015, 1.0]) for c in feet), friction
+        assert all(c.friction[0] == pytest.approx(friction) for c in feet)
+
+
 @pytest.mark.parametrize("key,value", [("slope_deg", 40), ("floor_friction", 0), ("tilt_period_s", 0.1),
                                        ("tilt_amplitude_deg", -5), ("sway_amplitude_m", 2)])
 def test_surface_parameters_out_of_range_are_refused(key, value):
