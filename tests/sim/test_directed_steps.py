@@ -12,7 +12,7 @@ from cmrt.sim.objective import FOOTSTEP_TOLERANCE_M, evaluate
 from cmrt.sim.simulate import simulate, simulate_batch
 
 TWO_STEPS = "R:+0.30:0.6,L:+0.60:0.6"
-# The rules a clip that steps may still break (controller v0.5, docs/stepping.md): fast or pushed steps slam
+# The rules a clip that steps may still break (controller v0.6, docs/stepping.md): fast or pushed steps slam
 # (ground_force), the CoP reaches an end of a foot at a lift-off or a landing (cop_margin), a plan's weight shift
 # misses by a few mm after a push (plan). Since v0.5 a split stance is judged against the stance over the landed
 # feet, not the standing pose. What these tests check is the stepping itself; each states which rules it breaks.
