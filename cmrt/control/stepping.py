@@ -72,7 +72,7 @@ class StepConfig:
     # a planned step forward lands heel first: its foot pitches toe-up over the second half of the swing to this at
     # touchdown (0: lands flat), then lowers its toe toward ``landing_pitch_rad`` past flat with the pitch objective
     # (weight, stiffness 1/s^2, damping 1/s). On the heel pad the walk lands at 1.39 body weights and its stance
-    # feet's CoP rolls 0.75 of heel to toe; flat, 1.46 and -0.06 (docs/stepping.md, *What it does*)
+    # feet's CoP rolls 0.75 of heel to toe; flat, 1.46 and -0.06 (docs/stepping.md, *Directed steps*)
     heel_strike_rad: float = 0.05
     landing_pitch_rad: float = 0.03
     landing_weight: float = 100.0
