@@ -63,12 +63,12 @@ PAD_GEOM = "heel_r"  # a foot point: its solref is the heel pad's
 # The contact model on any support but the still level floor of default friction (the floor of before keeps its
 # model, bit for bit: its tangential loads are brief). Measured on stand with a 100 N push, 4 s:
 # * MuJoCo's soft friction lets a contact creep under a lasting tangential load (the constraint is a damper on the
-#   contact's velocity: a steady force needs a steady slip): on a 15 degree slope a planted foot crept 4 cm in 4 s;
+#   contact's velocity: a steady force needs a steady slip): on a 15 degree slope a planted foot crept 4.8 cm in 4 s;
 # * its default pyramidal cone with the no-slip pass stops that creep, but at Yu's friction 0.08 it unloaded
-#   sliding feet for a step and hit the floor at 2.7 body weights;
+#   sliding feet for a step and hit the floor at 2.3 body weights;
 # * the elliptic cone slides them smoothly (peak 1.01 body weights), and a frictional impedance IMPRATIO times the
-#   normal one holds a planted foot (0.2 mm in 4 s on the slope, against 2.1 mm at 10); the no-slip pass then
-#   changes nothing measurable, so it is off.
+#   normal one holds a planted foot (0.2 mm in 4 s on the slope, against 2.4 mm at 10); the no-slip pass then
+#   changes nothing measurable, so it is off. (Controller v0.6, the heel pad: docs/surfaces.md.)
 CONE = mujoco.mjtCone.mjCONE_ELLIPTIC
 IMPRATIO = 100.0
 
