@@ -25,8 +25,9 @@ from cmrt.motion.library import LIBRARY_PATH, load_entries
 from cmrt.motion.taskfile import resolve_task
 from cmrt.sim.validate import robustness
 
-FIGURES = ("objective", "success", "fell", "task_success", "tracking_error_rad", "min_cop_margin_m",
-           "final_pose_error_rad", "zero_cmrt_objective", "zero_cmrt_success", "zero_cmrt_fell")
+CLIP_FIGURES = ("objective", "success", "fell", "task_success", "tracking_error_rad", "min_cop_margin_m",
+                "final_pose_error_rad")  # an entry's own clip, as find_library_curve.py records it
+ZERO_FIGURES = ("objective", "success", "fell")  # its zero CMRT's, as zero_cmrt_<figure>
 
 
 def entry_task(entry: dict):
@@ -46,10 +47,8 @@ def rescore(entry: dict, when: str) -> dict:
     check = evaluate(task, simulate(task, curve))
     zero = evaluate(task, simulate(task, Cmrt.zero(task.clip_s), record=False))
     out = dict(entry)
-    out.update(objective=check.objective, success=check.success, fell=check.fell, task_success=check.task_success,
-               tracking_error_rad=check.tracking_error_rad, min_cop_margin_m=check.min_cop_margin_m,
-               final_pose_error_rad=check.final_pose_error_rad, zero_cmrt_objective=zero.objective,
-               zero_cmrt_success=zero.success, zero_cmrt_fell=zero.fell)
+    out.update({k: getattr(check, k) for k in CLIP_FIGURES})
+    out.update({f"zero_cmrt_{k}": getattr(zero, k) for k in ZERO_FIGURES})
     if entry.get("robustness") is not None:
         out["robustness"] = robustness(task, curve)
     out["rescored"] = when
