@@ -1,0 +1,204 @@
+"""The momentum balance controller in three dimensions (Macchietto et al. 2009), over a body's description.
+
+The planar kernel (``cmrt.control.kernel``) plans one net ground wrench; a 3D foot rests on four points, and the
+ground can only push each one inside its own friction cone. So this controller plans what TSID calls the contact
+forces themselves: its unknowns are the joint accelerations qdd (nv) and a force per loaded contact point (3 each),
+and it solves, every control step, the small QP
+
+    min  b_l |A_L qdd + a_L - Ldot_des|^2 + b_h |A_H qdd + a_H - Hdot_des|^2 + b_t |W (qdd_des - qdd)|^2
+         + eps (|qdd|^2 + |f|^2)
+    s.t. M_base qdd + h_base = J_base^T f           (the floating base moves only as the forces say: 6 rows)
+         J_foot qdd + Jdot_foot qd = -k_s J_foot qd  (a supporting foot stays where it is: 6 rows per foot)
+         f_z >= f_min,  |f_x|, |f_y| <= mu f_z       (a friction pyramid per point)
+         |M_act qdd + h_act - J_act^T f| <= tau_max  (the motors' limits, as in the planar plan)
+
+with the planar controller's objectives written in 3D: Ldot_des = k_l m (c_r - c) + d_l (m cdot_r - L) on the CoM
+and its velocity sensed ``feedback_delay_s`` ago (a person's reaction), and Hdot_des = (p_r - c) x (Ldot_des + m g)
+- the angular momentum rate that puts the CoP at its reference p_r, the support's centre (the planar rule
+``hdot = -c_z ldot_x - (p_x - c_x) m g`` is its y row). The CoP is inside the feet's polygon by construction: every
+point's force is a cone's. Gains and weights are the planar ``ControllerConfig``'s (docs/controller.md).
+
+The torques follow from the plan by inverse dynamics (the actuated rows of M qdd + h - J^T f), so the plan is what
+the motors are asked for; MuJoCo's own M, bias forces, Jacobians and their rates are used throughout, and the
+centroidal momentum's bias is ``kernel.centroidal_spatial``'s, the rows the planar kernel also uses.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import daqp
+import mujoco
+import numpy as np
+
+from cmrt.body.character import GRAVITY_M_S2, Character
+from cmrt.control import kernel
+from cmrt.control.controller import ControllerConfig
+from cmrt.control.planar import PlanarKinematics
+from cmrt.errors import CmrtError
+
+N_BASE = 6  # a free root's dofs
+EQUALITY = 5  # daqp's sense for an equality row
+
+
+@dataclass(frozen=True)
+class SpatialPlan:
+    """What one control step planned: the actuator torques (N m), each contact point's force (N, world frame; zero
+    where the point is not loaded) and the CoP those forces put on the floor (m, x and y)."""
+
+    torque_nm: np.ndarray
+    point_force_n: np.ndarray
+    cop_xy_m: np.ndarray
+
+
+class SpatialController:
+    """The 3D momentum controller of one simulation: ``plan`` once per control step on a forward-computed MjData."""
+
+    def __init__(self, ch: Character, q_ref: np.ndarray, config: ControllerConfig = ControllerConfig(),
+                 control_step_s: float | None = None):
+        m = ch.model
+        if m.nv - len(ch.actuated_dofs) != N_BASE:
+            raise CmrtError(f"the 3D controller needs a free root: body {ch.body!r} has {m.nv - len(ch.actuated_dofs)}"
+                            " unactuated dofs")
+        self.ch, self.config = ch, config
+        self.q_ref = np.asarray(q_ref, float)
+        self.act_dofs = np.asarray(ch.actuated_dofs)
+        self.act_qpos = m.jnt_qposadr[m.dof_jntid[self.act_dofs]]
+        self.gear = m.actuator_gear[:, 0]
+        self.points = ch.foot_point_geoms
+        self.chain = PlanarKinematics(m).chain.astype(bool)
+        # the planar floor per heel or toe point, shared by the points across that end of a 3D foot: the same
+        # force per length of foot, so the same share of the foot stays open to the CoP
+        self.point_floor_n = config.min_point_force_n * 4 / len(self.points)
+        self.mass_kg = float(m.body_subtreemass[1])
+        step_s = control_step_s if control_step_s is not None else m.opt.timestep * config.control_every
+        self.delay_steps = int(round(config.feedback_delay_s / step_s))
+        self.history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=self.delay_steps + 1)
+        self.com_ref_m: np.ndarray | None = None  # the CoM held: where it was at the first control step
+        self.cop_ref_m: np.ndarray | None = None  # the CoP asked for: the feet's centre at the first control step
+        self.infeasible = False  # the last plan found none within the motors' limits (clipped after the solve)
+
+    def plan(self, d: mujoco.MjData, loaded: np.ndarray) -> SpatialPlan:
+        """Plan this control step from ``d`` (after mj_forward) with ``loaded`` (n points,) the points touching
+        the floor; raises CmrtError where the QP has no solution (the feet cannot carry the body)."""
+        m, c = self.ch.model, self.config
+        nv, n_pts = m.nv, len(self.points)
+        com = d.subtree_com[1].copy()
+        A, a = self._momentum(d)
+        self.history.append((com, A[:3] @ d.qvel / self.mass_kg))
+        if self.com_ref_m is None:
+            self.com_ref_m = com.copy()
+            self.cop_ref_m = d.geom_xpos[list(self.points), :2].mean(axis=0)
+        com_seen, vel_seen = self.history[0]  # the state ``feedback_delay_s`` ago (the oldest kept)
+        ldot = c.k_l * self.mass_kg * (self.com_ref_m - com_seen) - c.d_l * self.mass_kg * vel_seen
+        force = ldot + np.array([0.0, 0.0, self.mass_kg * GRAVITY_M_S2])
+        p_ref = np.array([self.cop_ref_m[0], self.cop_ref_m[1], 0.0])
+        hdot = np.cross(p_ref - com, force)
+        Jp = self._point_jacobians(d)
+        H_qp, f_qp = self._objective(d, A, a, ldot, hdot, n_pts)
+        rows, lo, hi, sense = self._constraints(d, Jp, loaded)
+        x, _, flag, _ = daqp.solve(H_qp, f_qp, rows, hi, lo, sense)
+        self.infeasible = flag < 1
+        if self.infeasible:  # no plan within the motors' limits (a fall): the plan without them, clipped after
+            n_limits = len(self.act_dofs)
+            x, _, flag, _ = daqp.solve(H_qp, f_qp, rows[:-n_limits], hi[:-n_limits], lo[:-n_limits],
+                                       sense[:-n_limits])
+            if flag < 1:
+                raise CmrtError(f"the 3D balance QP has no solution (daqp exit {flag})")
+        qdd, forces = x[:nv], x[nv:].reshape(n_pts, 3)
+        M = np.zeros((nv, nv))
+        mujoco.mj_fullM(m, d, M)
+        generalized = M @ qdd + d.qfrc_bias - Jp.T @ x[nv:]
+        torque = np.clip(generalized[self.act_dofs], -self.ch.torque_limit_nm, self.ch.torque_limit_nm)
+        fz = forces[:, 2].sum()
+        xy = d.geom_xpos[list(self.points), :2]
+        cop = (forces[:, 2:3] * xy).sum(axis=0) / fz if fz > 1e-9 else np.full(2, np.nan)
+        return SpatialPlan(torque / self.gear, forces, cop)
+
+    def _momentum(self, d: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+        """The centroidal momentum matrix (6, nv) - MuJoCo's own - and its bias, A qdd + a being the rate."""
+        m = self.ch.model
+        A = np.empty((6, m.nv))
+        mujoco.mj_jacSubtreeCom(m, d, A[:3], 1)
+        A[:3] *= self.mass_kg
+        mujoco.mj_angmomMat(m, d, A[3:], 1)
+        _, a = kernel.centroidal_spatial(d.cdof, d.cdof_dot, d.cvel, d.cinert, d.qvel, self.chain)
+        return A, a
+
+    def _point_jacobians(self, d: mujoco.MjData) -> np.ndarray:
+        """The contact points' translational Jacobians stacked (3 n, nv), at each sphere's lowest point."""
+        m = self.ch.model
+        rows = []
+        for g in self.points:
+            jacp = np.empty((3, m.nv))
+            point = d.geom_xpos[g] - np.array([0.0, 0.0, m.geom_size[g, 0]])
+            mujoco.mj_jac(m, d, jacp, None, point, m.geom_bodyid[g])
+            rows.append(jacp)
+        return np.vstack(rows)
+
+    def _objective(self, d: mujoco.MjData, A: np.ndarray, a: np.ndarray, ldot: np.ndarray, hdot: np.ndarray,
+                   n_pts: int) -> tuple[np.ndarray, np.ndarray]:
+        """The QP's cost (H, f) over x = [qdd, f]: momentum rates, joint tracking, a small regularization."""
+        c, nv = self.config, self.ch.model.nv
+        n = nv + 3 * n_pts
+        H = np.zeros((n, n))
+        f = np.zeros(n)
+        H[:nv, :nv] += c.beta_l * A[:3].T @ A[:3] + c.beta_h * A[3:].T @ A[3:]
+        f[:nv] -= c.beta_l * A[:3].T @ (ldot - a[:3]) + c.beta_h * A[3:].T @ (hdot - a[3:])
+        q = d.qpos[self.act_qpos]
+        qd = d.qvel[self.act_dofs]
+        qdd_des = c.k_t * (self.q_ref[self.act_qpos] - q) - c.d_t * qd
+        H[self.act_dofs, self.act_dofs] += c.beta_t
+        f[self.act_dofs] -= c.beta_t * qdd_des
+        H[np.arange(n), np.arange(n)] += c.regularization
+        return 2.0 * H, 2.0 * f
+
+    def _constraints(self, d: mujoco.MjData, Jp: np.ndarray, loaded: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The QP's rows (A, lo, hi, sense): base dynamics and supporting feet (equalities), each point's friction
+        pyramid and floor (a point off the floor carries nothing), the motors' limits."""
+        m, c = self.ch.model, self.config
+        nv, n_pts = m.nv, len(self.points)
+        n = nv + 3 * n_pts
+        M = np.zeros((nv, nv))
+        mujoco.mj_fullM(m, d, M)
+        rows, lo, hi, sense = [], [], [], []
+
+        def add(row, low, high, kind=0):
+            rows.append(row)
+            lo.append(low)
+            hi.append(high)
+            sense.append(kind)
+
+        for r in range(N_BASE):  # M_base qdd - J_base^T f = -h_base
+            add(np.concatenate([M[r], -Jp[:, r]]), -d.qfrc_bias[r], -d.qfrc_bias[r], EQUALITY)
+        for foot, pair in enumerate(self.ch.foot_points):
+            if not loaded[[self.points.index(g) for g in pair]].any():
+                continue
+            body = self.ch.foot_bodies[foot]
+            jac, jdot = np.empty((6, nv)), np.empty((6, nv))
+            mujoco.mj_jacBody(m, d, jac[:3], jac[3:], body)
+            mujoco.mj_jacDot(m, d, jdot[:3], jdot[3:], d.xpos[body], body)
+            rhs = -jdot @ d.qvel - c.support_damping * (jac @ d.qvel)
+            for r in range(6):
+                add(np.concatenate([jac[r], np.zeros(3 * n_pts)]), rhs[r], rhs[r], EQUALITY)
+        mu = c.friction_coef
+        for p in range(n_pts):
+            fx, fy, fz = nv + 3 * p, nv + 3 * p + 1, nv + 3 * p + 2
+            floor = self.point_floor_n if loaded[p] else 0.0
+            ceiling = np.inf if loaded[p] else 0.0
+            add(_unit(n, fz), floor, ceiling)
+            for k in (fx, fy):
+                add(_unit(n, k) - mu * _unit(n, fz), -np.inf, 0.0)
+                add(_unit(n, k) + mu * _unit(n, fz), 0.0, np.inf)
+        limit = self.ch.torque_limit_nm
+        for i, dof in enumerate(self.act_dofs):  # tau = M_a qdd + h_a - J_a^T f within its limit
+            add(np.concatenate([M[dof], -Jp[:, dof]]), -limit[i] - d.qfrc_bias[dof], limit[i] - d.qfrc_bias[dof])
+        return (np.asarray(rows), np.asarray(lo, float), np.asarray(hi, float), np.asarray(sense, dtype=np.int32))
+
+
+def _unit(n: int, k: int) -> np.ndarray:
+    row = np.zeros(n)
+    row[k] = 1.0
+    return row

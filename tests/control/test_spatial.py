@@ -1,0 +1,54 @@
+"""The 3D momentum controller's plan (cmrt.control.spatial): point forces inside their cones, the body's weight
+carried, torques within the motors' limits; a body without a free root refused."""
+
+import mujoco
+import numpy as np
+import pytest
+
+from cmrt.body.character import character
+from cmrt.control.controller import ControllerConfig
+from cmrt.control.spatial import SpatialController
+from cmrt.errors import CmrtError
+from cmrt.sim.spatial import BODY, stand_pose_qpos
+
+
+def _standing():
+    ch = character(BODY)
+    d = mujoco.MjData(ch.model)
+    d.qpos[:] = stand_pose_qpos()
+    rng = np.random.default_rng(3)
+    d.qvel[:] = 0.05 * rng.standard_normal(ch.model.nv)
+    mujoco.mj_forward(ch.model, d)
+    return ch, d
+
+
+def test_the_plan_keeps_every_point_in_its_cone_and_carries_the_body():
+    ch, d = _standing()
+    config = ControllerConfig()
+    ctl = SpatialController(ch, d.qpos.copy(), config)
+    plan = ctl.plan(d, np.ones(len(ch.foot_point_geoms), bool))
+    f = plan.point_force_n
+    assert not ctl.infeasible
+    assert (f[:, 2] >= ctl.point_floor_n - 1e-6).all()
+    assert (np.abs(f[:, :2]) <= config.friction_coef * f[:, 2:3] + 1e-6).all()
+    assert np.abs(plan.torque_nm * ch.model.actuator_gear[:, 0]).max() <= ch.torque_limit_nm.max() + 1e-6
+    weight_n = ctl.mass_kg * 9.81
+    assert abs(f[:, 2].sum() - weight_n) < 0.1 * weight_n  # the momentum objectives ask for little vertical motion
+    xy = d.geom_xpos[list(ch.foot_point_geoms), :2]
+    assert xy[:, 0].min() < plan.cop_xy_m[0] < xy[:, 0].max()
+    assert xy[:, 1].min() < plan.cop_xy_m[1] < xy[:, 1].max()
+
+
+def test_unloaded_points_carry_nothing():
+    ch, d = _standing()
+    ctl = SpatialController(ch, d.qpos.copy())
+    loaded = np.ones(len(ch.foot_point_geoms), bool)
+    loaded[:4] = False  # the right foot off the floor
+    plan = ctl.plan(d, loaded)
+    assert np.abs(plan.point_force_n[:4]).max() < 1e-6
+    assert plan.point_force_n[4:, 2].sum() > 0.5 * ctl.mass_kg * 9.81
+
+
+def test_a_planar_body_is_refused():
+    with pytest.raises(CmrtError, match="free root"):
+        SpatialController(character("planar"), np.zeros(character("planar").model.nq))
