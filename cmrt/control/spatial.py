@@ -11,6 +11,7 @@ and it solves, every control step, the small QP
          J_foot qdd + Jdot_foot qd = -k_s J_foot qd  (a supporting foot stays where it is: 6 rows per foot)
          f_z >= f_min,  |f_x|, |f_y| <= mu f_z       (a friction pyramid per point)
          |M_act qdd + h_act - J_act^T f| <= tau_max  (the motors' limits, as in the planar plan)
+         qdd >= -k_j (q - lo) - d_j qd, qdd <= -k_j (q - hi) - d_j qd  (each joint's stops, less a margin)
 
 with the planar controller's objectives written in 3D: Ldot_des = k_l m (c_r - c) + d_l (m cdot_r - L) on the CoM
 and its velocity sensed ``feedback_delay_s`` ago (a person's reaction), and Hdot_des = (p_r - c) x (Ldot_des + m g)
@@ -53,7 +54,8 @@ class SpatialPlan:
 
 
 class SpatialController:
-    """The 3D momentum controller of one simulation: ``plan`` once per control step on a forward-computed MjData."""
+    """The 3D momentum controller of one simulation: ``plan`` once per control step on a forward-computed MjData.
+    ``q_ref`` (nq) is the pose it holds, kept ``stop_margin_rad`` inside every joint's stops."""
 
     def __init__(self, ch: Character, q_ref: np.ndarray, config: ControllerConfig = ControllerConfig(),
                  control_step_s: float | None = None):
@@ -62,9 +64,12 @@ class SpatialController:
             raise CmrtError(f"the 3D controller needs a free root: body {ch.body!r} has {m.nv - len(ch.actuated_dofs)}"
                             " unactuated dofs")
         self.ch, self.config = ch, config
-        self.q_ref = np.asarray(q_ref, float)
         self.act_dofs = np.asarray(ch.actuated_dofs)
         self.act_qpos = m.jnt_qposadr[m.dof_jntid[self.act_dofs]]
+        lo, hi = ch.joint_range_rad()
+        self.stops = (lo + config.stop_margin_rad, hi - config.stop_margin_rad)  # the plan stays inside these
+        self.q_ref = np.asarray(q_ref, float).copy()  # ... and so does the reference (a standing knee's 0 is a stop)
+        self.q_ref[self.act_qpos] = np.clip(self.q_ref[self.act_qpos], *self.stops)
         self.gear = m.actuator_gear[:, 0]
         self.points = ch.foot_point_geoms
         self.chain = PlanarKinematics(m).chain.astype(bool)
@@ -77,7 +82,7 @@ class SpatialController:
         self.history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=self.delay_steps + 1)
         self.com_ref_m: np.ndarray | None = None  # the CoM held: where it was at the first control step
         self.cop_ref_m: np.ndarray | None = None  # the CoP asked for: the feet's centre at the first control step
-        self.infeasible = False  # the last plan found none within the motors' limits (clipped after the solve)
+        self.infeasible = False  # the last plan found none within the stops and limits (clipped after the solve)
 
     def plan(self, d: mujoco.MjData, loaded: np.ndarray) -> SpatialPlan:
         """Plan this control step from ``d`` (after mj_forward) with ``loaded`` (n points,) the points touching
@@ -100,8 +105,8 @@ class SpatialController:
         rows, lo, hi, sense = self._constraints(d, Jp, loaded)
         x, _, flag, _ = daqp.solve(H_qp, f_qp, rows, hi, lo, sense)
         self.infeasible = flag < 1
-        if self.infeasible:  # no plan within the motors' limits (a fall): the plan without them, clipped after
-            n_limits = len(self.act_dofs)
+        if self.infeasible:  # no plan within the stops and the motors' limits (a fall): the plan without those
+            n_limits = 2 * len(self.act_dofs)  # rows (the last), its torques clipped after the solve
             x, _, flag, _ = daqp.solve(H_qp, f_qp, rows[:-n_limits], hi[:-n_limits], lo[:-n_limits],
                                        sense[:-n_limits])
             if flag < 1:
@@ -192,8 +197,13 @@ class SpatialController:
             for k in (fx, fy):
                 add(_unit(n, k) - mu * _unit(n, fz), -np.inf, 0.0)
                 add(_unit(n, k) + mu * _unit(n, fz), 0.0, np.inf)
+        q, qd = d.qpos[self.act_qpos], d.qvel[self.act_dofs]
+        for i, dof in enumerate(self.act_dofs):  # approach a stop no faster than a critically damped spring
+            low = -c.stop_k * (q[i] - self.stops[0][i]) - c.stop_d * qd[i]
+            high = -c.stop_k * (q[i] - self.stops[1][i]) - c.stop_d * qd[i]
+            add(_unit(n, dof), low if np.isfinite(low) else -np.inf, high if np.isfinite(high) else np.inf)
         limit = self.ch.torque_limit_nm
-        for i, dof in enumerate(self.act_dofs):  # tau = M_a qdd + h_a - J_a^T f within its limit
+        for i, dof in enumerate(self.act_dofs):  # tau = M_a qdd + h_a - J_a^T f within its limit (the last rows)
             add(np.concatenate([M[dof], -Jp[:, dof]]), -limit[i] - d.qfrc_bias[dof], limit[i] - d.qfrc_bias[dof])
         return (np.asarray(rows), np.asarray(lo, float), np.asarray(hi, float), np.asarray(sense, dtype=np.int32))
 

@@ -5,6 +5,11 @@ planar clips) and its torques are held between. A push is a force on the thorax 
 ``push_duration_s``. The executed CoP is the touch sensors' (every foot point's normal force at its place), the
 planned one the controller's point forces'. The body has fallen when its CoM has come down ``FALL_DROP_M`` from
 where it stood; the fall's direction is where its CoM went horizontally.
+
+The verdict is the planar one's for a clip without a motion to perform (the same bounds, ``cmrt.sim.objective``):
+``balance`` (no fall), ``settled`` (the CoM still at the end), ``plan`` (planned and executed CoP within 5 mm on
+each axis outside the impact windows) and ``cop_margin`` (the executed CoP at least 1 mm inside the support
+polygon - the convex hull of the touching points - in every sample judged).
 """
 
 from __future__ import annotations
@@ -13,14 +18,15 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+from scipy.spatial import ConvexHull, QhullError
 
 from cmrt.body.character import character, feet_flat_qpos, joint_angles_from_pose
 from cmrt.control.controller import ControllerConfig
 from cmrt.control.spatial import SpatialController
+from cmrt.sim.objective import MAX_PLAN_COP_ERROR_M, MIN_COP_MARGIN_M, SETTLED_COM_SPEED_M_S
 
 BODY = "humanoid3d"
 FALL_DROP_M = 0.25  # the CoM this far below its standing height: fallen (crouching to grasp stays above it)
-STILL_SPEED_M_S = 0.05  # the CoM slower than this at the end: standing still (the planar verdict's bound)
 IMPACT_WINDOW_S = 0.1  # after a push starts, plan and execution may part (the planar verdict's impact window)
 SETTLE_S = 0.1  # the first contacts settle from the initial pose: not judged
 
@@ -38,7 +44,14 @@ class StandResult:
     fall_direction_xy: np.ndarray | None  # unit vector of the CoM's horizontal travel when it fell
     final_com_speed_m_s: float
     max_plan_cop_error_m: float  # |planned - executed| per axis, the larger, outside impact windows
-    infeasible_steps: int  # control steps with no plan within the motors' limits
+    min_cop_margin_m: float  # the executed CoP's distance inside the support polygon, outside impact windows
+    infeasible_steps: int  # control steps with no plan within the stops and motors' limits
+    failed_rules: tuple[str, ...]  # of the verdict, in order; empty for a success
+
+    @property
+    def success(self) -> bool:
+        """Stood (or was pushed and recovered), still at the end, the plan what happened, the CoP inside."""
+        return not self.failed_rules
 
 
 def stand_pose_qpos(pose_deg: dict[str, float] | None = None) -> np.ndarray:
@@ -70,7 +83,7 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
             touch = d.sensordata[:len(points)].copy()
             xy = d.geom_xpos[points, :2]
             cop = touch @ xy / touch.sum() if touch.sum() > 0 else np.full(2, np.nan)
-            rows.append((t, d.subtree_com[1].copy(), cop, held_cop))
+            rows.append((t, d.subtree_com[1].copy(), cop, held_cop, _margin(cop, xy[touch > 0.0])))
             plan = ctl.plan(d, touch > 0.0)
             infeasible += ctl.infeasible
             d.ctrl[:] = plan.torque_nm
@@ -82,14 +95,27 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
     time_s = np.array([r[0] for r in rows])
     com = np.array([r[1] for r in rows])
     cop, plan_cop = np.array([r[2] for r in rows]), np.array([r[3] for r in rows])
+    margin = np.array([r[4] for r in rows])
     mujoco.mj_subtreeVel(m, d)
-    return _result(time_s, com, cop, plan_cop, fall_time, push_start_s, infeasible,
+    return _result(time_s, com, (cop, plan_cop, margin), fall_time, push_start_s, infeasible,
                    float(np.linalg.norm(d.subtree_linvel[1])))
 
 
-def _result(time_s: np.ndarray, com: np.ndarray, cop: np.ndarray, plan_cop: np.ndarray, fall_time: float | None,
-            push_start_s: float, infeasible: int, final_speed: float) -> StandResult:
-    """The clip's figures from its samples."""
+def _margin(cop: np.ndarray, touching_xy: np.ndarray) -> float:
+    """How far ``cop`` is inside the convex hull of the touching points (m; negative outside, 0 on a line)."""
+    if not np.isfinite(cop).all() or len(touching_xy) < 3:
+        return 0.0
+    try:
+        hull = ConvexHull(touching_xy)
+    except QhullError:  # the points on one line (a foot on its edge)
+        return 0.0
+    return float(-(hull.equations[:, :2] @ cop + hull.equations[:, 2]).max())
+
+
+def _result(time_s: np.ndarray, com: np.ndarray, cops: tuple[np.ndarray, np.ndarray, np.ndarray],
+            fall_time: float | None, push_start_s: float, infeasible: int, final_speed: float) -> StandResult:
+    """The clip's figures and verdict from its samples (``cops``: executed, planned, the executed one's margin)."""
+    cop, plan_cop, margin = cops
     judged = (time_s >= SETTLE_S) & ((time_s < push_start_s) | (time_s >= push_start_s + IMPACT_WINDOW_S))
     if fall_time is not None:
         judged &= time_s < fall_time
@@ -99,5 +125,10 @@ def _result(time_s: np.ndarray, com: np.ndarray, cop: np.ndarray, plan_cop: np.n
     if fall_time is not None:
         travel = com[time_s <= fall_time][-1, :2] - com[0, :2]
         direction = travel / max(float(np.linalg.norm(travel)), 1e-12)
+    max_gap = float(gap.max()) if gap.size else float("nan")
+    min_margin = float(margin[judged].min()) if judged.any() else float("nan")
+    failed = tuple(rule for rule, broken in (
+        ("balance", fall_time is not None), ("settled", not final_speed < SETTLED_COM_SPEED_M_S),
+        ("plan", not max_gap <= MAX_PLAN_COP_ERROR_M), ("cop_margin", not min_margin >= MIN_COP_MARGIN_M)) if broken)
     return StandResult(time_s, com, cop, plan_cop, fall_time is not None, fall_time, direction, final_speed,
-                       float(gap.max()) if gap.size else float("nan"), infeasible)
+                       max_gap, min_margin, infeasible, failed)
