@@ -758,3 +758,16 @@ def test_stepping_table_reports_a_gait_it_cannot_key_as_refused():
 def test_stepping_table_bad_input_is_one_line_and_exit_2(args):
     out = run_tool("stepping_table.py", *args)
     assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr
+
+
+# --- tools/push_table_3d.py ----------------------------------------------------------------------
+
+def test_push_table_3d_measures_the_3d_body_pushed():
+    """100 N to the left is taken, 300 N to the left topples it that way; a negative force is refused (exit 2)."""
+    out = json.loads(_ok(run_tool("push_table_3d.py", "--json", "--no-standing", "--forces", "100,300",
+                                  "--directions", "90")).stdout)
+    assert [r["clip"] for r in out] == ["100 N at 90 deg", "300 N at 90 deg"]
+    assert out[0]["success"] and not out[0]["fell"] and out[0]["max_plan_cop_error_m"] <= 0.005
+    assert out[1]["fell"] and out[1]["failed_rules"][0] == "balance" and out[1]["fall_direction_xy"][1] > 0.9
+    bad = run_tool("push_table_3d.py", "--forces", "-100")
+    assert bad.returncode == 2 and "magnitude" in bad.stderr
