@@ -771,3 +771,10 @@ def test_push_table_3d_measures_the_3d_body_pushed():
     assert out[1]["fell"] and out[1]["failed_rules"][0] == "balance" and out[1]["fall_direction_xy"][1] > 0.9
     bad = run_tool("push_table_3d.py", "--forces", "-100")
     assert bad.returncode == 2 and "magnitude" in bad.stderr
+
+
+def test_push_table_3d_renders_a_filmstrip(tmp_path):
+    out = tmp_path / "push.png"
+    done = json.loads(_ok(run_tool("push_table_3d.py", "--json", "--filmstrip", str(out), "--forces", "100",
+                                   "--directions", "90", "--frames", "0.5,1.2")).stdout)
+    assert done["out"] == str(out) and out.stat().st_size > 0 and not done["fell"]

@@ -4,7 +4,10 @@ MuJoCo steps the physics at the model's 2 ms; the controller plans every ``contr
 planar clips) and its torques are held between. A push is a force on the thorax (``push_n``, world frame, N) for
 ``push_duration_s``. The executed CoP is the touch sensors' (every foot point's normal force at its place), the
 planned one the controller's point forces'. The body has fallen when its CoM has come down ``FALL_DROP_M`` from
-where it stood; the fall's direction is where its CoM went horizontally.
+fallen by the planar monitor's rules (``cmrt.sim.balance``): its capture point more than 1 cm outside the support
+polygon, or its CoM below 0.55 m; the fall then plays out in the planar protective mode (motors off, the joints
+passive springs about the pose it fell in). The fall's direction is where the capture point left the support, the
+topple's where the CoM went by the end of the clip.
 
 The verdict is the planar one's for a clip without a motion to perform (the same bounds, ``cmrt.sim.objective``):
 ``balance`` (no fall), ``settled`` (the CoM still at the end), ``plan`` (planned and executed CoP within 5 mm on
@@ -14,19 +17,21 @@ polygon - the convex hull of the touching points - in every sample judged).
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from cmrt.body.character import character, feet_flat_qpos, joint_angles_from_pose
+from cmrt.body.character import GRAVITY_M_S2, character, feet_flat_qpos, joint_angles_from_pose
 from cmrt.control.controller import ControllerConfig
 from cmrt.control.spatial import SpatialController
+from cmrt.sim.balance import BalanceLimits
+from cmrt.sim.monitor import PROTECTIVE_DAMPING_PER_RAD_S, PROTECTIVE_STIFFNESS_PER_RAD
 from cmrt.sim.objective import MAX_PLAN_COP_ERROR_M, MIN_COP_MARGIN_M, SETTLED_COM_SPEED_M_S
 
 BODY = "humanoid3d"
-FALL_DROP_M = 0.25  # the CoM this far below its standing height: fallen (crouching to grasp stays above it)
 IMPACT_WINDOW_S = 0.1  # after a push starts, plan and execution may part (the planar verdict's impact window)
 SETTLE_S = 0.1  # the first contacts settle from the initial pose: not judged
 
@@ -36,12 +41,14 @@ class StandResult:
     """A 3D standing clip, sampled at every control step."""
 
     time_s: np.ndarray  # (n,)
+    qpos: np.ndarray  # (n, nq): the pose at each sample (renders)
     com_m: np.ndarray  # (n, 3)
     cop_xy_m: np.ndarray  # (n, 2) executed: the touch sensors' over the control step before the sample
     plan_cop_xy_m: np.ndarray  # (n, 2) planned for that control step: the controller's point forces'
     fell: bool
     fall_time_s: float | None
-    fall_direction_xy: np.ndarray | None  # unit vector of the CoM's horizontal travel when it fell
+    fall_direction_xy: np.ndarray | None  # unit vector: where the capture point left the support (from its centre)
+    topple_direction_xy: np.ndarray | None  # unit vector: where the CoM went by the clip's end (protective mode)
     final_com_speed_m_s: float
     max_plan_cop_error_m: float  # |planned - executed| per axis, the larger, outside impact windows
     min_cop_margin_m: float  # the executed CoP's distance inside the support polygon, outside impact windows
@@ -63,19 +70,19 @@ def stand_pose_qpos(pose_deg: dict[str, float] | None = None) -> np.ndarray:
 
 def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0, 0.0), push_start_s: float = 1.0,
              push_duration_s: float = 0.1, config: ControllerConfig = ControllerConfig()) -> StandResult:
-    """Simulate the 3D body standing for ``clip_s``, pushed at the thorax by ``push_n``."""
+    """Simulate the 3D body standing for ``clip_s``, pushed at the thorax by ``push_n``; a fall plays out in the
+    planar clips' protective mode."""
     ch = character(BODY)
-    m = ch.model
+    m = copy.deepcopy(ch.model)  # protective mode changes the joints' springs: this clip's own model
     d = mujoco.MjData(m)
     d.qpos[:] = stand_pose_qpos()
     mujoco.mj_forward(m, d)
     ctl = SpatialController(ch, d.qpos.copy(), config)
     points = list(ch.foot_point_geoms)
     push = np.asarray(push_n, float)
-    start_z = float(d.subtree_com[1, 2])
     rows: list[tuple] = []
     infeasible = 0
-    fall_time = None
+    fall: tuple[float, np.ndarray] | None = None  # (time, the capture point's way out of the support)
     held_cop = np.full(2, np.nan)  # the CoP the torques held since the last control step were planned for
     for k in range(int(round(clip_s / m.opt.timestep))):
         t = k * m.opt.timestep
@@ -83,22 +90,57 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
             touch = d.sensordata[:len(points)].copy()
             xy = d.geom_xpos[points, :2]
             cop = touch @ xy / touch.sum() if touch.sum() > 0 else np.full(2, np.nan)
-            rows.append((t, d.subtree_com[1].copy(), cop, held_cop, _margin(cop, xy[touch > 0.0])))
-            plan = ctl.plan(d, touch > 0.0)
-            infeasible += ctl.infeasible
-            d.ctrl[:] = plan.torque_nm
-            held_cop = plan.cop_xy_m
-            if fall_time is None and d.subtree_com[1, 2] < start_z - FALL_DROP_M:
-                fall_time = t
+            rows.append((t, d.subtree_com[1].copy(), cop, held_cop, _margin(cop, xy[touch > 0.0]), d.qpos.copy()))
+            if fall is None:
+                fall = _fallen(m, d, t, touch)
+                if fall is not None:
+                    _protective(m, ch, d)
+            if fall is None:
+                plan = ctl.plan(d, touch > 0.0)
+                infeasible += ctl.infeasible
+                d.ctrl[:] = plan.torque_nm
+                held_cop = plan.cop_xy_m
+            else:
+                held_cop = np.full(2, np.nan)
         d.xfrc_applied[ch.thorax_body, :3] = push if push_start_s <= t < push_start_s + push_duration_s else 0.0
         mujoco.mj_step(m, d)
     time_s = np.array([r[0] for r in rows])
     com = np.array([r[1] for r in rows])
     cop, plan_cop = np.array([r[2] for r in rows]), np.array([r[3] for r in rows])
-    margin = np.array([r[4] for r in rows])
+    margin, qpos = np.array([r[4] for r in rows]), np.array([r[5] for r in rows])
     mujoco.mj_subtreeVel(m, d)
-    return _result(time_s, com, (cop, plan_cop, margin), fall_time, push_start_s, infeasible,
+    return _result((time_s, qpos, com), (cop, plan_cop, margin), fall, push_start_s, infeasible,
                    float(np.linalg.norm(d.subtree_linvel[1])))
+
+
+def _fallen(m: mujoco.MjModel, d: mujoco.MjData, t: float, touch: np.ndarray) -> tuple[float, np.ndarray] | None:
+    """The planar monitor's rules in 3D (``cmrt.sim.balance``): a foot rolled more than ``roll_rad`` off level, the
+    capture point more than ``capture_margin_m`` outside the support - the whole sole of every foot that touches,
+    as the planar support spans heel to toe (a foot on its toe comes back down flat while the capture point is
+    over its sole) - or the CoM below ``com_height_m``. Returns (now, the capture point's offset from the support's
+    centre) on a fall, else None."""
+    limits, ch = BalanceLimits(), character(BODY)
+    mujoco.mj_subtreeVel(m, d)
+    com, vel = d.subtree_com[1], d.subtree_linvel[1]
+    capture = com[:2] + vel[:2] / np.sqrt(GRAVITY_M_S2 / max(float(com[2]), 1e-3))
+    soles = [list(pair) for pair, n in zip(ch.foot_points, np.split(touch, 2), strict=True) if (n > 0.0).any()]
+    sole_xy = d.geom_xpos[[g for pair in soles for g in pair], :2]
+    centre = sole_xy.mean(axis=0) if len(sole_xy) else com[:2]
+    rolled = any(d.xmat[body, 8] < np.cos(limits.roll_rad) for body in ch.foot_bodies)  # the sole's normal's z
+    out = len(sole_xy) == 0 or _margin(capture, sole_xy) < -limits.capture_margin_m
+    if rolled or out or com[2] < limits.com_height_m:
+        return t, capture - centre
+    return None
+
+
+def _protective(m: mujoco.MjModel, ch, d: mujoco.MjData) -> None:
+    """The planar protective mode (``cmrt.sim.monitor``): motors off, every actuated joint a passive spring and
+    damper about the pose it fell in (0.1 x its motor's limit per rad and per rad/s), integrated by MuJoCo."""
+    joints = m.actuator_trnid[:, 0]
+    m.jnt_stiffness[joints] = PROTECTIVE_STIFFNESS_PER_RAD * ch.torque_limit_nm
+    m.dof_damping[m.jnt_dofadr[joints]] = PROTECTIVE_DAMPING_PER_RAD_S * ch.torque_limit_nm
+    m.qpos_spring[m.jnt_qposadr[joints]] = d.qpos[m.jnt_qposadr[joints]]
+    d.ctrl[:] = 0.0
 
 
 def _margin(cop: np.ndarray, touching_xy: np.ndarray) -> float:
@@ -112,23 +154,26 @@ def _margin(cop: np.ndarray, touching_xy: np.ndarray) -> float:
     return float(-(hull.equations[:, :2] @ cop + hull.equations[:, 2]).max())
 
 
-def _result(time_s: np.ndarray, com: np.ndarray, cops: tuple[np.ndarray, np.ndarray, np.ndarray],
-            fall_time: float | None, push_start_s: float, infeasible: int, final_speed: float) -> StandResult:
-    """The clip's figures and verdict from its samples (``cops``: executed, planned, the executed one's margin)."""
+def _result(motion: tuple[np.ndarray, np.ndarray, np.ndarray], cops: tuple[np.ndarray, np.ndarray, np.ndarray],
+            fall: tuple[float, np.ndarray] | None, push_start_s: float, infeasible: int, final_speed: float
+            ) -> StandResult:
+    """The clip's figures and verdict from its samples (``motion``: times, poses, CoM; ``cops``: executed,
+    planned, the executed one's margin; ``fall``: when, and where the capture point left)."""
+    time_s, qpos, com = motion
     cop, plan_cop, margin = cops
     judged = (time_s >= SETTLE_S) & ((time_s < push_start_s) | (time_s >= push_start_s + IMPACT_WINDOW_S))
+    fall_time = None if fall is None else fall[0]
     if fall_time is not None:
         judged &= time_s < fall_time
     gap = np.abs(plan_cop - cop)[judged]
     gap = gap[np.isfinite(gap).all(axis=1)]
-    direction = None
-    if fall_time is not None:
-        travel = com[time_s <= fall_time][-1, :2] - com[0, :2]
-        direction = travel / max(float(np.linalg.norm(travel)), 1e-12)
+    direction = None if fall is None else fall[1] / max(float(np.linalg.norm(fall[1])), 1e-12)
     max_gap = float(gap.max()) if gap.size else float("nan")
     min_margin = float(margin[judged].min()) if judged.any() else float("nan")
     failed = tuple(rule for rule, broken in (
         ("balance", fall_time is not None), ("settled", not final_speed < SETTLED_COM_SPEED_M_S),
         ("plan", not max_gap <= MAX_PLAN_COP_ERROR_M), ("cop_margin", not min_margin >= MIN_COP_MARGIN_M)) if broken)
-    return StandResult(time_s, com, cop, plan_cop, fall_time is not None, fall_time, direction, final_speed,
+    topple = com[-1, :2] - com[0, :2]
+    return StandResult(time_s, qpos, com, cop, plan_cop, fall_time is not None, fall_time, direction,
+                       topple / max(float(np.linalg.norm(topple)), 1e-12) if fall is not None else None, final_speed,
                        max_gap, min_margin, infeasible, failed)
