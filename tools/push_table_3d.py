@@ -34,6 +34,10 @@ def row(label: str, clip_s: float, push_n: tuple[float, float, float]) -> dict:
                                                                           for v in r.fall_direction_xy],
             "max_plan_cop_error_m": r.max_plan_cop_error_m, "min_cop_margin_m": r.min_cop_margin_m,
             "final_com_speed_m_s": r.final_com_speed_m_s, "infeasible_steps": r.infeasible_steps,
+            "peak_normal_force_bw": r.peak_normal_force_bw, "airborne_s": r.airborne_s,
+            "max_joint_speed_rad_s": r.max_joint_speed_rad_s, "max_foot_slip_m": r.max_foot_slip_m,
+            "topple_direction_xy": None if r.topple_direction_xy is None else [round(float(v), 3)
+                                                                              for v in r.topple_direction_xy],
             "wall_s": round(time.perf_counter() - start, 2)}
 
 
@@ -72,7 +76,9 @@ def main(argv: list[str] | None = None) -> int:
             verdict = "success" if r["success"] else "not: " + ", ".join(r["failed_rules"])
             fall = f", fell at {r['fall_time_s']:.2f} s toward {r['fall_direction_xy']}" if r["fell"] else ""
             print(f"{r['clip']:>20}: {verdict}{fall}; plan {1000 * r['max_plan_cop_error_m']:.2f} mm, "
-                  f"margin {100 * r['min_cop_margin_m']:.1f} cm ({r['wall_s']} s)")
+                  f"margin {100 * r['min_cop_margin_m']:.1f} cm, ground {r['peak_normal_force_bw']:.2f} BW, "
+                  f"joints {r['max_joint_speed_rad_s']:.2f} rad/s, slide {1000 * r['max_foot_slip_m']:.1f} mm "
+                  f"({r['wall_s']} s)")
     return 0
 
 

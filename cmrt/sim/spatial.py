@@ -18,7 +18,7 @@ polygon - the convex hull of the touching points - in every sample judged).
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import mujoco
 import numpy as np
@@ -29,7 +29,14 @@ from cmrt.control.controller import ControllerConfig
 from cmrt.control.spatial import SpatialController
 from cmrt.sim.balance import BalanceLimits
 from cmrt.sim.monitor import PROTECTIVE_DAMPING_PER_RAD_S, PROTECTIVE_STIFFNESS_PER_RAD
-from cmrt.sim.objective import MAX_PLAN_COP_ERROR_M, MIN_COP_MARGIN_M, SETTLED_COM_SPEED_M_S
+from cmrt.sim.objective import (
+    MAX_AIRBORNE_S,
+    MAX_GROUND_FORCE_BW,
+    MAX_PLAN_COP_ERROR_M,
+    MIN_COP_MARGIN_M,
+    SETTLED_COM_SPEED_M_S,
+)
+from cmrt.sim.simulate import PLANTED_FORCE_N
 
 BODY = "humanoid3d"
 IMPACT_WINDOW_S = 0.1  # after a push starts, plan and execution may part (the planar verdict's impact window)
@@ -54,6 +61,10 @@ class StandResult:
     min_cop_margin_m: float  # the executed CoP's distance inside the support polygon, outside impact windows
     infeasible_steps: int  # control steps with no plan within the stops and motors' limits
     failed_rules: tuple[str, ...]  # of the verdict, in order; empty for a success
+    peak_normal_force_bw: float = float("nan")  # these four outside the impact windows, before a fall
+    airborne_s: float = 0.0
+    max_joint_speed_rad_s: float = float("nan")
+    max_foot_slip_m: float = 0.0
 
     @property
     def success(self) -> bool:
@@ -81,6 +92,7 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
     points = list(ch.foot_point_geoms)
     push = np.asarray(push_n, float)
     rows: list[tuple] = []
+    ground: list[float] = []  # the touch sensors' total at every physics step (N)
     infeasible = 0
     fall: tuple[float, np.ndarray] | None = None  # (time, the capture point's way out of the support)
     held_cop = np.full(2, np.nan)  # the CoP the torques held since the last control step were planned for
@@ -90,7 +102,9 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
             touch = d.sensordata[:len(points)].copy()
             xy = d.geom_xpos[points, :2]
             cop = touch @ xy / touch.sum() if touch.sum() > 0 else np.full(2, np.nan)
-            rows.append((t, d.subtree_com[1].copy(), cop, held_cop, _margin(cop, xy[touch > 0.0]), d.qpos.copy()))
+            rows.append((t, d.subtree_com[1].copy(), cop, held_cop, _margin(cop, xy[touch > 0.0]), d.qpos.copy(),
+                         np.where(touch >= PLANTED_FORCE_N, 1.0, np.nan)[:, None] * xy,
+                         float(np.abs(d.qvel[list(ch.actuated_dofs)]).max())))
             if fall is None:
                 fall = _fallen(m, d, t, touch)
                 if fall is not None:
@@ -104,13 +118,52 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
                 held_cop = np.full(2, np.nan)
         d.xfrc_applied[ch.thorax_body, :3] = push if push_start_s <= t < push_start_s + push_duration_s else 0.0
         mujoco.mj_step(m, d)
+        ground.append(float(d.sensordata[:len(points)].sum()))
     time_s = np.array([r[0] for r in rows])
     com = np.array([r[1] for r in rows])
     cop, plan_cop = np.array([r[2] for r in rows]), np.array([r[3] for r in rows])
     margin, qpos = np.array([r[4] for r in rows]), np.array([r[5] for r in rows])
     mujoco.mj_subtreeVel(m, d)
-    return _result((time_s, qpos, com), (cop, plan_cop, margin), fall, push_start_s, infeasible,
-                   float(np.linalg.norm(d.subtree_linvel[1])))
+    result = _result((time_s, qpos, com), (cop, plan_cop, margin), fall, push_start_s, infeasible,
+                     float(np.linalg.norm(d.subtree_linvel[1])))
+    step_t = np.arange(len(ground)) * m.opt.timestep + m.opt.timestep  # each total is after its step
+    return _with_body_figures(result, (step_t, np.array(ground) / (ctl.mass_kg * GRAVITY_M_S2)),
+                              np.array([r[6] for r in rows]), np.array([r[7] for r in rows]), push_start_s)
+
+
+def _with_body_figures(r: StandResult, ground: tuple[np.ndarray, np.ndarray], planted_xy: np.ndarray,
+                       joint_speed: np.ndarray, push_start_s: float) -> StandResult:
+    """``r`` with the planar clips' physical figures (outside the first 0.1 s and the push's window, before a
+    fall): peak ground force (body weights, every physics step), time with no foot on the floor, the fastest
+    joint, and how far a planted point slid (a point carrying ``PLANTED_FORCE_N`` or more, from where it was first
+    planted until it lets go; ``planted_xy``: (n, points, 2), NaN where unplanted); the ``ground_force`` and
+    ``airborne`` rules join the verdict."""
+    def judged(t: np.ndarray) -> np.ndarray:
+        keep = (t >= SETTLE_S) & ((t < push_start_s) | (t >= push_start_s + IMPACT_WINDOW_S))
+        return keep & (t < r.fall_time_s) if r.fall_time_s is not None else keep
+
+    step_t, bw = ground
+    peak = float(bw[judged(step_t)].max()) if judged(step_t).any() else float("nan")
+    airborne = float((bw[judged(step_t)] <= 0.0).sum() * (step_t[1] - step_t[0])) if len(step_t) > 1 else 0.0
+    sample = judged(r.time_s)
+    slide = 0.0
+    for p in range(planted_xy.shape[1]):
+        start = None
+        for k in np.flatnonzero(sample):
+            here = planted_xy[k, p]
+            if np.isnan(here).any():
+                start = None
+            else:
+                start = here if start is None else start
+                slide = max(slide, float(np.linalg.norm(here - start)))
+    failed = list(r.failed_rules)
+    extra = [rule for rule, broken in (("ground_force", not peak <= MAX_GROUND_FORCE_BW),
+                                       ("airborne", airborne > MAX_AIRBORNE_S)) if broken]
+    at = failed.index("cop_margin") if "cop_margin" in failed else len(failed)
+    failed[at:at] = extra  # the planar verdict's order
+    return replace(r, peak_normal_force_bw=peak, airborne_s=airborne,
+                   max_joint_speed_rad_s=float(joint_speed[sample].max()) if sample.any() else float("nan"),
+                   max_foot_slip_m=slide, failed_rules=tuple(failed))
 
 
 def _fallen(m: mujoco.MjModel, d: mujoco.MjData, t: float, touch: np.ndarray) -> tuple[float, np.ndarray] | None:

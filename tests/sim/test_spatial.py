@@ -18,6 +18,7 @@ def test_stands_still_for_ten_seconds():
     assert np.abs(r.com_m[:, :2] - r.com_m[0, :2]).max() < 0.001
     assert r.max_plan_cop_error_m <= PLAN_GAP_M
     assert r.final_com_speed_m_s < SETTLED_COM_SPEED_M_S
+    assert abs(r.peak_normal_force_bw - 1.0) < 0.01 and r.max_foot_slip_m < 1e-4  # the feet carry the weight
 
 
 @pytest.mark.parametrize("push_n", [(100.0, 0.0, 0.0), (-100.0, 0.0, 0.0), (0.0, 100.0, 0.0), (0.0, -100.0, 0.0)])
@@ -25,6 +26,8 @@ def test_takes_a_100_n_push_from_every_side(push_n):
     r = stand_3d(clip_s=4.0, push_n=push_n)
     assert r.success, r.failed_rules
     assert r.min_cop_margin_m > 0.01  # the feet kept flat: the CoP never near an edge
+    assert r.peak_normal_force_bw < 1.1 and r.airborne_s == 0.0  # no hop, no stamp
+    assert r.max_joint_speed_rad_s < 2.0 and r.max_foot_slip_m < 0.01
     moved = r.com_m[:, :2] - r.com_m[0, :2]
     direction = np.asarray(push_n[:2]) / 100.0
     assert (moved @ direction).max() > 0.01  # the push moved it ...
