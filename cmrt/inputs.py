@@ -228,6 +228,7 @@ TASK_PARAMS: dict[str, Range] = {
     "cop_sample_step_s": Range(0.001, 1.0, unit="s"),
     "stop_threshold": Range(0.0, 1e6),
     "push_force_n": Range(-1e4, 1e4, unit="N"),
+    "push_force_y_n": Range(-1e4, 1e4, unit="N"),  # sideways, +y the body's left (a 3D task's: docs/body3d.md)
     "push_start_s": Range(0.0, MAX_RUN_S, unit="s"),
     "push_duration_s": Range(0.0, MAX_RUN_S, unit="s"),
     "max_tracking_lag": Range(0.0, 1.0, lo_open=True),

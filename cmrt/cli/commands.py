@@ -173,6 +173,24 @@ def _n(x, spec: str, scale: float = 1.0) -> str:
     return format(0.0, spec) if float(text) == 0 else text  # -0.004 cm is "0.0", not "-0.0"
 
 
+def _spatial_text(r: dict) -> str:
+    """A 3D clip's report (``cmrt.sim.report.spatial_report``) as a few lines."""
+    outcome = "SUCCESS" if r["success"] else "not a success: " + ", ".join(r["failed_rules"])
+    fall = ""
+    if r["fell"]:
+        d = r["fall_direction_xy"]
+        fall = f"  fell at {r['fall_time_s']:.2f} s, the capture point out toward ({d[0]:+.2f}, {d[1]:+.2f})"
+    return "\n".join([
+        f"{escape(r['task'])}  body={r['body']}  curve={escape(r['curve'])}: {outcome}" + fall,
+        f"  planned vs executed CoP {_n(r['max_plan_cop_error_m'], '.2f', 1000)} mm  min CoP margin "
+        f"{_n(r['min_cop_margin_m'], '.1f', 100)} cm  peak ground force {_n(r['peak_normal_force_bw'], '.2f')} x "
+        f"body weight  [{r['wall_s']:.2f} s]",
+        f"  max joint speed {_n(r['max_joint_speed_rad_s'], '.1f')} rad/s  planted feet slid "
+        f"{_n(r['max_foot_slip_m'], '.2f', 100)} cm  final CoM speed {_n(r['final_com_speed_m_s'], '.3f')} m/s",
+        f"  judged as: {r['success_rule']}",
+    ])
+
+
 def _report_text(r: dict) -> str:
     speed = f" --speed {r['speed']:g}" if r["speed"] is not None else ""
     track = _n(r["tracking_error_rad"], ".3f")
@@ -309,12 +327,16 @@ def _progress(total_evals: int, label: str, enabled: bool, stream=None):
 
 # --- inputs ------------------------------------------------------------------------
 def resolve_task(name: str, speed: float | None, sets: list[str] | None, reference: str | None = None,
-                 steps: str | None = None) -> Task:
+                 steps: str | None = None, any_body: bool = False) -> Task:
     """The task arguments (name or path, ``--speed``, ``--set``, ``--reference``, ``--steps``) -> a validated
-    Task."""
+    Task; a 3D task only where ``any_body`` (`cmrt simulate`: the rest of the service is planar for now)."""
     from cmrt.motion.taskfile import resolve_task as task_variant
 
-    return task_variant(name, speed, inputs.parse_sets(sets), reference, steps)
+    task = task_variant(name, speed, inputs.parse_sets(sets), reference, steps)
+    if task.body != "planar" and not any_body:
+        raise CmrtError(f"task {shown(task.name)} is done with the {task.body} body, which only `cmrt simulate` "
+                        "runs for now (docs/body3d.md)")
+    return task
 
 
 def _warn_if_not_feasible(name: str, task: Task) -> None:
@@ -521,10 +543,17 @@ class Simulate(Command):
 
         if args.trace is not None:
             _check_out(args, args.trace, "--trace", (".npz",))
-        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None))
+        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None),
+                            any_body=True)
+        wrote = "" if args.trace is None else f"\nwrote {escape(args.trace)}"
+        if task.body != "planar":  # the 3D body: no CMRTs, library or feasibility check yet
+            if args.curve != "zero":
+                raise CmrtError(f"--curve {shown(args.curve)}: the {task.body} body has no CMRTs yet "
+                                "(docs/body3d.md); use --curve zero")
+            curve, _ = _curve(args, "zero", task)
+            return Output(simulate_report(task, curve, "zero", args.trace), lambda r: _spatial_text(r) + wrote)
         curve, name = _curve(args, args.curve, task)
         _warn_if_not_feasible(args.task, task)
-        wrote = "" if args.trace is None else f"\nwrote {escape(args.trace)}"
         return Output(simulate_report(task, curve, name, args.trace), lambda r: _report_text(r) + wrote)
 
 

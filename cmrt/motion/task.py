@@ -100,6 +100,9 @@ class Task:
     # the footsteps asked for (cmrt.motion.footsteps; Wu-Zordan's directed steps): empty, the feet stay planted
     # unless ``stepping`` lets the supervisor step on its own
     steps: tuple[PlannedStep, ...] = ()
+    # the body that does it (cmrt.body.character.BODIES): "planar", the paper's, or "humanoid3d" (docs/body3d.md:
+    # standing and pushed, simulated by `cmrt simulate` alone for now)
+    body: str = "planar"
 
     # --- parameters -------------------------------------------------------------
     # Those every task has (DEFAULT_PARAMS) as typed properties; any other (a prop's, via_fraction) is read
@@ -422,6 +425,8 @@ class Task:
             out["reference"] = self.reference_mode
         if self.steps:  # absent without a plan, likewise
             out["steps"] = [step.to_table() for step in self.steps]
+        if self.body != "planar":  # absent for the planar body, likewise
+            out["body"] = self.body
         return out
 
     def content_hash(self) -> str:

@@ -10,10 +10,12 @@ same ``task_from_dict``.
 from __future__ import annotations
 
 import importlib.resources
+import math
+from dataclasses import replace
 from pathlib import Path
 
 from cmrt import inputs
-from cmrt.body.character import SIDED_JOINTS, joint_angles_from_pose
+from cmrt.body.character import BODIES, SIDED_JOINTS, feet_flat_qpos, joint_angles_from_pose
 from cmrt.body.props import PROPS, prop_class
 from cmrt.errors import CmrtError
 from cmrt.inputs import POSE_DEG, param_range, shown
@@ -49,7 +51,10 @@ def load_task(name_or_path: str) -> Task:
 
 #: The keys of a task file (docs/reference/task-files.md).
 TASK_KEYS = frozenset({"name", "summary", "speed_param", "balance_joint", "params", "param_ranges", "start_pose_deg",
-                       "end_pose_deg", "via_pose_deg", "timing", "prop", "robust", "reference", "steps"})
+                       "end_pose_deg", "via_pose_deg", "timing", "prop", "robust", "reference", "steps",
+                       "body"})
+#: What a 3D task may set for now (docs/body3d.md): it stands, pushed at the thorax forward and sideways.
+PARAMS_3D = frozenset({"clip_s", "push_force_n", "push_force_y_n", "push_start_s", "push_duration_s"})
 MAX_TEXT = 1000  # characters of a task's name or summary
 
 
@@ -81,6 +86,39 @@ def _resolve(name_or_path: str, speed: float | None, params: dict[str, object] |
         return task.with_speed(speed)
     except CmrtError as exc:
         raise CmrtError(f"--speed: {exc}") from None
+
+
+def _body(raw: dict, where: str) -> str:
+    """The task's ``body`` (default "planar")."""
+    body = raw.get("body", "planar")
+    if not isinstance(body, str) or body not in BODIES:
+        raise CmrtError(f"{where}: body must be one of {', '.join(BODIES)}, got {shown(body)}")
+    return body
+
+
+def _checked_3d(task: Task, where: str) -> Task:
+    """A 3D task validated: it stands and is pushed for now (docs/body3d.md) - no pose change, prop, footsteps,
+    timing, robust ensemble or other reference mode, and no parameter but ``PARAMS_3D`` off its default - in a
+    standing pose the 3D body can take (feet flat, the CoM over them)."""
+    params = {**task.params, "push_force_y_n": task.params.get("push_force_y_n", 0.0)}
+    task = replace(task, params=params)
+    others = [key for key, value in (("end_pose_deg", task.end_pose_deg), ("via_pose_deg", task.via_pose_deg),
+                                     ("prop", task.prop), ("steps", task.steps), ("timing", task.timing),
+                                     ("param_ranges", task.param_ranges), ("speed_param", task.speed_param),
+                                     ("robust", task.robust != RobustSpec() or None),
+                                     ("reference", task.reference_mode != DEFAULT_REFERENCE_MODE or None)) if value]
+    others += sorted(k for k, v in params.items() if k not in PARAMS_3D and v != DEFAULT_PARAMS.get(k))
+    if others:
+        raise CmrtError(f"{where}: a {task.body} task stands and is pushed for now (docs/body3d.md): it sets "
+                        f"the parameters {', '.join(sorted(PARAMS_3D))} and a start_pose_deg, not "
+                        f"{', '.join(others)}")
+    try:
+        task.validate()
+        feet_flat_qpos(joint_angles_from_pose({k: math.radians(v) for k, v in task.start_pose_deg.items()},
+                                              task.body), body=task.body)
+    except CmrtError as exc:
+        raise CmrtError(f"{where}: {exc}") from None
+    return task
 
 
 def _table(raw: dict, key: str, where: str) -> dict | None:
@@ -125,6 +163,7 @@ def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task"
     unknown = set(raw) - TASK_KEYS
     if unknown:
         raise CmrtError(f"{where}: unknown key(s) {', '.join(shown(k) for k in sorted(map(str, unknown)))}")
+    body = _body(raw, where)
     params = dict(DEFAULT_PARAMS)
     prop = None
     prop_table = _table(raw, "prop", where)
@@ -180,14 +219,17 @@ def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task"
         robust=RobustSpec.from_table(robust_table, where) if robust_table is not None else RobustSpec(),
         reference_mode=reference_mode(raw.get("reference", DEFAULT_REFERENCE_MODE), f"{where}: reference"),
         steps=steps_from_tables(raw["steps"], where) if "steps" in raw else (),
+        body=body,
     )
+    return _checked_3d(task, where) if body != "planar" else _checked_planar(task, where)
+
+
+def _checked_planar(task: Task, where: str) -> Task:
+    """A planar task validated: its parameters, timing joints and poses (unknown joints, unbalanceable poses)."""
     try:
         task.validate()
-        joint_angles_from_pose({k: 0.0 for k in timing})
-    except CmrtError as exc:
-        raise CmrtError(f"{where}: {exc}") from None
-    try:
-        task.start_qpos()  # fail now on unknown joints or unbalanceable poses
+        joint_angles_from_pose({k: 0.0 for k in task.timing})
+        task.start_qpos()
         task.end_qpos()
         if task.via_pose_deg is not None:
             task.via_qpos()

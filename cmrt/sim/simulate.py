@@ -50,6 +50,7 @@ from cmrt.control.gait import GaitTracker, KeyedSwings
 from cmrt.control.planar import PlanarKinematics
 from cmrt.control.references import MotionCom, Targets, YuReference, motion_com
 from cmrt.control.stepping import MOMENTUM, StepCommand, StepConfig, StepPlan, StepSupervisor
+from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.ensemble import NOMINAL, Perturbation
 from cmrt.motion.footsteps import DOUBLE_SUPPORT_S, FIRST_STEP_S
@@ -724,6 +725,10 @@ def simulate_batch(
     one group's control step (Python and kernel) runs while the other groups' physics runs. One batch
     on t MuJoCo threads would leave the cores idle through every control step (docs/performance.md).
     A clip's result does not depend on its group (each row is simulated independently; tested)."""
+    if getattr(task, "body", "planar") != "planar":  # a SequenceTask has no body: its motions are planar
+        raise CmrtError(f"task {task.name!r} is done with the {task.body} body: its clip is cmrt.sim.spatial's "
+                        "(`cmrt simulate` runs it); optimizing, batches and the service are planar for now "
+                        "(docs/body3d.md)")
     n = len(curves)
     members = list(perturbations) if perturbations is not None else [NOMINAL] * n
     if len(members) != n:

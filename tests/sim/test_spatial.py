@@ -11,6 +11,7 @@ from cmrt.sim.spatial import _margin, stand_3d
 PLAN_GAP_M = 0.005  # planned vs executed CoP, each axis (the planar verdict's bound)
 
 
+@pytest.mark.slow  # a 10 s clip
 def test_stands_still_for_ten_seconds():
     r = stand_3d(clip_s=10.0)
     assert r.success, r.failed_rules

@@ -15,6 +15,7 @@ def pushed():
     return stand_3d(clip_s=1.5, push_n=(0.0, 100.0, 0.0), push_start_s=0.5)
 
 
+@pytest.mark.slow  # renders
 def test_a_front_row_over_a_side_row(pushed, tmp_path):
     out = tmp_path / "strip.png"
     written = filmstrip_3d(pushed, np.array([0.2, 0.8]), out, height=160, width=120)

@@ -1,0 +1,37 @@
+"""A task names its body (``body = "humanoid3d"``): validated, round-tripped, and absent from a planar task's
+definition (its hash is what it was)."""
+
+import pytest
+
+from cmrt.errors import CmrtError
+from cmrt.motion.taskfile import load_task, task_from_dict
+from cmrt.sim.simulate import simulate
+
+
+def _stand3d(**extra):
+    return {"name": "s3", "body": "humanoid3d", "params": {"clip_s": 2.0, "push_force_y_n": 50.0}, **extra}
+
+
+def test_a_3d_task_round_trips_and_a_planar_one_has_no_body_key():
+    task = task_from_dict(_stand3d())
+    assert task.body == "humanoid3d" and task.params["push_force_y_n"] == 50.0
+    again = task_from_dict(task.to_dict())
+    assert again.body == "humanoid3d" and again.content_hash() == task.content_hash()
+    assert "body" not in load_task("stand").to_dict()
+
+
+@pytest.mark.parametrize("extra, says", [
+    ({"body": "robot"}, "body must be one of"),
+    ({"end_pose_deg": {"hip": -30.0}}, "not end_pose_deg"),
+    ({"steps": [{"foot": "R", "x_m": 0.2, "duration_s": 0.6}]}, "not steps"),
+    ({"params": {"stepping": 1.0}}, "not stepping"),
+    ({"start_pose_deg": {"knee": 400.0}}, "start_pose_deg"),
+])
+def test_what_a_3d_task_may_not_say_is_refused(extra, says):
+    with pytest.raises(CmrtError, match=says):
+        task_from_dict(_stand3d(**extra))
+
+
+def test_the_planar_simulator_refuses_a_3d_task():
+    with pytest.raises(CmrtError, match="humanoid3d body"):
+        simulate(task_from_dict(_stand3d()))
