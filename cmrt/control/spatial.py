@@ -53,6 +53,21 @@ class SpatialPlan:
     cop_xy_m: np.ndarray
 
 
+@dataclass(frozen=True)
+class SpatialTargets:
+    """What a motion asks of a control step beyond holding still: the CoM's horizontal reference and its rate (a
+    CMRT's displacement included), the CoP's reference, and a foot off the floor with the path of its frame's origin
+    (world, m; its orientation is held level). None: the standing defaults."""
+
+    com_xy_m: np.ndarray | None = None
+    com_vel_xy_m_s: np.ndarray | None = None
+    cop_xy_m: np.ndarray | None = None
+    q_ref: np.ndarray | None = None  # (nq): the pose to track now (None: the one the controller was made with)
+    swing_foot: int = -1  # 0 right, 1 left; -1 none
+    swing_pos_m: np.ndarray | None = None
+    swing_vel_m_s: np.ndarray | None = None
+
+
 class SpatialController:
     """The 3D momentum controller of one simulation: ``plan`` once per control step on a forward-computed MjData.
     ``q_ref`` (nq) is the pose it holds, kept ``stop_margin_rad`` inside every joint's stops."""
@@ -84,7 +99,7 @@ class SpatialController:
         self.cop_ref_m: np.ndarray | None = None  # the CoP asked for: the feet's centre at the first control step
         self.infeasible = False  # the last plan found none within the stops and limits (clipped after the solve)
 
-    def plan(self, d: mujoco.MjData, loaded: np.ndarray) -> SpatialPlan:
+    def plan(self, d: mujoco.MjData, loaded: np.ndarray, targets: SpatialTargets = SpatialTargets()) -> SpatialPlan:
         """Plan this control step from ``d`` (after mj_forward) with ``loaded`` (n points,) the points touching
         the floor; raises CmrtError where the QP has no solution (the feet cannot carry the body)."""
         m, c = self.ch.model, self.config
@@ -96,12 +111,23 @@ class SpatialController:
             self.com_ref_m = com.copy()
             self.cop_ref_m = d.geom_xpos[list(self.points), :2].mean(axis=0)
         com_seen, vel_seen = self.history[0]  # the state ``feedback_delay_s`` ago (the oldest kept)
-        ldot = c.k_l * self.mass_kg * (self.com_ref_m - com_seen) - c.d_l * self.mass_kg * vel_seen
+        com_ref, vel_ref = self.com_ref_m.copy(), np.zeros(3)
+        if targets.com_xy_m is not None:
+            com_ref[:2] = targets.com_xy_m
+        if targets.com_vel_xy_m_s is not None:
+            vel_ref[:2] = targets.com_vel_xy_m_s
+        ldot = c.k_l * self.mass_kg * (com_ref - com_seen) + c.d_l * self.mass_kg * (vel_ref - vel_seen)
         force = ldot + np.array([0.0, 0.0, self.mass_kg * GRAVITY_M_S2])
-        p_ref = np.array([self.cop_ref_m[0], self.cop_ref_m[1], 0.0])
+        cop_ref = self.cop_ref_m if targets.cop_xy_m is None else targets.cop_xy_m
+        p_ref = np.array([cop_ref[0], cop_ref[1], 0.0])
+        if targets.swing_foot >= 0:
+            loaded = loaded.copy()
+            loaded[[self.points.index(g) for g in self.ch.foot_points[targets.swing_foot]]] = False
         hdot = np.cross(p_ref - com, force)
         Jp = self._point_jacobians(d)
-        H_qp, f_qp = self._objective(d, A, a, ldot, hdot, n_pts)
+        H_qp, f_qp = self._objective(d, A, a, ldot, hdot, n_pts, targets.q_ref)
+        if targets.swing_foot >= 0:
+            self._swing_objective(d, targets, H_qp, f_qp)
         rows, lo, hi, sense = self._constraints(d, Jp, loaded)
         x, _, flag, _ = daqp.solve(H_qp, f_qp, rows, hi, lo, sense)
         self.infeasible = flag < 1
@@ -143,7 +169,7 @@ class SpatialController:
         return np.vstack(rows)
 
     def _objective(self, d: mujoco.MjData, A: np.ndarray, a: np.ndarray, ldot: np.ndarray, hdot: np.ndarray,
-                   n_pts: int) -> tuple[np.ndarray, np.ndarray]:
+                   n_pts: int, q_ref: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The QP's cost (H, f) over x = [qdd, f]: momentum rates, joint tracking, a small regularization."""
         c, nv = self.config, self.ch.model.nv
         n = nv + 3 * n_pts
@@ -153,11 +179,30 @@ class SpatialController:
         f[:nv] -= c.beta_l * A[:3].T @ (ldot - a[:3]) + c.beta_h * A[3:].T @ (hdot - a[3:])
         q = d.qpos[self.act_qpos]
         qd = d.qvel[self.act_dofs]
-        qdd_des = c.k_t * (self.q_ref[self.act_qpos] - q) - c.d_t * qd
+        ref = self.q_ref if q_ref is None else q_ref
+        qdd_des = c.k_t * (np.clip(ref[self.act_qpos], *self.stops) - q) - c.d_t * qd
         H[self.act_dofs, self.act_dofs] += c.beta_t
         f[self.act_dofs] -= c.beta_t * qdd_des
         H[np.arange(n), np.arange(n)] += c.regularization
         return 2.0 * H, 2.0 * f
+
+    def _swing_objective(self, d: mujoco.MjData, targets: SpatialTargets, H: np.ndarray, f: np.ndarray) -> None:
+        """A lifted foot's frame toward its path (the planar swing objective's weight and gains), level, in place
+        into the QP's cost (H, f as ``_objective`` returns them)."""
+        m, c, nv = self.ch.model, self.config, self.ch.model.nv
+        body = self.ch.foot_bodies[targets.swing_foot]
+        jac, jdot = np.empty((6, nv)), np.empty((6, nv))
+        mujoco.mj_jacBody(m, d, jac[:3], jac[3:], body)
+        mujoco.mj_jacDot(m, d, jdot[:3], jdot[3:], d.xpos[body], body)
+        vel = jac @ d.qvel
+        local, level = np.zeros(3), np.zeros(3)  # the rotation from the foot's frame to level (axis x angle)
+        mujoco.mju_subQuat(local, np.array([1.0, 0.0, 0.0, 0.0]), d.xquat[body])  # in the foot's frame ...
+        mujoco.mju_rotVecQuat(level, local, d.xquat[body])  # ... and in the world's, as the Jacobian's rows
+        want = np.concatenate([
+            c.swing_k * (targets.swing_pos_m - d.xpos[body]) + c.swing_d * (targets.swing_vel_m_s - vel[:3]),
+            c.swing_k * level - c.swing_d * vel[3:]]) - jdot @ d.qvel
+        H[:nv, :nv] += 2.0 * c.swing_weight * jac.T @ jac
+        f[:nv] -= 2.0 * c.swing_weight * jac.T @ want
 
     def _constraints(self, d: mujoco.MjData, Jp: np.ndarray, loaded: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -18,6 +18,7 @@ polygon - the convex hull of the touching points - in every sample judged).
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import mujoco
@@ -25,8 +26,9 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from cmrt.body.character import GRAVITY_M_S2, character, feet_flat_qpos, joint_angles_from_pose
+from cmrt.body.one_leg import one_leg_poses
 from cmrt.control.controller import ControllerConfig
-from cmrt.control.spatial import SpatialController
+from cmrt.control.spatial import SpatialController, SpatialTargets
 from cmrt.sim.balance import BalanceLimits
 from cmrt.sim.monitor import PROTECTIVE_DAMPING_PER_RAD_S, PROTECTIVE_STIFFNESS_PER_RAD
 from cmrt.sim.objective import (
@@ -80,8 +82,10 @@ def stand_pose_qpos(pose_deg: dict[str, float] | None = None) -> np.ndarray:
 
 
 def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0, 0.0), push_start_s: float = 1.0,
-             push_duration_s: float = 0.1, config: ControllerConfig = ControllerConfig()) -> StandResult:
-    """Simulate the 3D body standing for ``clip_s``, pushed at the thorax by ``push_n``; a fall plays out in the
+             push_duration_s: float = 0.1, config: ControllerConfig = ControllerConfig(),
+             motion: Callable[[float], SpatialTargets] | None = None) -> StandResult:
+    """Simulate the 3D body standing for ``clip_s``, pushed at the thorax by ``push_n``; ``motion``: the
+    controller's targets at each control step's time (None: hold the standing pose). A fall plays out in the
     planar clips' protective mode."""
     ch = character(BODY)
     m = copy.deepcopy(ch.model)  # protective mode changes the joints' springs: this clip's own model
@@ -110,7 +114,7 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
                 if fall is not None:
                     _protective(m, ch, d)
             if fall is None:
-                plan = ctl.plan(d, touch > 0.0)
+                plan = ctl.plan(d, touch > 0.0, SpatialTargets() if motion is None else motion(t))
                 infeasible += ctl.infeasible
                 d.ctrl[:] = plan.torque_nm
                 held_cop = plan.cop_xy_m
@@ -230,3 +234,56 @@ def _result(motion: tuple[np.ndarray, np.ndarray, np.ndarray], cops: tuple[np.nd
     return StandResult(time_s, qpos, com, cop, plan_cop, fall_time is not None, fall_time, direction,
                        topple / max(float(np.linalg.norm(topple)), 1e-12) if fall is not None else None, final_speed,
                        max_gap, min_margin, infeasible, failed)
+
+
+def leg_lift_3d(shift_s: float = 1.5, lift_s: float = 0.8, clip_s: float = 5.0, stance: int = 1,
+                config: ControllerConfig = ControllerConfig()) -> tuple[StandResult, float]:
+    """The 3D body shifting its weight onto the ``stance`` foot over ``shift_s`` (from 0.5 s; both feet down),
+    then lifting the other foot 10 cm over ``lift_s`` and standing on one leg to ``clip_s`` - the reference
+    moving through ``cmrt.body.one_leg``'s poses, the CoM's reference their CoM, the CoP's the support's centre
+    moving onto the stance foot. Returns the clip and how high the lifted foot ended above where it stood (m)."""
+    poses = one_leg_poses(stand_pose_qpos(), stance)
+    m = character(BODY).model
+    scratch = mujoco.MjData(m)
+    d0 = mujoco.MjData(m)
+    d0.qpos[:] = poses.standing
+    mujoco.mj_kinematics(m, d0)
+    pts = list(character(BODY).foot_point_geoms)
+    both = d0.geom_xpos[pts, :2].mean(axis=0)
+    swing = 1 - stance
+    foot_body = character(BODY).foot_bodies[swing]
+    start_s, lift_at_s = 0.5, 0.5 + shift_s
+
+    def reference(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        scratch.qpos[:] = q
+        mujoco.mj_kinematics(m, scratch)
+        mujoco.mj_comPos(m, scratch)
+        return scratch.subtree_com[1, :2].copy(), scratch.xpos[foot_body].copy()
+
+    standing_com, shifted_com = reference(poses.standing)[0], reference(poses.shifted)[0]
+
+    def motion(t: float) -> SpatialTargets:
+        if t < lift_at_s:
+            a, rate = _smoothstep((t - start_s) / shift_s), _smoothstep_rate((t - start_s) / shift_s) / shift_s
+            q = poses.standing + a * (poses.shifted - poses.standing)
+            return SpatialTargets(com_xy_m=reference(q)[0], com_vel_xy_m_s=rate * (shifted_com - standing_com),
+                                  cop_xy_m=both + a * (poses.stance_centre_xy_m - both), q_ref=q)
+        b = _smoothstep((t - lift_at_s) / lift_s)
+        q = poses.shifted + b * (poses.lifted - poses.shifted)
+        com, foot = reference(q)
+        return SpatialTargets(com_xy_m=com, cop_xy_m=poses.stance_centre_xy_m, q_ref=q, swing_foot=swing,
+                              swing_pos_m=foot, swing_vel_m_s=np.zeros(3))
+
+    result = stand_3d(clip_s=clip_s, push_n=(0.0, 0.0, 0.0), push_start_s=clip_s, config=config, motion=motion)
+    scratch.qpos[:] = result.qpos[-1]
+    mujoco.mj_kinematics(m, scratch)
+    return result, float(scratch.xpos[foot_body][2] - d0.xpos[foot_body][2])
+
+
+def _smoothstep(u: float) -> float:
+    u = min(max(u, 0.0), 1.0)
+    return u * u * (3.0 - 2.0 * u)
+
+
+def _smoothstep_rate(u: float) -> float:
+    return 6.0 * u * (1.0 - u) if 0.0 < u < 1.0 else 0.0

@@ -52,3 +52,16 @@ def test_unloaded_points_carry_nothing():
 def test_a_planar_body_is_refused():
     with pytest.raises(CmrtError, match="free root"):
         SpatialController(character("planar"), np.zeros(character("planar").model.nq))
+
+
+def test_a_swinging_foot_carries_nothing_and_the_targets_move_the_references():
+    from cmrt.control.spatial import SpatialTargets
+
+    ch, d = _standing()
+    ctl = SpatialController(ch, d.qpos.copy())
+    lifted = d.xpos[ch.foot_bodies[0]] + np.array([0.0, 0.0, 0.05])
+    plan = ctl.plan(d, np.ones(len(ch.foot_point_geoms), bool),
+                    SpatialTargets(cop_xy_m=np.array([0.06, 0.09]), swing_foot=0, swing_pos_m=lifted,
+                                   swing_vel_m_s=np.zeros(3)))
+    assert np.abs(plan.point_force_n[:4]).max() < 1e-6  # touching, but lifting: no load planned on it
+    assert plan.cop_xy_m[1] > 0.05  # the CoP on the left foot, the one left to stand on

@@ -60,3 +60,16 @@ def test_the_cop_margin_is_the_distance_inside_the_touching_points():
     assert _margin(np.array([0.19, 0.05]), square) == pytest.approx(0.01)
     assert _margin(np.array([0.25, 0.05]), square) == pytest.approx(-0.05)
     assert _margin(np.array([0.1, 0.0]), square[:2]) == 0.0  # fewer than three points: no area
+
+
+def test_the_weight_shifts_over_the_stance_foot_before_the_other_lifts():
+    """The anticipatory part of a leg lift: by lift-off the CoM is over the stance foot's sole (within its half
+    width, 4 cm, of the sole's centre line): one-leg balance is possible the moment the other foot leaves."""
+    from cmrt.body.one_leg import one_leg_poses
+    from cmrt.sim.spatial import leg_lift_3d, stand_pose_qpos
+
+    centre = one_leg_poses(stand_pose_qpos(), 1).stance_centre_xy_m
+    r, _ = leg_lift_3d(shift_s=1.5, clip_s=2.1, stance=1)
+    k = np.searchsorted(r.time_s, 2.0 - 1e-9) - 1  # the last sample before lift-off (0.5 + 1.5 s)
+    assert abs(r.com_m[k, 1] - centre[1]) < 0.04 and not r.fell
+    assert abs(r.com_m[0, 1] - centre[1]) > 0.08  # it started over the midline
