@@ -75,15 +75,15 @@ def test_the_weight_shifts_over_the_stance_foot_before_the_other_lifts():
     assert abs(r.com_m[0, 1] - centre[1]) > 0.08  # it started over the midline
 
 
-@pytest.mark.slow  # two 5.3 s clips
+@pytest.mark.slow  # two 5 s clips
 @pytest.mark.parametrize("stance", [0, 1])
 def test_a_slow_leg_lift_stands_on_one_leg_and_a_fast_one_falls_after_lift_off(stance):
     """Shifting over 2 s, the body lifts the other foot 10 cm and stands on one leg (a success by every rule);
-    shifting over 1 s it falls - after lift-off, its CoM over the stance sole when the foot left."""
+    shifting over 1.5 s it falls after lift-off, its CoM over the stance sole when the foot left."""
     from cmrt.sim.spatial import leg_lift_3d
 
     slow, lift_m = leg_lift_3d(shift_s=2.0, clip_s=5.3, stance=stance)
     assert slow.success, slow.failed_rules
     assert lift_m == pytest.approx(0.10, abs=0.01) and slow.final_com_speed_m_s < SETTLED_COM_SPEED_M_S
-    fast, _ = leg_lift_3d(shift_s=1.0, clip_s=4.3, stance=stance)
-    assert fast.fell and fast.fall_time_s > 1.5  # lift-off at 1.5 s
+    fast, _ = leg_lift_3d(shift_s=1.5, clip_s=4.8, stance=stance)
+    assert fast.fell and fast.fall_time_s > 2.0  # lift-off at 2.0 s
