@@ -778,3 +778,13 @@ def test_push_table_3d_renders_a_filmstrip(tmp_path):
     done = json.loads(_ok(run_tool("push_table_3d.py", "--json", "--filmstrip", str(out), "--forces", "100",
                                    "--directions", "90", "--frames", "0.5,1.2")).stdout)
     assert done["out"] == str(out) and out.stat().st_size > 0 and not done["fell"]
+
+
+# --- tools/leg_lift_3d.py ------------------------------------------------------------------------
+
+def test_leg_lift_3d_tool(tmp_path):
+    out = json.loads(_ok(run_tool("leg_lift_3d.py", "--json", "--shifts", "2.0", "--stance", "right")).stdout)
+    assert len(out) == 1 and out[0]["success"] and abs(out[0]["foot_lift_m"] - 0.10) < 0.01
+    assert out[0]["com_at_lift_off_m"][1] < -0.05  # over the right foot
+    bad = run_tool("leg_lift_3d.py", "--shifts", "0")
+    assert bad.returncode == 2 and "shifts" in bad.stderr

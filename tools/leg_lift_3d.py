@@ -1,0 +1,80 @@
+"""The 3D body lifting a foot (``cmrt.sim.spatial.leg_lift_3d``; docs/body3d.md): per weight-shift duration, the
+verdict, when it fell, how high the foot went and where the CoM was at lift-off; or a filmstrip of one.
+
+    python tools/leg_lift_3d.py [--json] [--shifts 1.0,1.5,2.0,2.5] [--stance left]
+    python tools/leg_lift_3d.py --filmstrip docs/body3d_leg_lift_filmstrip.png --shifts 2.0
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+
+from cmrt.errors import CmrtError
+from cmrt.sim.spatial import leg_lift_3d
+
+START_S, LIFT_S, HOLD_S = 0.5, 0.8, 2.0  # the shift starts at START_S; the lift takes LIFT_S; then HOLD_S on one leg
+STANCES = {"right": 0, "left": 1}
+
+
+def row(shift_s: float, stance: int) -> dict:
+    """One leg lift: its verdict and figures."""
+    r, lift_m = leg_lift_3d(shift_s=shift_s, lift_s=LIFT_S, clip_s=START_S + shift_s + LIFT_S + HOLD_S,
+                            stance=stance)
+    k = max(int(np.searchsorted(r.time_s, START_S + shift_s)) - 1, 0)
+    return {"shift_s": shift_s, "success": r.success, "failed_rules": list(r.failed_rules), "fell": r.fell,
+            "fall_time_s": r.fall_time_s, "lift_off_s": START_S + shift_s, "foot_lift_m": lift_m,
+            "com_at_lift_off_m": [float(v) for v in r.com_m[k]], "max_plan_cop_error_m": r.max_plan_cop_error_m,
+            "min_cop_margin_m": r.min_cop_margin_m, "max_foot_slip_m": r.max_foot_slip_m}
+
+
+def _floats(text: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a comma-separated list of numbers: {text!r}") from None
+    if not values or any(not 0.2 <= v <= 10.0 for v in values):
+        raise argparse.ArgumentTypeError(f"shifts are 0.2-10 s, got {text!r}")
+    return values
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true", help="machine-readable output")
+    parser.add_argument("--shifts", type=_floats, default=[1.0, 1.5, 2.0, 2.5], help="weight-shift durations, s")
+    parser.add_argument("--stance", choices=sorted(STANCES), default="left", help="the foot stood on")
+    parser.add_argument("--filmstrip", metavar="OUT.png", help="render the first shift's clip instead")
+    args = parser.parse_args(argv)
+    stance = STANCES[args.stance]
+    if args.filmstrip:
+        from cmrt.viz.render3d import filmstrip_3d
+
+        shift = args.shifts[0]
+        r, _ = leg_lift_3d(shift_s=shift, lift_s=LIFT_S, clip_s=START_S + shift + LIFT_S + HOLD_S, stance=stance)
+        lift_off = START_S + shift
+        times = np.array([0.4, START_S + 0.5 * shift, lift_off, lift_off + 0.4 * LIFT_S, lift_off + LIFT_S,
+                          lift_off + LIFT_S + HOLD_S - 0.1])
+        try:
+            done = filmstrip_3d(r, times, args.filmstrip)
+        except CmrtError as exc:
+            print(f"leg_lift_3d: {exc}", file=sys.stderr)
+            return 2
+        print(json.dumps(done) if args.json else f"wrote {done['out']}")
+        return 0
+    rows = [row(s, stance) for s in args.shifts]
+    if args.json:
+        print(json.dumps(rows, indent=1))
+    else:
+        for r in rows:
+            verdict = "success" if r["success"] else "not: " + ", ".join(r["failed_rules"])
+            fall = f", fell at {r['fall_time_s']:.2f} s (lift-off {r['lift_off_s']:.2f} s)" if r["fell"] else ""
+            print(f"shift {r['shift_s']:.2f} s: {verdict}{fall}; foot up {100 * r['foot_lift_m']:.1f} cm, CoM at "
+                  f"lift-off y {100 * r['com_at_lift_off_m'][1]:+.1f} cm")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
