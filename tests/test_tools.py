@@ -788,3 +788,5 @@ def test_leg_lift_3d_tool(tmp_path):
     assert out[0]["com_at_lift_off_m"][1] < -0.05  # over the right foot
     bad = run_tool("leg_lift_3d.py", "--shifts", "0")
     assert bad.returncode == 2 and "shifts" in bad.stderr
+    reactive = json.loads(_ok(run_tool("leg_lift_3d.py", "--json", "--shifts", "1.5", "--cmrt", "zero")).stdout)
+    assert reactive[0]["fell"] and reactive[0]["fall_time_s"] > reactive[0]["lift_off_s"]  # the paper's centre mode

@@ -3,6 +3,10 @@ verdict, when it fell, how high the foot went and where the CoM was at lift-off;
 
     python tools/leg_lift_3d.py [--json] [--shifts 1.0,1.5,2.0,2.5] [--stance left]
     python tools/leg_lift_3d.py --filmstrip docs/body3d_leg_lift_filmstrip.png --shifts 2.0
+    python tools/leg_lift_3d.py --shifts 1.5 --cmrt tests/data/cmrt_leg_lift_3d.json    # the paper's centre mode
+
+``--cmrt zero|FILE.json``: the paper's reference instead of the poses' CoM - the support's centre, displaced
+sideways by that CMRT (a file: a CMRT, or a record with one under "cmrt"; its clip sets the clip's length).
 """
 
 from __future__ import annotations
@@ -10,25 +14,40 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
 
 from cmrt.errors import CmrtError
+from cmrt.motion.curve import Cmrt
 from cmrt.sim.spatial import leg_lift_3d
 
 START_S, LIFT_S, HOLD_S = 0.5, 0.8, 2.0  # the shift starts at START_S; the lift takes LIFT_S; then HOLD_S on one leg
 STANCES = {"right": 0, "left": 1}
 
 
-def row(shift_s: float, stance: int) -> dict:
+def row(shift_s: float, stance: int, curve: Cmrt | None = None) -> dict:
     """One leg lift: its verdict and figures."""
-    r, lift_m = leg_lift_3d(shift_s=shift_s, lift_s=LIFT_S, clip_s=START_S + shift_s + LIFT_S + HOLD_S,
-                            stance=stance)
+    clip_s = curve.clip_s if curve is not None else START_S + shift_s + LIFT_S + HOLD_S
+    r, lift_m = leg_lift_3d(shift_s=shift_s, lift_s=LIFT_S, clip_s=clip_s, stance=stance, cmrt_y=curve)
     k = max(int(np.searchsorted(r.time_s, START_S + shift_s)) - 1, 0)
     return {"shift_s": shift_s, "success": r.success, "failed_rules": list(r.failed_rules), "fell": r.fell,
             "fall_time_s": r.fall_time_s, "lift_off_s": START_S + shift_s, "foot_lift_m": lift_m,
             "com_at_lift_off_m": [float(v) for v in r.com_m[k]], "max_plan_cop_error_m": r.max_plan_cop_error_m,
             "min_cop_margin_m": r.min_cop_margin_m, "max_foot_slip_m": r.max_foot_slip_m}
+
+
+def _curve(spec: str | None, shift_s: float) -> Cmrt | None:
+    """``--cmrt``: None (the poses' CoM), the zero CMRT over the default clip, or a file's."""
+    if spec is None:
+        return None
+    if spec == "zero":
+        return Cmrt.zero(START_S + shift_s + LIFT_S + HOLD_S)
+    try:
+        raw = json.loads(Path(spec).read_text())
+    except (OSError, ValueError) as exc:
+        raise CmrtError(f"--cmrt {spec!r}: {exc}") from None
+    return Cmrt.from_dict(raw.get("cmrt", raw) if isinstance(raw, dict) else raw, f"--cmrt {spec!r}")
 
 
 def _floats(text: str) -> list[float]:
@@ -47,8 +66,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--shifts", type=_floats, default=[1.0, 1.5, 2.0, 2.5], help="weight-shift durations, s")
     parser.add_argument("--stance", choices=sorted(STANCES), default="left", help="the foot stood on")
     parser.add_argument("--filmstrip", metavar="OUT.png", help="render the first shift's clip instead")
+    parser.add_argument("--cmrt", metavar="zero|FILE.json", help="the paper's centre mode with this CMRT in y")
     args = parser.parse_args(argv)
     stance = STANCES[args.stance]
+    try:
+        curve = _curve(args.cmrt, args.shifts[0])
+    except CmrtError as exc:
+        parser.error(str(exc))
     if args.filmstrip:
         from cmrt.viz.render3d import filmstrip_3d
 
@@ -64,16 +88,17 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         print(json.dumps(done) if args.json else f"wrote {done['out']}")
         return 0
-    rows = [row(s, stance) for s in args.shifts]
-    if args.json:
-        print(json.dumps(rows, indent=1))
-    else:
-        for r in rows:
-            verdict = "success" if r["success"] else "not: " + ", ".join(r["failed_rules"])
-            fall = f", fell at {r['fall_time_s']:.2f} s (lift-off {r['lift_off_s']:.2f} s)" if r["fell"] else ""
-            print(f"shift {r['shift_s']:.2f} s: {verdict}{fall}; foot up {100 * r['foot_lift_m']:.1f} cm, CoM at "
-                  f"lift-off y {100 * r['com_at_lift_off_m'][1]:+.1f} cm")
+    rows = [row(s, stance, curve) for s in args.shifts]
+    print(json.dumps(rows, indent=1) if args.json else "\n".join(map(_line, rows)))
     return 0
+
+
+def _line(r: dict) -> str:
+    """One row as text."""
+    fall = f", fell at {r['fall_time_s']:.2f} s (lift-off {r['lift_off_s']:.2f} s)" if r["fell"] else ""
+    return (f"shift {r['shift_s']:.2f} s: {'success' if r['success'] else 'not: ' + ', '.join(r['failed_rules'])}"
+            f"{fall}; foot up {100 * r['foot_lift_m']:.1f} cm, CoM at lift-off y "
+            f"{100 * r['com_at_lift_off_m'][1]:+.1f} cm")
 
 
 if __name__ == "__main__":

@@ -29,6 +29,7 @@ from cmrt.body.character import GRAVITY_M_S2, character, feet_flat_qpos, joint_a
 from cmrt.body.one_leg import one_leg_poses
 from cmrt.control.controller import ControllerConfig
 from cmrt.control.spatial import SpatialController, SpatialTargets
+from cmrt.motion.curve import Cmrt
 from cmrt.sim.balance import BalanceLimits
 from cmrt.sim.monitor import PROTECTIVE_DAMPING_PER_RAD_S, PROTECTIVE_STIFFNESS_PER_RAD
 from cmrt.sim.objective import (
@@ -237,11 +238,14 @@ def _result(motion: tuple[np.ndarray, np.ndarray, np.ndarray], cops: tuple[np.nd
 
 
 def leg_lift_3d(shift_s: float = 1.5, lift_s: float = 0.8, clip_s: float = 5.0, stance: int = 1,
-                config: ControllerConfig = ControllerConfig()) -> tuple[StandResult, float]:
+                config: ControllerConfig = ControllerConfig(), cmrt_y: Cmrt | None = None
+                ) -> tuple[StandResult, float]:
     """The 3D body shifting its weight onto the ``stance`` foot over ``shift_s`` (from 0.5 s; both feet down),
     then lifting the other foot 10 cm over ``lift_s`` and standing on one leg to ``clip_s`` - the reference
-    moving through ``cmrt.body.one_leg``'s poses, the CoM's reference their CoM, the CoP's the support's centre
-    moving onto the stance foot. Returns the clip and how high the lifted foot ended above where it stood (m)."""
+    moving through ``cmrt.body.one_leg``'s poses. The CoM's reference: the poses' CoM, the CoP's the support's
+    centre moving onto the stance foot; or, with ``cmrt_y``, the paper's: both the support's centre (both feet,
+    then the stance foot from lift-off) and the CoM's displaced sideways by the CMRT (the anticipation).
+    Returns the clip and how high the lifted foot ended above where it stood (m)."""
     poses = one_leg_poses(stand_pose_qpos(), stance)
     m = character(BODY).model
     scratch = mujoco.MjData(m)
@@ -262,7 +266,20 @@ def leg_lift_3d(shift_s: float = 1.5, lift_s: float = 0.8, clip_s: float = 5.0, 
 
     standing_com, shifted_com = reference(poses.standing)[0], reference(poses.shifted)[0]
 
+    def centre_mode(t: float, q: np.ndarray) -> SpatialTargets:
+        centre = both if t < lift_at_s else poses.stance_centre_xy_m
+        up = np.array([0.0, 1.0])
+        return SpatialTargets(com_xy_m=centre + float(cmrt_y.displacement_m(t)) * up,
+                              com_vel_xy_m_s=float(cmrt_y.velocity_m_s(t)) * up, cop_xy_m=centre, q_ref=q)
+
     def motion(t: float) -> SpatialTargets:
+        if cmrt_y is not None:
+            if t < lift_at_s:
+                return centre_mode(t, poses.standing + _smoothstep((t - start_s) / shift_s) * (poses.shifted
+                                                                                               - poses.standing))
+            q = poses.shifted + _smoothstep((t - lift_at_s) / lift_s) * (poses.lifted - poses.shifted)
+            return replace(centre_mode(t, q), swing_foot=swing, swing_pos_m=reference(q)[1],
+                           swing_vel_m_s=np.zeros(3))
         if t < lift_at_s:
             a, rate = _smoothstep((t - start_s) / shift_s), _smoothstep_rate((t - start_s) / shift_s) / shift_s
             q = poses.standing + a * (poses.shifted - poses.standing)
@@ -287,3 +304,15 @@ def _smoothstep(u: float) -> float:
 
 def _smoothstep_rate(u: float) -> float:
     return 6.0 * u * (1.0 - u) if 0.0 < u < 1.0 else 0.0
+
+
+def cop_error_objective(result: StandResult, reference_xy: np.ndarray, sample_s: float = 0.01) -> float:
+    """The paper's objective on a 3D clip: the 2-norm of the executed CoP's error from ``reference_xy`` ((n, 2),
+    at the clip's samples), as if sampled every ``sample_s``, plus 5 for a fall and up to 5 more the earlier it
+    came (a slope for the optimizer; the planar penalty's scale). A sample with no CoP counts 0.3 m per axis."""
+    err = np.nan_to_num(result.cop_xy_m - reference_xy, nan=0.3)
+    dt = float(result.time_s[1] - result.time_s[0]) if len(result.time_s) > 1 else sample_s
+    value = float(np.linalg.norm(err)) * np.sqrt(dt / sample_s)
+    if result.fell:
+        value += 5.0 + 5.0 * (1.0 - result.fall_time_s / float(result.time_s[-1] + dt))
+    return value
