@@ -790,3 +790,8 @@ def test_leg_lift_3d_tool(tmp_path):
     assert bad.returncode == 2 and "shifts" in bad.stderr
     reactive = json.loads(_ok(run_tool("leg_lift_3d.py", "--json", "--shifts", "1.5", "--cmrt", "zero")).stdout)
     assert reactive[0]["fell"] and reactive[0]["fall_time_s"] > reactive[0]["lift_off_s"]  # the paper's centre mode
+    out = tmp_path / "found.json"
+    found = json.loads(_ok(run_tool("leg_lift_3d.py", "--json", "--shifts", "1.5", "--optimize", "4", "--seed", "3",
+                                    "--out", str(out))).stdout)
+    assert found["evaluations"] == 10 and found["objective"] <= found["objective_zero"]  # one generation of 10
+    assert json.loads(out.read_text()) == found and "seed 3" in found["found_by"]

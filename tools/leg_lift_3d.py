@@ -7,6 +7,13 @@ verdict, when it fell, how high the foot went and where the CoM was at lift-off;
 
 ``--cmrt zero|FILE.json``: the paper's reference instead of the poses' CoM - the support's centre, displaced
 sideways by that CMRT (a file: a CMRT, or a record with one under "cmrt"; its clip sets the clip's length).
+
+``--optimize EVALS``: CMA-ES over the CMRT in y of the first shift in that centre mode (the driver's options: from
+the zero CMRT, sigma 0.5, population 10, a private generator seeded by ``--seed``), minimizing
+``cop_error_objective`` against the support's centre; ``--out`` writes the best with its provenance (how
+tests/data/cmrt_leg_lift_3d.json was made):
+
+    python tools/leg_lift_3d.py --shifts 1.5 --optimize 210 --seed 1 --out tests/data/cmrt_leg_lift_3d.json
 """
 
 from __future__ import annotations
@@ -16,13 +23,20 @@ import json
 import sys
 from pathlib import Path
 
+import cma
+import mujoco
 import numpy as np
 
+from cmrt import inputs
+from cmrt.body.character import character
+from cmrt.body.one_leg import one_leg_poses
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
-from cmrt.sim.spatial import leg_lift_3d
+from cmrt.optimize.driver import _cma_options, _Randn
+from cmrt.sim.spatial import cop_error_objective, leg_lift_3d, stand_pose_qpos
 
 START_S, LIFT_S, HOLD_S = 0.5, 0.8, 2.0  # the shift starts at START_S; the lift takes LIFT_S; then HOLD_S on one leg
+SIGMA0, POPSIZE = 0.5, 10  # the driver's defaults from the zero CMRT
 STANCES = {"right": 0, "left": 1}
 
 
@@ -67,7 +81,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--stance", choices=sorted(STANCES), default="left", help="the foot stood on")
     parser.add_argument("--filmstrip", metavar="OUT.png", help="render the first shift's clip instead")
     parser.add_argument("--cmrt", metavar="zero|FILE.json", help="the paper's centre mode with this CMRT in y")
+    parser.add_argument("--optimize", type=int, metavar="EVALS", help="CMA-ES for the centre mode's CMRT in y")
+    parser.add_argument("--seed", type=int, default=1, help="the search's seed (default 1)")
+    parser.add_argument("--out", metavar="FILE.json", help="with --optimize: write the best CMRT and how it was found")
     args = parser.parse_args(argv)
+    if args.optimize is not None:
+        if args.optimize < 1:
+            parser.error("--optimize: at least one evaluation")
+        return _optimize(args, STANCES[args.stance])
     stance = STANCES[args.stance]
     try:
         curve = _curve(args.cmrt, args.shifts[0])
@@ -90,6 +111,57 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     rows = [row(s, stance, curve) for s in args.shifts]
     print(json.dumps(rows, indent=1) if args.json else "\n".join(map(_line, rows)))
+    return 0
+
+
+def centre_objective(curve: Cmrt, shift_s: float, stance: int) -> tuple[float, dict]:
+    """The centre mode's clip with ``curve``: ``cop_error_objective`` against the support's centre (both feet, the
+    stance foot from lift-off), and the clip's row."""
+    poses = one_leg_poses(stand_pose_qpos(), stance)
+    ch = character("humanoid3d")
+    d = mujoco.MjData(ch.model)
+    d.qpos[:] = poses.standing
+    mujoco.mj_kinematics(ch.model, d)
+    both = d.geom_xpos[list(ch.foot_point_geoms), :2].mean(axis=0)
+    r, lift_m = leg_lift_3d(shift_s=shift_s, lift_s=LIFT_S, clip_s=curve.clip_s, stance=stance, cmrt_y=curve)
+    reference = np.where((r.time_s < START_S + shift_s)[:, None], both, poses.stance_centre_xy_m)
+    return cop_error_objective(r, reference), {"success": r.success, "failed_rules": list(r.failed_rules),
+                                               "fell": r.fell, "fall_time_s": r.fall_time_s, "foot_lift_m": lift_m,
+                                               "max_plan_cop_error_m": r.max_plan_cop_error_m}
+
+
+def _optimize(args: argparse.Namespace, stance: int) -> int:
+    """CMA-ES for the centre mode's CMRT in y (the driver's options and private generator)."""
+    shift = args.shifts[0]
+    clip_s = START_S + shift + LIFT_S + 1.0
+    zero_value, zero_row = centre_objective(Cmrt.zero(clip_s), shift, stance)
+    es = cma.CMAEvolutionStrategy(np.zeros(8), SIGMA0, _cma_options(_Randn(args.seed), POPSIZE))
+    best, evaluations, first_success = (zero_value, Cmrt.zero(clip_s), zero_row), 0, None
+    while evaluations < args.optimize:
+        xs = es.ask()
+        values = []
+        for x in xs:
+            curve = Cmrt.from_params(np.asarray(x), clip_s)
+            value, clip = centre_objective(curve, shift, stance)
+            evaluations += 1
+            values.append(value)
+            if clip["success"] and first_success is None:
+                first_success = evaluations
+            if value < best[0]:
+                best = (value, curve, clip)
+        es.tell(xs, values)
+    record = {"cmrt": best[1].to_dict(), "clip": best[2], "objective": best[0], "objective_zero": zero_value,
+              "zero_clip": zero_row, "evaluations": evaluations, "first_success_evaluation": first_success,
+              "what": f"tools/leg_lift_3d.py --shifts {shift} --stance {args.stance} --optimize {args.optimize} "
+                      f"--seed {args.seed}: the CMRT in y of the 3D leg lift in the paper's centre mode",
+              "found_by": f"CMA-ES (pycma, the driver's options and private generator) from the zero CMRT, sigma "
+                          f"{SIGMA0}, population {POPSIZE}, seed {args.seed}; cop_error_objective"}
+    if args.out:
+        with inputs.atomic_output(args.out, "--out", (".json",)) as tmp:
+            Path(tmp).write_text(json.dumps(record, indent=1) + "\n")
+    print(json.dumps(record, indent=1) if args.json else
+          f"best objective {best[0]:.3f} (zero CMRT {zero_value:.3f}) after {evaluations} evaluations; "
+          f"{'a success' if best[2]['success'] else 'not: ' + ', '.join(best[2]['failed_rules'])}")
     return 0
 
 

@@ -37,6 +37,7 @@ from cmrt.sim.objective import (
     MAX_GROUND_FORCE_BW,
     MAX_PLAN_COP_ERROR_M,
     MIN_COP_MARGIN_M,
+    NOT_PLAUSIBLE_PENALTY,
     SETTLED_COM_SPEED_M_S,
 )
 from cmrt.sim.simulate import PLANTED_FORCE_N
@@ -309,10 +310,15 @@ def _smoothstep_rate(u: float) -> float:
 def cop_error_objective(result: StandResult, reference_xy: np.ndarray, sample_s: float = 0.01) -> float:
     """The paper's objective on a 3D clip: the 2-norm of the executed CoP's error from ``reference_xy`` ((n, 2),
     at the clip's samples), as if sampled every ``sample_s``, plus 5 for a fall and up to 5 more the earlier it
-    came (a slope for the optimizer; the planar penalty's scale). A sample with no CoP counts 0.3 m per axis."""
+    came (a slope for the optimizer), or, standing but not a success, the planar objective's penalty for a motion
+    a researcher would not accept (``NOT_PLAUSIBLE_PENALTY`` x (1 + the plan gap's excess over its bound, up to
+    1)). A sample with no CoP counts 0.3 m per axis."""
     err = np.nan_to_num(result.cop_xy_m - reference_xy, nan=0.3)
     dt = float(result.time_s[1] - result.time_s[0]) if len(result.time_s) > 1 else sample_s
     value = float(np.linalg.norm(err)) * np.sqrt(dt / sample_s)
     if result.fell:
         value += 5.0 + 5.0 * (1.0 - result.fall_time_s / float(result.time_s[-1] + dt))
+    elif result.failed_rules:
+        excess = (result.max_plan_cop_error_m - MAX_PLAN_COP_ERROR_M) / MAX_PLAN_COP_ERROR_M
+        value += NOT_PLAUSIBLE_PENALTY * (1.0 + min(max(excess, 0.0), 1.0))
     return value
