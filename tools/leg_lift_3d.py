@@ -23,7 +23,6 @@ import json
 import sys
 from pathlib import Path
 
-import cma
 import mujoco
 import numpy as np
 
@@ -32,7 +31,7 @@ from cmrt.body.character import character
 from cmrt.body.one_leg import one_leg_poses
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
-from cmrt.optimize.driver import _cma_options, _Randn
+from cmrt.optimize.driver import OptimizeSettings, new_state
 from cmrt.sim.spatial import cop_error_objective, leg_lift_3d, stand_pose_qpos
 
 START_S, LIFT_S, HOLD_S = 0.5, 0.8, 2.0  # the shift starts at START_S; the lift takes LIFT_S; then HOLD_S on one leg
@@ -135,7 +134,7 @@ def _optimize(args: argparse.Namespace, stance: int) -> int:
     shift = args.shifts[0]
     clip_s = START_S + shift + LIFT_S + 1.0
     zero_value, zero_row = centre_objective(Cmrt.zero(clip_s), shift, stance)
-    es = cma.CMAEvolutionStrategy(np.zeros(8), SIGMA0, _cma_options(_Randn(args.seed), POPSIZE))
+    es = new_state(OptimizeSettings(seed=args.seed, popsize=POPSIZE, sigma0=SIGMA0)).es  # the driver's search
     best, evaluations, first_success = (zero_value, Cmrt.zero(clip_s), zero_row), 0, None
     while evaluations < args.optimize:
         xs = es.ask()
