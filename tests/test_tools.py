@@ -795,3 +795,5 @@ def test_leg_lift_3d_tool(tmp_path):
                                     "--out", str(out))).stdout)
     assert found["evaluations"] == 10 and found["objective"] <= found["objective_zero"]  # one generation of 10
     assert json.loads(out.read_text()) == found and "seed 3" in found["found_by"]
+    nowhere = run_tool("leg_lift_3d.py", "--shifts", "1.5", "--optimize", "4", "--out", str(tmp_path / "no" / "x.json"))
+    assert nowhere.returncode == 2 and len(nowhere.stderr.strip().splitlines()) == 1  # refused before the search

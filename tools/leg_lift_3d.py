@@ -87,7 +87,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.optimize is not None:
         if args.optimize < 1:
             parser.error("--optimize: at least one evaluation")
-        return _optimize(args, STANCES[args.stance])
+        try:
+            if args.out:
+                inputs.check_output(args.out, "--out", (".json",))  # before the search, not after it
+            return _optimize(args, STANCES[args.stance])
+        except CmrtError as exc:
+            print(f"leg_lift_3d: {exc}", file=sys.stderr)
+            return 2
     stance = STANCES[args.stance]
     try:
         curve = _curve(args.cmrt, args.shifts[0])

@@ -128,7 +128,9 @@ class SpatialController:
         H_qp, f_qp = self._objective(d, A, a, ldot, hdot, n_pts, targets.q_ref)
         if targets.swing_foot >= 0:
             self._swing_objective(d, targets, H_qp, f_qp)
-        rows, lo, hi, sense = self._constraints(d, Jp, loaded)
+        M = np.zeros((nv, nv))  # the joint-space inertia, once a control step: the rows and the torques use it
+        mujoco.mj_fullM(m, d, M)
+        rows, lo, hi, sense = self._constraints(d, M, Jp, loaded)
         x, _, flag, _ = daqp.solve(H_qp, f_qp, rows, hi, lo, sense)
         self.infeasible = flag < 1
         if self.infeasible:  # no plan within the stops and the motors' limits (a fall): the plan without those
@@ -138,8 +140,6 @@ class SpatialController:
             if flag < 1:
                 raise CmrtError(f"the 3D balance QP has no solution (daqp exit {flag})")
         qdd, forces = x[:nv], x[nv:].reshape(n_pts, 3)
-        M = np.zeros((nv, nv))
-        mujoco.mj_fullM(m, d, M)
         generalized = M @ qdd + d.qfrc_bias - Jp.T @ x[nv:]
         torque = np.clip(generalized[self.act_dofs], -self.ch.torque_limit_nm, self.ch.torque_limit_nm)
         fz = forces[:, 2].sum()
@@ -204,15 +204,13 @@ class SpatialController:
         H[:nv, :nv] += 2.0 * c.swing_weight * jac.T @ jac
         f[:nv] -= 2.0 * c.swing_weight * jac.T @ want
 
-    def _constraints(self, d: mujoco.MjData, Jp: np.ndarray, loaded: np.ndarray
+    def _constraints(self, d: mujoco.MjData, M: np.ndarray, Jp: np.ndarray, loaded: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The QP's rows (A, lo, hi, sense): base dynamics and supporting feet (equalities), each point's friction
         pyramid and floor (a point off the floor carries nothing), the motors' limits."""
         m, c = self.ch.model, self.config
         nv, n_pts = m.nv, len(self.points)
         n = nv + 3 * n_pts
-        M = np.zeros((nv, nv))
-        mujoco.mj_fullM(m, d, M)
         rows, lo, hi, sense = [], [], [], []
 
         def add(row, low, high, kind=0):

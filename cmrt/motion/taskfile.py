@@ -96,6 +96,12 @@ def _body(raw: dict, where: str) -> str:
     return body
 
 
+def params_off_3d(params: dict[str, float]) -> list[str]:
+    """The parameters a 3D task sets that the 3D body does not take yet (``PARAMS_3D`` aside, any off its default):
+    a task file's and a ``--set``'s check, one rule."""
+    return sorted(k for k, v in params.items() if k not in PARAMS_3D and v != DEFAULT_PARAMS.get(k))
+
+
 def _checked_3d(task: Task, where: str) -> Task:
     """A 3D task validated: it stands and is pushed for now (docs/body3d.md) - no pose change, prop, footsteps,
     timing, robust ensemble or other reference mode, and no parameter but ``PARAMS_3D`` off its default - in a
@@ -107,7 +113,7 @@ def _checked_3d(task: Task, where: str) -> Task:
                                      ("param_ranges", task.param_ranges), ("speed_param", task.speed_param),
                                      ("robust", task.robust != RobustSpec() or None),
                                      ("reference", task.reference_mode != DEFAULT_REFERENCE_MODE or None)) if value]
-    others += sorted(k for k, v in params.items() if k not in PARAMS_3D and v != DEFAULT_PARAMS.get(k))
+    others += params_off_3d(params)
     if others:
         raise CmrtError(f"{where}: a {task.body} task stands and is pushed for now (docs/body3d.md): it sets "
                         f"the parameters {', '.join(sorted(PARAMS_3D))} and a start_pose_deg, not "

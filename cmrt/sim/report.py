@@ -12,8 +12,8 @@ from cmrt import inputs
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.sequence import SequenceTask
-from cmrt.motion.task import DEFAULT_PARAMS, Task
-from cmrt.motion.taskfile import PARAMS_3D
+from cmrt.motion.task import Task
+from cmrt.motion.taskfile import PARAMS_3D, params_off_3d
 from cmrt.sim.objective import ENFORCE_TIMING, Evaluation, evaluate, verdict_bounds
 from cmrt.sim.simulate import Trajectory, simulate
 from cmrt.sim.spatial import stand_3d
@@ -77,7 +77,7 @@ def spatial_report(task: Task, curve: Cmrt, curve_name: str, trace: str | None =
     JSON-safe values; ``trace``: its samples as ``.npz``. No CMRT yet (docs/body3d.md): only the zero one."""
     if any(curve.values_m):
         raise CmrtError(f"--curve {curve_name}: the 3D body has no CMRTs yet (docs/body3d.md); use --curve zero")
-    fixed = {k: v for k, v in task.params.items() if k not in PARAMS_3D and v != DEFAULT_PARAMS.get(k, v)}
+    fixed = params_off_3d(task.params)
     if fixed:
         raise CmrtError(f"--set {', '.join(sorted(fixed))}: not for the {task.body} body yet (it takes "
                         f"{', '.join(sorted(PARAMS_3D))})")
