@@ -229,6 +229,10 @@ TASK_PARAMS: dict[str, Range] = {
     "stop_threshold": Range(0.0, 1e6),
     "push_force_n": Range(-1e4, 1e4, unit="N"),
     "push_force_y_n": Range(-1e4, 1e4, unit="N"),  # sideways, +y the body's left (a 3D task's: docs/body3d.md)
+    # a 3D leg lift (docs/body3d.md): the foot stood on (+1 the left, -1 the right; 0 both, no lift) and the share
+    # of T the lift takes (the rest is the weight shift)
+    "stance_side": Range(-1.0, 1.0),  # -1, 0 or 1 (checked by the task)
+    "lift_fraction": Range(0.1, 0.9),
     "push_start_s": Range(0.0, MAX_RUN_S, unit="s"),
     "push_duration_s": Range(0.0, MAX_RUN_S, unit="s"),
     "max_tracking_lag": Range(0.0, 1.0, lo_open=True),

@@ -93,6 +93,12 @@ def test_wilson_interval():
     assert tool.wilson_interval(7, 7)[1] == 1.0
 
 
+def test_random_success_tool_scores_a_3d_task_as_cmrt_simulate_does():
+    out = json.loads(_ok(run_tool("random_success.py", "leg-lift", "--samples", "3", "--seed", "2", "--json")).stdout)
+    assert out["task"] == "leg-lift" and out["samples"] == 3
+    assert out["success_fraction"] + out["fell_fraction"] <= 1.0 and out["objective_min"] > 0.0
+
+
 def test_random_success_tool_json_is_reproducible():
     args = ("bend", "--speed", "0.4", "--samples", "4", "--seed", "3", "--json")
     first, again = run_script("random_success.py", *args), run_tool_here("random_success.py", *args)
@@ -783,17 +789,18 @@ def test_push_table_3d_renders_a_filmstrip(tmp_path):
 # --- tools/leg_lift_3d.py ------------------------------------------------------------------------
 
 def test_leg_lift_3d_tool(tmp_path):
-    out = json.loads(_ok(run_tool("leg_lift_3d.py", "--json", "--shifts", "2.0", "--stance", "right")).stdout)
+    out = json.loads(_ok(run_tool("leg_lift_3d.py", "--json", "--speeds", "2.3", "--curve", "library")).stdout)
     assert len(out) == 1 and out[0]["success"] and abs(out[0]["foot_lift_m"] - 0.10) < 0.01
-    assert out[0]["com_at_lift_off_m"][1] < -0.05  # over the right foot
-    bad = run_tool("leg_lift_3d.py", "--shifts", "0")
-    assert bad.returncode == 2 and "shifts" in bad.stderr
-    reactive = json.loads(_ok(run_tool("leg_lift_3d.py", "--json", "--shifts", "1.5", "--cmrt", "zero")).stdout)
+    assert out[0]["com_shift_toward_stance_before_lift_off_m"] > 0.03 and out[0]["reference"] == "center"
+    reactive = json.loads(_ok(run_tool("leg_lift_3d.py", "--json", "--speeds", "2.3")).stdout)
     assert reactive[0]["fell"] and reactive[0]["fall_time_s"] > reactive[0]["lift_off_s"]  # the paper's centre mode
-    out = tmp_path / "found.json"
-    found = json.loads(_ok(run_tool("leg_lift_3d.py", "--json", "--shifts", "1.5", "--optimize", "4", "--seed", "3",
-                                    "--out", str(out))).stdout)
-    assert found["evaluations"] == 10 and found["objective"] <= found["objective_zero"]  # one generation of 10
-    assert json.loads(out.read_text()) == found and "seed 3" in found["found_by"]
-    nowhere = run_tool("leg_lift_3d.py", "--shifts", "1.5", "--optimize", "4", "--out", str(tmp_path / "no" / "x.json"))
-    assert nowhere.returncode == 2 and len(nowhere.stderr.strip().splitlines()) == 1  # refused before the search
+    right = json.loads(_ok(run_tool("leg_lift_3d.py", "--json", "--speeds", "3.5", "--reference", "yu",
+                                    "--set", "stance_side=-1")).stdout)
+    assert right[0]["success"] and right[0]["com_shift_toward_stance_before_lift_off_m"] > 0.05  # Yu's, slow
+    for args, says in ((("--speeds", "0.5"), "outside task 'leg-lift' range"), (("--curve", "nowhere.json"), "CMRT")):
+        bad = run_tool("leg_lift_3d.py", *args)
+        assert bad.returncode == 2 and says in bad.stderr and len(bad.stderr.strip().splitlines()) == 1, bad.stderr
+    film = tmp_path / "lift.png"
+    done = json.loads(_ok(run_tool("leg_lift_3d.py", "--json", "--speeds", "2.3", "--curve", "library",
+                                   "--filmstrip", str(film))).stdout)
+    assert done["out"] == str(film) and film.stat().st_size > 0

@@ -7,8 +7,9 @@ the mean, step size and covariance of the optimizer's own fresh CMA-ES (``cmrt.o
 x0 = 0, the flat CMRT, and ``sigma0``) in its 8-parameter space, mapped to CMRTs by the optimizer's
 ``Cmrt.from_params``. They are drawn from a numpy Generator of their own seeded by ``--seed`` (not the
 global RNG, not pycma's), simulated with the batched evaluator (``simulate_batch``) and scored by
-``evaluate``. A task where most such draws already succeed is easy for any search; one where none do
-is where the optimizer's restarts and budget matter. Reports the success fraction with its 95 % Wilson
+``evaluate`` (a 3D task's one by one, as ``cmrt simulate`` scores it). A task where most such draws
+already succeed is easy for any search; one where none do is where the optimizer's restarts and budget
+matter. Reports the success fraction with its 95 % Wilson
 interval, the fraction of successes below the task's ``stop_threshold`` (a first generation drawing one
 stops the run), the fractions that fell and that stood without performing the motion (or reaching the
 goal), the objective's median and minimum, the seed, wall time and the machine.
@@ -27,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cmrt import Cmrt, CmrtError, OptimizeSettings, Task, evaluate, resolve_task
+from cmrt import Cmrt, CmrtError, OptimizeSettings, Task, evaluate, resolve_task, simulate_report
 from cmrt.inputs import SEED, SPEED, Range, parse_sets
 from cmrt.optimize.driver import new_state
 from cmrt.sim.simulate import simulate_batch
@@ -71,6 +72,31 @@ def wilson_interval(successes: int, n: int, z: float = WILSON_Z) -> tuple[float,
     return max(0.0, center - half), min(1.0, center + half)
 
 
+@dataclass(frozen=True)
+class Score:
+    """What the table counts of one clip."""
+
+    objective: float
+    success: bool
+    fell: bool
+    performed: bool | None
+    settled: bool
+
+
+def _scores(task: Task, curves: list[Cmrt]) -> list[Score]:
+    """The clips of ``curves`` scored: a planar task's in one batch, a 3D task's one by one (its report)."""
+    if task.body == "planar":
+        return [Score(e.objective, e.success, e.fell, e.performed, e.settled)
+                for e in (evaluate(task, tr) for tr in simulate_batch(task, curves))]
+    out = []
+    for curve in curves:
+        r = simulate_report(task, curve, "random")
+        failed = set(r["failed_rules"])
+        out.append(Score(r["objective"], r["success"], r["fell"], not failed & {"performed", "on_time"},
+                         "settled" not in failed))
+    return out
+
+
 def measure(task: Task, samples: int, seed: int) -> dict:
     """Score ``samples`` random CMRTs of ``task`` drawn with generator seed ``seed``."""
     t0 = time.perf_counter()
@@ -79,7 +105,7 @@ def measure(task: Task, samples: int, seed: int) -> dict:
     scores = []
     for a in range(0, samples, CHUNK):
         curves = [Cmrt.from_params(x, task.clip_s) for x in xs[a : a + CHUNK]]
-        scores += [evaluate(task, tr) for tr in simulate_batch(task, curves)]
+        scores += _scores(task, curves)
     wins = sum(e.success for e in scores)
     fell = sum(e.fell for e in scores)
     not_performed = sum(e.performed is False and not e.fell for e in scores)

@@ -176,19 +176,30 @@ def _n(x, spec: str, scale: float = 1.0) -> str:
 def _spatial_text(r: dict) -> str:
     """A 3D clip's report (``cmrt.sim.report.spatial_report``) as a few lines."""
     outcome = "SUCCESS" if r["success"] else "not a success: " + ", ".join(r["failed_rules"])
+    speed = f" --speed {r['speed']:g}" if r["speed"] is not None else ""
     fall = ""
     if r["fell"]:
         d = r["fall_direction_xy"]
         fall = f"  fell at {r['fall_time_s']:.2f} s, the capture point out toward ({d[0]:+.2f}, {d[1]:+.2f})"
     return "\n".join([
-        f"{escape(r['task'])}  body={r['body']}  curve={escape(r['curve'])}: {outcome}" + fall,
+        f"{escape(r['task'])}{speed}  body={r['body']}  curve={escape(r['curve'])}  reference={r['reference']}: "
+        f"{outcome}" + fall,
         f"  planned vs executed CoP {_n(r['max_plan_cop_error_m'], '.2f', 1000)} mm  min CoP margin "
         f"{_n(r['min_cop_margin_m'], '.1f', 100)} cm  peak ground force {_n(r['peak_normal_force_bw'], '.2f')} x "
         f"body weight  [{r['wall_s']:.2f} s]",
         f"  max joint speed {_n(r['max_joint_speed_rad_s'], '.1f')} rad/s  planted feet slid "
         f"{_n(r['max_foot_slip_m'], '.2f', 100)} cm  final CoM speed {_n(r['final_com_speed_m_s'], '.3f')} m/s",
+        *([_lift_text(r)] if "lift_off_s" in r else []),
         f"  judged as: {r['success_rule']}",
     ])
+
+
+def _lift_text(r: dict) -> str:
+    """A leg lift's own line: the anticipation and the timing."""
+    return (f"  lift-off at {r['lift_off_s']:.2f} s, the CoM moved "
+            f"{_n(r['com_shift_toward_stance_before_lift_off_m'], '.1f', 100)} cm toward the stance foot by then; the "
+            f"foot ended {_n(r['foot_lift_m'], '.1f', 100)} cm up; late {_n(r['timing_lag_s'], '.3f')} s (bound "
+            f"{r['timing_lag_bound_s']:.3f})")
 
 
 def _report_text(r: dict) -> str:
@@ -329,13 +340,14 @@ def _progress(total_evals: int, label: str, enabled: bool, stream=None):
 def resolve_task(name: str, speed: float | None, sets: list[str] | None, reference: str | None = None,
                  steps: str | None = None, any_body: bool = False) -> Task:
     """The task arguments (name or path, ``--speed``, ``--set``, ``--reference``, ``--steps``) -> a validated
-    Task; a 3D task only where ``any_body`` (`cmrt simulate`: the rest of the service is planar for now)."""
+    Task; a 3D task only where ``any_body`` (simulate, optimize, submit, best: the rest of the service is planar
+    for now)."""
     from cmrt.motion.taskfile import resolve_task as task_variant
 
     task = task_variant(name, speed, inputs.parse_sets(sets), reference, steps)
     if task.body != "planar" and not any_body:
-        raise CmrtError(f"task {shown(task.name)} is done with the {task.body} body, which only `cmrt simulate` "
-                        "runs for now (docs/body3d.md)")
+        raise CmrtError(f"task {shown(task.name)} is done with the {task.body} body, which only `cmrt simulate`, "
+                        "`optimize`, `submit` and `best` take for now (docs/body3d.md)")
     return task
 
 
@@ -484,7 +496,12 @@ def _submit_kwargs(args) -> dict:
 def _opt_task(args, speed: float | None) -> Task:
     """The task an optimization runs: with ``--robust``, scored on its ensemble. A run id as ``--init`` must
     exist before a store is created or written."""
-    task = resolve_task(args.task, speed, args.set, args.reference, args.steps)
+    task = resolve_task(args.task, speed, args.set, args.reference, args.steps, any_body=True)
+    if task.body != "planar" and args.robust:
+        raise CmrtError(f"--robust: the {task.body} body has no robust ensemble yet (docs/body3d.md)")
+    if task.body != "planar" and not task.params["stance_side"]:
+        raise CmrtError(f"task {shown(task.name)}: a standing 3D task has no CMRT to optimize (a leg lift has: "
+                        "stance_side +1 or -1; docs/body3d.md)")
     if isinstance(args.init, int):
         with _store(args.store, readonly=True) as store:
             store.run(args.init)
@@ -546,13 +563,9 @@ class Simulate(Command):
         task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None),
                             any_body=True)
         wrote = "" if args.trace is None else f"\nwrote {escape(args.trace)}"
-        if task.body != "planar":  # the 3D body: no CMRTs, library or feasibility check yet
-            if args.curve != "zero":
-                raise CmrtError(f"--curve {shown(args.curve)}: the {task.body} body has no CMRTs yet "
-                                "(docs/body3d.md); use --curve zero")
-            curve, _ = _curve(args, "zero", task)
-            return Output(simulate_report(task, curve, "zero", args.trace), lambda r: _spatial_text(r) + wrote)
         curve, name = _curve(args, args.curve, task)
+        if task.body != "planar":  # the 3D body: no feasibility check yet
+            return Output(simulate_report(task, curve, name, args.trace), lambda r: _spatial_text(r) + wrote)
         _warn_if_not_feasible(args.task, task)
         return Output(simulate_report(task, curve, name, args.trace), lambda r: _report_text(r) + wrote)
 
@@ -822,7 +835,8 @@ class Best(Command):
     def run(self, args):
         from cmrt.service import query
 
-        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None))
+        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None),
+                            any_body=True)
         with _store(args.store, readonly=True) as store:
             return Output(_result(query.best_run(store, task)), _result_text)
 

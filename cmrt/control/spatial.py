@@ -63,6 +63,8 @@ class SpatialTargets:
     com_vel_xy_m_s: np.ndarray | None = None
     cop_xy_m: np.ndarray | None = None
     q_ref: np.ndarray | None = None  # (nq): the pose to track now (None: the one the controller was made with)
+    qd_ref: np.ndarray | None = None  # (nv): its rate and acceleration (None: still), tracked as the planar
+    qdd_ref: np.ndarray | None = None  # controller tracks them (k_t (q_r - q) + d_t (qd_r - qd) + qdd_r)
     swing_foot: int = -1  # 0 right, 1 left; -1 none
     swing_pos_m: np.ndarray | None = None
     swing_vel_m_s: np.ndarray | None = None
@@ -125,7 +127,7 @@ class SpatialController:
             loaded[[self.points.index(g) for g in self.ch.foot_points[targets.swing_foot]]] = False
         hdot = np.cross(p_ref - com, force)
         Jp = self._point_jacobians(d)
-        H_qp, f_qp = self._objective(d, A, a, ldot, hdot, n_pts, targets.q_ref)
+        H_qp, f_qp = self._objective(d, A, a, ldot, hdot, n_pts, targets)
         if targets.swing_foot >= 0:
             self._swing_objective(d, targets, H_qp, f_qp)
         M = np.zeros((nv, nv))  # the joint-space inertia, once a control step: the rows and the torques use it
@@ -169,8 +171,10 @@ class SpatialController:
         return np.vstack(rows)
 
     def _objective(self, d: mujoco.MjData, A: np.ndarray, a: np.ndarray, ldot: np.ndarray, hdot: np.ndarray,
-                   n_pts: int, q_ref: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """The QP's cost (H, f) over x = [qdd, f]: momentum rates, joint tracking, a small regularization."""
+                   n_pts: int, targets: SpatialTargets) -> tuple[np.ndarray, np.ndarray]:
+        """The QP's cost (H, f) over x = [qdd, f]: momentum rates, joint tracking, a small regularization. The
+        tracking feeds the reference's rate and acceleration forward, as the planar kernel's: without them a
+        moving reference is followed d_t / k_t = 0.2 s late (a leg lift's swing leg was, measured)."""
         c, nv = self.config, self.ch.model.nv
         n = nv + 3 * n_pts
         H = np.zeros((n, n))
@@ -179,8 +183,12 @@ class SpatialController:
         f[:nv] -= c.beta_l * A[:3].T @ (ldot - a[:3]) + c.beta_h * A[3:].T @ (hdot - a[3:])
         q = d.qpos[self.act_qpos]
         qd = d.qvel[self.act_dofs]
-        ref = self.q_ref if q_ref is None else q_ref
+        ref = self.q_ref if targets.q_ref is None else targets.q_ref
         qdd_des = c.k_t * (np.clip(ref[self.act_qpos], *self.stops) - q) - c.d_t * qd
+        if targets.qd_ref is not None:
+            qdd_des += c.d_t * targets.qd_ref[self.act_dofs]
+        if targets.qdd_ref is not None:
+            qdd_des += targets.qdd_ref[self.act_dofs]
         H[self.act_dofs, self.act_dofs] += c.beta_t
         f[self.act_dofs] -= c.beta_t * qdd_des
         H[np.arange(n), np.arange(n)] += c.regularization

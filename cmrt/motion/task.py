@@ -72,6 +72,34 @@ def active_params(params: dict, planned: bool = False) -> dict:
     return {k: v for k, v in out.items() if k not in STEPPING_PARAMS}
 
 
+#: What a 3D task may set for now (docs/body3d.md): it stands, pushed at the thorax forward and sideways, or
+#: lifts a foot (``stance_side`` +-1) over T = ``duration_s`` from P = ``preparation_s``.
+PARAMS_3D = frozenset({"clip_s", "push_force_n", "push_force_y_n", "push_start_s", "push_duration_s", "preparation_s",
+                       "duration_s", "stance_side", "lift_fraction", "stop_threshold", "max_tracking_lag"})
+#: The 3D parameters a planar task does not have, with their defaults (a 3D task always has them).
+DEFAULTS_3D = {"push_force_y_n": 0.0, "stance_side": 0.0, "lift_fraction": 0.35}
+MIN_HOLD_3D_S = 0.5  # s: a leg lift's clip holds the one-leg pose at least this long after T
+
+
+def params_off_3d(params: dict[str, float]) -> list[str]:
+    """The parameters a 3D task sets that the 3D body does not take yet (``PARAMS_3D`` aside, any off its default):
+    a task file's and a ``--set``'s check, one rule."""
+    return sorted(k for k, v in params.items() if k not in PARAMS_3D and v != DEFAULT_PARAMS.get(k))
+
+
+def check_leg_lift(params: dict[str, float]) -> None:
+    """A 3D task's motion: a leg lift (``stance_side`` +-1) has a T and holds the one-leg pose at least
+    ``MIN_HOLD_3D_S`` after it; standing (0) has none."""
+    side, t_s = params["stance_side"], params["duration_s"]
+    if side not in (-1.0, 0.0, 1.0):
+        raise CmrtError(f"stance_side must be -1 (the right foot), 0 (both) or 1 (the left), got {side:g}")
+    if side == 0 and t_s > 0:
+        raise CmrtError(f"duration_s = {t_s:g}: a 3D task moves only to lift a foot (stance_side +1 or -1)")
+    if side != 0 and not (t_s > 0 and params["preparation_s"] + t_s + MIN_HOLD_3D_S <= params["clip_s"]):
+        raise CmrtError(f"a leg lift needs duration_s > 0 and preparation_s + duration_s + {MIN_HOLD_3D_S:g} s <= "
+                        f"clip_s, got {params['preparation_s']:g} + {t_s:g} and {params['clip_s']:g}")
+
+
 #: Further thorax pushes a task file may declare, each as ``<prefix>_force_n``, ``_start_s``, ``_duration_s``.
 EXTRA_PUSHES = ("push2", "push3")
 
@@ -280,6 +308,12 @@ class Task:
             raise CmrtError(f"preparation_s + duration_s exceeds clip_s ({p['clip_s']:g} s)")
         if self.end_pose_deg is not None and p["duration_s"] <= 0:
             raise CmrtError("a pose-change task needs duration_s > 0")
+        if self.body != "planar":
+            off = params_off_3d(p)
+            if off:
+                raise CmrtError(f"{', '.join(off)}: not for the {self.body} body yet (it takes "
+                                f"{', '.join(sorted(PARAMS_3D))})")
+            check_leg_lift(p)
         if self.via_pose_deg is not None:
             if self.end_pose_deg is None or self.timing:
                 raise CmrtError("a via pose needs an end pose and no [timing] (each segment eases as a whole)")

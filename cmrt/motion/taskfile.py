@@ -22,7 +22,7 @@ from cmrt.inputs import POSE_DEG, param_range, shown
 from cmrt.modes import DEFAULT_REFERENCE_MODE
 from cmrt.motion.ensemble import RobustSpec
 from cmrt.motion.footsteps import PlannedStep, parse_steps, steps_from_tables
-from cmrt.motion.task import DEFAULT_PARAMS, Task, reference_mode
+from cmrt.motion.task import DEFAULT_PARAMS, DEFAULTS_3D, PARAMS_3D, Task, params_off_3d, reference_mode
 
 #: The shipped task files (package data: present in an installed cmrt, not only in a checkout).
 TASKS_DIR = importlib.resources.files("cmrt.motion") / "tasks"
@@ -53,8 +53,6 @@ def load_task(name_or_path: str) -> Task:
 TASK_KEYS = frozenset({"name", "summary", "speed_param", "balance_joint", "params", "param_ranges", "start_pose_deg",
                        "end_pose_deg", "via_pose_deg", "timing", "prop", "robust", "reference", "steps",
                        "body"})
-#: What a 3D task may set for now (docs/body3d.md): it stands, pushed at the thorax forward and sideways.
-PARAMS_3D = frozenset({"clip_s", "push_force_n", "push_force_y_n", "push_start_s", "push_duration_s"})
 MAX_TEXT = 1000  # characters of a task's name or summary
 
 
@@ -96,27 +94,20 @@ def _body(raw: dict, where: str) -> str:
     return body
 
 
-def params_off_3d(params: dict[str, float]) -> list[str]:
-    """The parameters a 3D task sets that the 3D body does not take yet (``PARAMS_3D`` aside, any off its default):
-    a task file's and a ``--set``'s check, one rule."""
-    return sorted(k for k, v in params.items() if k not in PARAMS_3D and v != DEFAULT_PARAMS.get(k))
-
-
 def _checked_3d(task: Task, where: str) -> Task:
-    """A 3D task validated: it stands and is pushed for now (docs/body3d.md) - no pose change, prop, footsteps,
-    timing, robust ensemble or other reference mode, and no parameter but ``PARAMS_3D`` off its default - in a
-    standing pose the 3D body can take (feet flat, the CoM over them)."""
-    params = {**task.params, "push_force_y_n": task.params.get("push_force_y_n", 0.0)}
-    task = replace(task, params=params)
+    """A 3D task validated: it stands, pushed or not, or lifts a foot (docs/body3d.md) - no pose table, prop,
+    footsteps, timing or robust ensemble, no parameter but ``PARAMS_3D`` off its default, its speed (if any) T -
+    in a standing pose the 3D body can take (feet flat, the CoM over them)."""
+    task = replace(task, params={**DEFAULTS_3D, **task.params})
     others = [key for key, value in (("end_pose_deg", task.end_pose_deg), ("via_pose_deg", task.via_pose_deg),
                                      ("prop", task.prop), ("steps", task.steps), ("timing", task.timing),
-                                     ("param_ranges", task.param_ranges), ("speed_param", task.speed_param),
-                                     ("robust", task.robust != RobustSpec() or None),
-                                     ("reference", task.reference_mode != DEFAULT_REFERENCE_MODE or None)) if value]
-    others += params_off_3d(params)
+                                     ("robust", task.robust != RobustSpec() or None)) if value]
+    others += params_off_3d(task.params)
+    if task.speed_param not in (None, "duration_s"):
+        others.append(f"speed_param {task.speed_param}")
     if others:
-        raise CmrtError(f"{where}: a {task.body} task stands and is pushed for now (docs/body3d.md): it sets "
-                        f"the parameters {', '.join(sorted(PARAMS_3D))} and a start_pose_deg, not "
+        raise CmrtError(f"{where}: a {task.body} task stands or lifts a foot for now (docs/body3d.md): it sets "
+                        f"the parameters {', '.join(sorted(PARAMS_3D))}, a start_pose_deg and its reference, not "
                         f"{', '.join(others)}")
     try:
         task.validate()

@@ -37,6 +37,7 @@ from cmrt.motion.curve import Cmrt
 from cmrt.motion.ensemble import combine, training_members
 from cmrt.motion.task import Task
 from cmrt.optimize.memory import bound_heap_growth, clips_per_batch
+from cmrt.sim.clip3d import clip_3d
 from cmrt.sim.objective import EvalRecord, evaluate
 from cmrt.sim.simulate import simulate_batch
 
@@ -67,6 +68,9 @@ def evaluate_batch(task: Task, xs: Sequence[np.ndarray], threads: int | None = N
 
 def _score_batch(task: Task, xs: Sequence[np.ndarray], members: list, threads: int | None) -> list[EvalRecord]:
     curves = [Cmrt.from_params(x, task.clip_s) for x in xs]
+    if task.body != "planar":  # the 3D body's clips, one after another (cmrt.sim.clip3d): no lockstep batch yet
+        return [EvalRecord(objective=float(c.objective), fell=c.fell, seconds=0.0, success=c.success)
+                for c in (clip_3d(task, curve) for curve in curves)]
     if members == [None]:
         return [EvalRecord(objective=float(e.objective), fell=bool(e.fell), seconds=0.0, success=bool(e.success))
                 for e in (evaluate(task, tr) for tr in simulate_batch(task, curves, threads=threads))]

@@ -192,11 +192,16 @@ def _run_claimed(store: Store, claim: Claim, evaluator: Evaluator, on_generation
     settings = settings_for(run, x0)
     checkpoint = store.last_checkpoint(claim.run_id)
     state = CmaState.loads(checkpoint[1], settings, run_id=run.id) if checkpoint else new_state(settings)
+    zero = None
     if not checkpoint:  # the zero CMRT is a candidate the search knows (a resumed run knows it already)
-        know_zero(state, evaluator(task, [ZERO_X])[0])
+        zero = evaluator(task, [ZERO_X])[0]
+        know_zero(state, zero)
 
     if run.baseline_objective is None:
-        base = evaluate(task, simulate(task, Cmrt.zero(task.clip_s), record=False))  # the score only
+        if task.body != "planar":  # the 3D clip's score is the evaluator's (cmrt.sim.clip3d)
+            base = zero if zero is not None else evaluator(task, [ZERO_X])[0]
+        else:
+            base = evaluate(task, simulate(task, Cmrt.zero(task.clip_s), record=False))  # the score only
         store.record_baseline(claim, base.objective, base.fell, base.success)
 
     wall_before = run.wall_s or 0.0

@@ -595,25 +595,35 @@ def timing_lag_s(task: Task, traj: Trajectory) -> float | None:
     if task.balance_joint:
         skip = {i for i, name in enumerate(ch.dof_names) if name.split("_")[0] == task.balance_joint}
     window = t <= stop + 1e-9
+    joints = [j for j in ch.actuated_dofs if j not in skip]
+    lags = joint_lags_s(t, traj.qpos[idx], q_ref, joints, window, start, strike_s)
+    return max(0.0, float(max(lags))) if lags else None
+
+
+def joint_lags_s(t: np.ndarray, q: np.ndarray, q_ref: np.ndarray, joints: list[int], window: np.ndarray,
+                 start_s: float, strike_s: float | None = None) -> list[float]:
+    """How late each driving joint among ``joints`` (columns of ``q`` and ``q_ref``, sampled at ``t`` from the
+    motion's start ``start_s``) arrived (s): ``timing_lag_s``'s rule on any body - a joint whose reference moves
+    more than ``DRIVING_JOINT_RAD`` inside ``window`` is done when it first covers ``TIMING_FRACTION`` of that
+    excursion (never: the last sample), less when its reference did; with ``strike_s``, a joint not done by the
+    strike is judged by how far it had got then."""
     lags = []
-    for j in ch.actuated_dofs:
-        if j in skip:
-            continue
+    for j in joints:
         excursion = q_ref[window, j] - q_ref[0, j]
         peak = int(np.argmax(np.abs(excursion)))
         target = excursion[peak]
         if abs(target) <= DRIVING_JOINT_RAD:
             continue
         goal = TIMING_FRACTION * abs(target)
-        done_at = _crossing_s(t, np.sign(target) * (traj.qpos[idx, j] - q_ref[0, j]), goal)
+        done_at = _crossing_s(t, np.sign(target) * (q[:, j] - q_ref[0, j]), goal)
         if strike_s is not None and (done_at is None or done_at > strike_s + 1e-9):  # stopped by the target
-            got = np.sign(target) * (np.interp(strike_s, t, traj.qpos[idx, j]) - q_ref[0, j])
+            got = np.sign(target) * (np.interp(strike_s, t, q[:, j]) - q_ref[0, j])
             ref_at = _crossing_s(t, np.sign(target) * (q_ref[:, j] - q_ref[0, j]), min(got, goal))
-            lags.append(strike_s - (start if ref_at is None else ref_at))
+            lags.append(strike_s - (start_s if ref_at is None else ref_at))
             continue
         ref_at = _crossing_s(t, np.sign(target) * (q_ref[:, j] - q_ref[0, j]), goal)
         lags.append((t[-1] if done_at is None else done_at) - ref_at)
-    return max(0.0, float(max(lags))) if lags else None
+    return lags
 
 
 def _strike_s(task: Task, traj: Trajectory, start: float, stop: float) -> float | None:

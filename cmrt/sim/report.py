@@ -13,10 +13,9 @@ from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.sequence import SequenceTask
 from cmrt.motion.task import Task
-from cmrt.motion.taskfile import PARAMS_3D, params_off_3d
+from cmrt.sim.clip3d import clip_3d
 from cmrt.sim.objective import ENFORCE_TIMING, Evaluation, evaluate, verdict_bounds
 from cmrt.sim.simulate import Trajectory, simulate
-from cmrt.sim.spatial import stand_3d
 
 
 def _finite(x):
@@ -68,23 +67,24 @@ def simulate_report(task: Task, curve: Cmrt, curve_name: str, trace: str | None 
     }
 
 
-SPATIAL_RULE = ("standing (the 3D body): no fall (the capture point within 1 cm of the soles), still at the end, "
-                "planned and executed CoP within 5 mm, the CoP inside the feet, ground force within 2.5 body weights")
+SPATIAL_RULES = {
+    "standing": "standing (the 3D body): no fall (the capture point within 1 cm of the soles), still at the end, "
+                "planned and executed CoP within 5 mm, the CoP inside the feet, ground force within 2.5 body weights",
+    "leg lift": "leg lift (the 3D body): the foot 10 cm up within 1 cm at the end and on time (the planar timing "
+                "rule), no fall, still at the end, planned and executed CoP within 5 mm, the CoP inside the stance "
+                "foot, ground force within 2.5 body weights",
+}
 
 
 def spatial_report(task: Task, curve: Cmrt, curve_name: str, trace: str | None = None) -> dict:
-    """A 3D task's clip (``cmrt.sim.spatial.stand_3d``: standing, pushed at the thorax) and its verdict, as
-    JSON-safe values; ``trace``: its samples as ``.npz``. No CMRT yet (docs/body3d.md): only the zero one."""
-    if any(curve.values_m):
-        raise CmrtError(f"--curve {curve_name}: the 3D body has no CMRTs yet (docs/body3d.md); use --curve zero")
-    fixed = params_off_3d(task.params)
-    if fixed:
-        raise CmrtError(f"--set {', '.join(sorted(fixed))}: not for the {task.body} body yet (it takes "
-                        f"{', '.join(sorted(PARAMS_3D))})")
-    p = task.params
+    """A 3D task's clip (``cmrt.sim.clip3d``: standing, pushed or not, or a leg lift) and its verdict, as
+    JSON-safe values; ``trace``: its samples as ``.npz``. A standing task's CMRT is the zero one."""
+    lifting = task.params["stance_side"] != 0
+    if any(curve.values_m) and not lifting:
+        raise CmrtError(f"--curve {curve_name}: a standing 3D task takes no CMRT (docs/body3d.md); use --curve zero")
     t0 = time.perf_counter()
-    r = stand_3d(clip_s=p["clip_s"], push_n=(p["push_force_n"], p.get("push_force_y_n", 0.0), 0.0),
-                 push_start_s=p["push_start_s"], push_duration_s=p["push_duration_s"])
+    c = clip_3d(task, curve)
+    r = c.result
     wall = time.perf_counter() - t0
     if trace is not None:
         with inputs.atomic_output(trace, "--trace") as tmp, open(tmp, "wb") as fh:
@@ -92,14 +92,20 @@ def spatial_report(task: Task, curve: Cmrt, curve_name: str, trace: str | None =
                                 plan_cop_xy_m=r.plan_cop_xy_m)
     figures = ("fell", "fall_time_s", "max_plan_cop_error_m", "min_cop_margin_m", "peak_normal_force_bw",
                "airborne_s", "max_joint_speed_rad_s", "max_foot_slip_m", "final_com_speed_m_s", "infeasible_steps")
-    return {
-        "task": task.name, "body": task.body, "speed": None, "reference": task.reference_mode,
-        "params": task.params, "curve": curve_name, "success": r.success, "failed_rules": list(r.failed_rules),
-        "success_rule": SPATIAL_RULE, **{k: _finite(getattr(r, k)) for k in figures},
+    out = {
+        "task": task.name, "body": task.body, "speed": task.speed, "reference": task.reference_mode,
+        "params": task.params, "curve": curve_name, "cmrt": curve.to_dict(), "objective": c.objective,
+        "success": c.success, "failed_rules": list(c.failed_rules),
+        "success_rule": SPATIAL_RULES["leg lift" if lifting else "standing"],
+        **{k: _finite(getattr(r, k)) for k in figures},
         "fall_direction_xy": None if r.fall_direction_xy is None else [float(v) for v in r.fall_direction_xy],
         "topple_direction_xy": None if r.topple_direction_xy is None else [float(v) for v in r.topple_direction_xy],
-        "verdict_bounds": verdict_bounds(), "wall_s": round(wall, 4),
     }
+    if c.lift is not None:
+        out |= {"lift_off_s": c.lift.lift_off_s, "foot_lift_m": c.lift.foot_lift_m,
+                "com_shift_toward_stance_before_lift_off_m": c.lift.com_shift_m,
+                "timing_lag_s": c.timing_lag_s, "timing_lag_bound_s": c.timing_lag_bound_s}
+    return out | {"verdict_bounds": verdict_bounds(), "wall_s": round(wall, 4)}
 
 
 def sequence_report(seq: SequenceTask, curve: Cmrt, curve_name: str, trace: str | None = None) -> dict:

@@ -83,6 +83,15 @@ def stand_pose_qpos(pose_deg: dict[str, float] | None = None) -> np.ndarray:
     return feet_flat_qpos(joint_angles_from_pose({k: np.radians(v) for k, v in pose.items()}, BODY), body=BODY)
 
 
+def feet_centre_xy(qpos: np.ndarray) -> np.ndarray:
+    """The centre of the 3D body's foot points in pose ``qpos`` (world x, y; m): both feet's support centre."""
+    ch = character(BODY)
+    d = mujoco.MjData(ch.model)
+    d.qpos[:] = qpos
+    mujoco.mj_kinematics(ch.model, d)
+    return d.geom_xpos[list(ch.foot_point_geoms), :2].mean(axis=0)
+
+
 def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0, 0.0), push_start_s: float = 1.0,
              push_duration_s: float = 0.1, config: ControllerConfig = ControllerConfig(),
              motion: Callable[[float], SpatialTargets] | None = None) -> StandResult:
@@ -238,64 +247,101 @@ def _result(motion: tuple[np.ndarray, np.ndarray, np.ndarray], cops: tuple[np.nd
                        max_gap, min_margin, infeasible, failed)
 
 
+@dataclass(frozen=True)
+class LegLiftClip:
+    """A leg lift's clip with what its objective and timing rule need."""
+
+    result: StandResult
+    foot_lift_m: float  # how high the lifted foot ended above where it stood
+    lift_off_s: float  # when the reference lets the foot go
+    cop_reference_xy_m: np.ndarray  # (n, 2) the controller's CoP reference at each sample
+    q_reference: np.ndarray  # (n, nq) the reference pose at each sample
+    com_shift_m: float  # the CoM's move toward the stance foot from the motion's start to lift-off (y, signed)
+
+
 def leg_lift_3d(shift_s: float = 1.5, lift_s: float = 0.8, clip_s: float = 5.0, stance: int = 1,
-                config: ControllerConfig = ControllerConfig(), cmrt_y: Cmrt | None = None
-                ) -> tuple[StandResult, float]:
-    """The 3D body shifting its weight onto the ``stance`` foot over ``shift_s`` (from 0.5 s; both feet down),
-    then lifting the other foot 10 cm over ``lift_s`` and standing on one leg to ``clip_s`` - the reference
-    moving through ``cmrt.body.one_leg``'s poses. The CoM's reference: the poses' CoM, the CoP's the support's
-    centre moving onto the stance foot; or, with ``cmrt_y``, the paper's: both the support's centre (both feet,
-    then the stance foot from lift-off) and the CoM's displaced sideways by the CMRT (the anticipation).
-    Returns the clip and how high the lifted foot ended above where it stood (m)."""
+                config: ControllerConfig = ControllerConfig(), cmrt_y: Cmrt | None = None, start_s: float = 0.5,
+                reference: str = "yu", push: tuple[tuple[float, float, float], float, float] | None = None
+                ) -> LegLiftClip:
+    """The 3D body shifting its weight onto the ``stance`` foot over ``shift_s`` (from ``start_s``; both feet
+    down), then lifting the other foot 10 cm over ``lift_s`` and standing on one leg to ``clip_s`` - the reference
+    pose moving through ``cmrt.body.one_leg``'s poses. The CoM's and CoP's references (``reference``):
+
+    * "center", the paper's: the support's centre - both feet, then the stance foot from lift-off - the CoM's
+      displaced sideways by the CMRT ``cmrt_y``: the controller learns of the new support at lift-off, and only
+      the CMRT can shift the weight before it;
+    * "yu", the reference motion's own weight shift (Yu's references are the reference's loaded feet): the CoM's
+      the reference poses' (plus the CMRT), the CoP's moving from both feet onto the stance foot with the shift.
+
+    ``push``: (force on the thorax, N; its start, s; its duration, s), as ``stand_3d``'s."""
     poses = one_leg_poses(stand_pose_qpos(), stance)
-    m = character(BODY).model
-    scratch = mujoco.MjData(m)
-    d0 = mujoco.MjData(m)
+    ch = character(BODY)
+    m, scratch, d0 = ch.model, mujoco.MjData(ch.model), mujoco.MjData(ch.model)
     d0.qpos[:] = poses.standing
     mujoco.mj_kinematics(m, d0)
-    pts = list(character(BODY).foot_point_geoms)
-    both = d0.geom_xpos[pts, :2].mean(axis=0)
-    swing = 1 - stance
-    foot_body = character(BODY).foot_bodies[swing]
-    start_s, lift_at_s = 0.5, 0.5 + shift_s
+    both = feet_centre_xy(poses.standing)  # both feet's support centre
+    swing, curve = 1 - stance, cmrt_y if cmrt_y is not None else Cmrt.zero(clip_s)
+    foot_body = ch.foot_bodies[swing]
+    lift_at_s, up = start_s + shift_s, np.array([0.0, 1.0])
 
-    def reference(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def reference_of(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         scratch.qpos[:] = q
         mujoco.mj_kinematics(m, scratch)
         mujoco.mj_comPos(m, scratch)
         return scratch.subtree_com[1, :2].copy(), scratch.xpos[foot_body].copy()
 
-    standing_com, shifted_com = reference(poses.standing)[0], reference(poses.shifted)[0]
+    standing_com, shifted_com = reference_of(poses.standing)[0], reference_of(poses.shifted)[0]
 
-    def centre_mode(t: float, q: np.ndarray) -> SpatialTargets:
-        centre = both if t < lift_at_s else poses.stance_centre_xy_m
-        up = np.array([0.0, 1.0])
-        return SpatialTargets(com_xy_m=centre + float(cmrt_y.displacement_m(t)) * up,
-                              com_vel_xy_m_s=float(cmrt_y.velocity_m_s(t)) * up, cop_xy_m=centre, q_ref=q)
+    def eased(t: float, t0: float, span: float, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, ...]:
+        return _eased(m, (t - t0) / span, span, a, b)
 
-    def motion(t: float) -> SpatialTargets:
-        if cmrt_y is not None:
-            if t < lift_at_s:
-                return centre_mode(t, poses.standing + _smoothstep((t - start_s) / shift_s) * (poses.shifted
-                                                                                               - poses.standing))
-            q = poses.shifted + _smoothstep((t - lift_at_s) / lift_s) * (poses.lifted - poses.shifted)
-            return replace(centre_mode(t, q), swing_foot=swing, swing_pos_m=reference(q)[1],
-                           swing_vel_m_s=np.zeros(3))
+    def plan(t: float) -> tuple[np.ndarray, SpatialTargets]:
+        """The reference pose at ``t`` and the controller's targets."""
+        d_m, v_m_s = float(curve.displacement_m(t)), float(curve.velocity_m_s(t))
         if t < lift_at_s:
-            a, rate = _smoothstep((t - start_s) / shift_s), _smoothstep_rate((t - start_s) / shift_s) / shift_s
-            q = poses.standing + a * (poses.shifted - poses.standing)
-            return SpatialTargets(com_xy_m=reference(q)[0], com_vel_xy_m_s=rate * (shifted_com - standing_com),
-                                  cop_xy_m=both + a * (poses.stance_centre_xy_m - both), q_ref=q)
-        b = _smoothstep((t - lift_at_s) / lift_s)
-        q = poses.shifted + b * (poses.lifted - poses.shifted)
-        com, foot = reference(q)
-        return SpatialTargets(com_xy_m=com, cop_xy_m=poses.stance_centre_xy_m, q_ref=q, swing_foot=swing,
-                              swing_pos_m=foot, swing_vel_m_s=np.zeros(3))
+            q, qd, qdd = eased(t, start_s, shift_s, poses.standing, poses.shifted)
+            u = (t - start_s) / shift_s
+            a, rate = _smoothstep(u), _smoothstep_rate(u) / shift_s
+            if reference == "center":
+                com, vel, cop = both.copy(), np.zeros(2), both
+            else:
+                com, vel, cop = reference_of(q)[0], rate * (shifted_com - standing_com), both + a * (
+                    poses.stance_centre_xy_m - both)
+            return q, SpatialTargets(com_xy_m=com + d_m * up, com_vel_xy_m_s=vel + v_m_s * up, cop_xy_m=cop, q_ref=q,
+                                     qd_ref=qd, qdd_ref=qdd)
+        q, qd, qdd = eased(t, lift_at_s, lift_s, poses.shifted, poses.lifted)
+        com, foot = reference_of(q)
+        h = 1e-3  # s: the foot's path's rate by a central difference
+        foot_vel = np.diff([reference_of(eased(t + e, lift_at_s, lift_s, poses.shifted, poses.lifted)[0])[1]
+                            for e in (-h, h)], axis=0)[0] / (2 * h)
+        centre = poses.stance_centre_xy_m
+        com = centre if reference == "center" else com
+        return q, SpatialTargets(com_xy_m=com + d_m * up, com_vel_xy_m_s=v_m_s * up, cop_xy_m=centre, q_ref=q,
+                                 qd_ref=qd, qdd_ref=qdd, swing_foot=swing, swing_pos_m=foot, swing_vel_m_s=foot_vel)
 
-    result = stand_3d(clip_s=clip_s, push_n=(0.0, 0.0, 0.0), push_start_s=clip_s, config=config, motion=motion)
+    force, push_start_s, push_duration_s = push if push is not None else ((0.0, 0.0, 0.0), clip_s, 0.1)
+    result = stand_3d(clip_s=clip_s, push_n=force, push_start_s=push_start_s, push_duration_s=push_duration_s,
+                      config=config, motion=lambda t: plan(t)[1])
+    planned = [plan(float(t)) for t in result.time_s]
     scratch.qpos[:] = result.qpos[-1]
     mujoco.mj_kinematics(m, scratch)
-    return result, float(scratch.xpos[foot_body][2] - d0.xpos[foot_body][2])
+    k0 = int(np.searchsorted(result.time_s, start_s - 1e-9))
+    k1 = max(int(np.searchsorted(result.time_s, lift_at_s - 1e-9)) - 1, k0)
+    toward = 1.0 if poses.stance_centre_xy_m[1] > both[1] else -1.0
+    return LegLiftClip(result, float(scratch.xpos[foot_body][2] - d0.xpos[foot_body][2]), lift_at_s,
+                       np.array([p[1].cop_xy_m for p in planned]), np.array([p[0] for p in planned]),
+                       toward * float(result.com_m[k1, 1] - result.com_m[k0, 1]))
+
+
+def _eased(m: mujoco.MjModel, u: float, span_s: float, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The pose eased from ``a`` to ``b`` at ``u`` of its ``span_s``, with its joints' rate and acceleration (nv;
+    the root's left 0: the controller tracks the actuated joints)."""
+    act_q, act_v = m.jnt_qposadr[m.actuator_trnid[:, 0]], m.jnt_dofadr[m.actuator_trnid[:, 0]]
+    rate, accel = np.zeros(m.nv), np.zeros(m.nv)
+    if 0.0 < u < 1.0:
+        rate[act_v] = 6.0 * u * (1.0 - u) / span_s * (b - a)[act_q]
+        accel[act_v] = (6.0 - 12.0 * u) / span_s**2 * (b - a)[act_q]
+    return a + _smoothstep(u) * (b - a), rate, accel
 
 
 def _smoothstep(u: float) -> float:

@@ -13,6 +13,7 @@ from cmrt.body.props import prop_class
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.ensemble import validation_members
 from cmrt.motion.task import Task
+from cmrt.sim.clip3d import clip_3d
 from cmrt.sim.objective import evaluate
 from cmrt.sim.simulate import simulate_batch
 
@@ -22,7 +23,12 @@ def robustness(task: Task, curve: Cmrt, threads: int | None = None) -> dict:
     balance held, motion done on time, plan carried out, settled, goal reached), ``validation_fell``, the
     smallest CoP margin inside the feet over all of them (``min_cop_margin_m``; 0: the CoP reached an end of the
     feet, as it does in every fall) and over the survivors alone (``survived_min_cop_margin_m``: how close a
-    success came to that edge)."""
+    success came to that edge). A 3D task has no ensemble yet: its nominal clip is the one member."""
+    if task.body != "planar":
+        c = clip_3d(task, curve)
+        margin = c.result.min_cop_margin_m if math.isfinite(c.result.min_cop_margin_m) else None
+        return {"validation_total": 1, "validation_survived": int(c.success), "validation_fell": int(c.fell),
+                "min_cop_margin_m": margin, "survived_min_cop_margin_m": margin if c.success else None}
     members = validation_members(task, task.robust, prop_class(task.prop).mass_body is not None)
     trajs = simulate_batch(task, [curve] * len(members), threads=threads, perturbations=members)
     scores = [evaluate(m.task_variant(task), tr) for m, tr in zip(members, trajs, strict=True)]

@@ -1,5 +1,6 @@
-"""`cmrt simulate` on a 3D task file (docs/examples/stand3d.toml): the 3D body's standing clip and its verdict;
-the rest of the CLI refuses a 3D task in one line (exit 2) before it touches a store."""
+"""The CLI on 3D tasks: `cmrt simulate` on a 3D task file (docs/examples/stand3d.toml) and on the shipped leg lift
+(`leg-lift`) with their verdicts; `cmrt optimize` and `cmrt best` on the leg lift through a store; the rest of the
+CLI refuses a 3D task in one line (exit 2) before it touches a store."""
 
 import json
 import subprocess
@@ -35,10 +36,41 @@ def test_a_sideways_push_taken_and_one_that_topples_toward_it(tmp_path):
 @pytest.mark.slow  # cmrt processes
 def test_what_the_3d_body_cannot_do_yet_is_one_line_and_exit_2(tmp_path):
     store = tmp_path / "s.sqlite"
-    for args, says in ((("optimize", TASK, "--store", str(store)), "only `cmrt simulate` runs"),
-                       (("simulate", TASK, "--curve", "library"), "no CMRTs yet"),
-                       (("simulate", TASK, "--set", "stepping=1"), "--set stepping: not for the humanoid3d body"),
-                       (("check", TASK), "only `cmrt simulate` runs")):
+    for args, says in ((("optimize", TASK, "--store", str(store)), "a standing 3D task has no CMRT to optimize"),
+                       (("simulate", TASK, "--curve", "library"), "no library CMRT"),
+                       (("simulate", TASK, "--set", "stepping=1"), "stepping: not for the humanoid3d body"),
+                       (("optimize", "leg-lift", "--robust", "--store", str(store)), "no robust ensemble yet"),
+                       (("interpolate", "leg-lift", "--speed", "2.5", "--store", str(store)), "only `cmrt simulate`"),
+                       (("check", TASK), "only `cmrt simulate`")):
         out = run(*args)
         assert out.returncode == 2 and says in out.stderr and len(out.stderr.strip().splitlines()) == 1, out.stderr
     assert not store.exists()
+
+
+@pytest.mark.slow  # cmrt processes
+def test_the_leg_lift_falls_reactively_and_succeeds_with_the_library_cmrt():
+    zero = run("simulate", "leg-lift", "--json")
+    assert zero.returncode == 0, zero.stderr
+    r = json.loads(zero.stdout)
+    assert not r["success"] and r["failed_rules"][0] == "balance" and r["fall_direction_xy"][1] < -0.9
+    assert r["fall_time_s"] > r["lift_off_s"] and "leg lift (the 3D body)" in r["success_rule"]
+    lib = json.loads(run("simulate", "leg-lift", "--curve", "library", "--json").stdout)
+    assert lib["success"] and lib["timing_lag_s"] <= lib["timing_lag_bound_s"]
+    assert lib["max_plan_cop_error_m"] <= 0.005 and lib["com_shift_toward_stance_before_lift_off_m"] > 0.03
+    text = run("simulate", "leg-lift", "--curve", "library").stdout
+    assert "SUCCESS" in text and "toward the stance foot" in text
+
+
+@pytest.mark.slow  # two 20-evaluation searches
+def test_optimize_and_best_on_the_leg_lift_through_a_store(tmp_path):
+    """The driver, the store and the queries on a 3D task: the same seed gives the same run."""
+    runs = []
+    for name in ("a", "b"):
+        out = run("optimize", "leg-lift", "--seed", "3", "--max-evals", "20", "--json", "--no-progress",
+                  "--store", str(tmp_path / f"{name}.sqlite"))
+        assert out.returncode == 0, out.stderr
+        runs.append(json.loads(out.stdout))
+    assert runs[0]["best_cmrt"] == runs[1]["best_cmrt"] and runs[0]["best_objective"] == runs[1]["best_objective"]
+    assert runs[0]["evaluations"] <= 20 and runs[0]["baseline_fell"] and runs[0]["robustness"]["validation_total"] == 1
+    best = json.loads(run("best", "leg-lift", "--json", "--store", str(tmp_path / "a.sqlite")).stdout)
+    assert best["run_id"] == runs[0]["run_id"] and best["best_cmrt"] == runs[0]["best_cmrt"]

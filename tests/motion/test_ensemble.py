@@ -97,7 +97,9 @@ def test_library_ships_plain_and_robust_cmrts_and_keeps_them_apart():
     from cmrt.motion.library import load_entries
     from cmrt.service.interpolate import candidates
 
-    entries = [e for e in load_entries() if e.get("reference", "center") == "center"]  # yu: plain CMRTs only
+    # yu: plain CMRTs only; the 3D body (a leg lift: stance_side) has no ensemble yet (docs/body3d.md)
+    entries = [e for e in load_entries()
+               if e.get("reference", "center") == "center" and "stance_side" not in e["params"]]
     plain = {(e["task"], e["speed"], e["params"].get("ball_mass_kg")) for e in entries if not e.get("robust")}
     robust = {(e["task"], e["speed"], e["params"].get("ball_mass_kg")) for e in entries if e.get("robust")}
     assert plain == robust  # every shipped CMRT has a robust twin

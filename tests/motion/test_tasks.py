@@ -6,7 +6,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from cmrt import CmrtError, available_tasks, evaluate, library_curve, load_task, simulate
+from cmrt import Cmrt, CmrtError, available_tasks, evaluate, library_curve, load_task, simulate
 from cmrt.body.character import character
 
 TASKS = available_tasks()
@@ -22,7 +22,7 @@ TASKS = available_tasks()
 #: - "stepping": the zero CMRT fails; the library CMRT keeps balance and lands its steps but still breaks stepping
 #:   rules of the one verdict (its split stance against the standing pose, slamming touchdowns: tests/sim).
 OUTCOME = {"bend": "anticipation", "rise": "anticipation", "catch": "anticipation", "push": "anticipation",
-           "punch": "anticipation", "stand": "standing", "stride": "stepping"}
+           "punch": "anticipation", "stand": "standing", "stride": "stepping", "leg-lift": "anticipation"}
 STEPPING_OPEN = {"final_pose", "ground_force", "cop_margin", "plan"}
 #: Parameters the per-task tests run a task with (stand: 3 s with a 120 N push instead of 10 s of quiet standing).
 VARIANT = {"stand": {"clip_s": 3.0, "push_force_n": 120.0}}
@@ -30,6 +30,14 @@ VARIANT = {"stand": {"clip_s": 3.0, "push_force_n": 120.0}}
 
 def variant(name):
     return load_task(name).with_params(**VARIANT.get(name, {}))
+
+
+def is_3d(name):
+    return load_task(name).body != "planar"
+
+
+PLANAR = [name for name in TASKS if not is_3d(name)]
+SPATIAL = [name for name in TASKS if is_3d(name)]
 
 
 def library_or_none(task):
@@ -44,7 +52,42 @@ def test_outcomes_name_shipped_tasks():
     assert set(OUTCOME) <= set(TASKS) and set(VARIANT) <= set(TASKS)
 
 
-@pytest.mark.parametrize("name", TASKS)
+@pytest.mark.parametrize("name", SPATIAL)
+def test_3d_task_file_is_consistent(name):
+    """Fast, per 3D task: the file loads under its own name, its speed inside its range, its standing pose feet
+    flat with the CoM over them (the 3D clip's start)."""
+    from cmrt.sim.spatial import feet_centre_xy, stand_pose_qpos
+
+    task = load_task(name)
+    assert task.name == name and task.summary and task.body == "humanoid3d"
+    if task.speed_param is not None:
+        assert task.with_speed(task.speed) == task
+        lo, hi = task.param_ranges[task.speed_param]
+        assert lo <= task.speed <= hi
+    ch = character(task.body)
+    d = mujoco.MjData(ch.model)
+    d.qpos[:] = stand_pose_qpos()
+    mujoco.mj_kinematics(ch.model, d)
+    mujoco.mj_comPos(ch.model, d)
+    assert np.ptp(d.geom_xpos[list(ch.foot_point_geoms), 2]) < 1e-9
+    assert np.linalg.norm(d.subtree_com[1, :2] - feet_centre_xy(d.qpos)) < 0.01
+
+
+@pytest.mark.slow  # two clips
+@pytest.mark.parametrize("name", SPATIAL)
+def test_3d_zero_and_library_cmrt(name):
+    """What a 3D task is for, as for the planar ones: an "anticipation" task fails without a CMRT and succeeds with
+    the library's at half the objective or less."""
+    from cmrt.sim.clip3d import clip_3d
+
+    task = variant(name)
+    zero = clip_3d(task, Cmrt.zero(task.clip_s))
+    lib = clip_3d(task, library_curve(task))
+    assert OUTCOME[name] == "anticipation"
+    assert not zero.success and lib.success and lib.objective <= 0.5 * zero.objective
+
+
+@pytest.mark.parametrize("name", PLANAR)
 def test_task_file_and_model_are_consistent(name):
     """Fast, per task: the file loads under its own name, its model is the humanoid plus its prop, its
     reference starts and ends at rest in its start and end poses, and the start pose stands balanced."""
@@ -83,7 +126,7 @@ def test_task_file_and_model_are_consistent(name):
 
 
 @pytest.mark.slow  # two clips per task; test_determinism_per_task keeps every task in the fast loop
-@pytest.mark.parametrize("name", TASKS)
+@pytest.mark.parametrize("name", PLANAR)
 def test_zero_and_library_cmrt(name):
     """What the task is for: the outcome of the reactive controller alone (zero CMRT) against the library's."""
     task = variant(name)
@@ -119,6 +162,14 @@ def test_determinism_per_task(name):
     evaluation, twice in one process (as dm_control's suite checks each domain)."""
     task = variant(name)
     curve = library_or_none(task)
+    if task.body != "planar":
+        from cmrt.sim.clip3d import clip_3d
+
+        a, b = (clip_3d(task, curve) for _ in range(2))
+        np.testing.assert_array_equal(a.result.qpos, b.result.qpos)
+        np.testing.assert_array_equal(a.result.cop_xy_m, b.result.cop_xy_m)
+        assert (a.objective, a.failed_rules) == (b.objective, b.failed_rules)
+        return
     a, b = (simulate(task, curve, record=False) for _ in range(2))
     fa, fb = a.as_npz_dict(), b.as_npz_dict()
     assert fa.keys() == fb.keys()

@@ -69,47 +69,10 @@ def test_the_weight_shifts_over_the_stance_foot_before_the_other_lifts():
     from cmrt.sim.spatial import leg_lift_3d, stand_pose_qpos
 
     centre = one_leg_poses(stand_pose_qpos(), 1).stance_centre_xy_m
-    r, _ = leg_lift_3d(shift_s=1.5, clip_s=2.1, stance=1)
-    k = np.searchsorted(r.time_s, 2.0 - 1e-9) - 1  # the last sample before lift-off (0.5 + 1.5 s)
+    r = leg_lift_3d(shift_s=2.3, clip_s=2.9, stance=1).result  # Yu's reference: the reference's own shift
+    k = np.searchsorted(r.time_s, 2.8 - 1e-9) - 1  # the last sample before lift-off (0.5 + 2.3 s)
     assert abs(r.com_m[k, 1] - centre[1]) < 0.04 and not r.fell
     assert abs(r.com_m[0, 1] - centre[1]) > 0.08  # it started over the midline
-
-
-@pytest.mark.slow  # two 5 s clips
-@pytest.mark.parametrize("stance", [0, 1])
-def test_a_slow_leg_lift_stands_on_one_leg_and_a_fast_one_falls_after_lift_off(stance):
-    """Shifting over 2 s, the body lifts the other foot 10 cm and stands on one leg (a success by every rule);
-    shifting over 1.5 s it falls after lift-off, its CoM over the stance sole when the foot left."""
-    from cmrt.sim.spatial import leg_lift_3d
-
-    slow, lift_m = leg_lift_3d(shift_s=2.0, clip_s=5.3, stance=stance)
-    assert slow.success, slow.failed_rules
-    assert lift_m == pytest.approx(0.10, abs=0.01) and slow.final_com_speed_m_s < SETTLED_COM_SPEED_M_S
-    fast, _ = leg_lift_3d(shift_s=1.5, clip_s=4.8, stance=stance)
-    assert fast.fell and fast.fall_time_s > 2.0  # lift-off at 2.0 s
-
-
-@pytest.mark.slow  # two 3.8 s clips
-def test_in_the_papers_centre_mode_the_zero_cmrt_falls_sideways_and_an_optimized_one_succeeds():
-    """The fast leg lift as ABC poses it: the CoM's reference the support's centre - both feet, then the stance foot
-    from lift-off - plus a CMRT in y. Reactive (zero CMRT) the body falls toward the lifted foot's side 0.4 s after
-    it leaves; with the CMRT CMA-ES found (tests/data/cmrt_leg_lift_3d.json, tools/leg_lift_3d.py --optimize) the
-    CoM is over the stance foot's side at lift-off and the lift is a success by every rule."""
-    import json
-    from pathlib import Path
-
-    from cmrt.motion.curve import Cmrt
-    from cmrt.sim.spatial import leg_lift_3d
-
-    data = json.loads((Path(__file__).parents[1] / "data" / "cmrt_leg_lift_3d.json").read_text())
-    curve = Cmrt.from_dict(data["cmrt"])
-    zero, _ = leg_lift_3d(shift_s=1.5, clip_s=curve.clip_s, cmrt_y=Cmrt.zero(curve.clip_s))
-    assert zero.fell and 2.0 < zero.fall_time_s < 2.6 and zero.fall_direction_xy[1] < -0.9  # lift-off at 2.0 s
-    anticipating, lift_m = leg_lift_3d(shift_s=1.5, clip_s=curve.clip_s, cmrt_y=curve)
-    assert anticipating.success, anticipating.failed_rules
-    assert lift_m == pytest.approx(0.10, abs=0.01)
-    k = np.searchsorted(anticipating.time_s, 2.0) - 1
-    assert anticipating.com_m[k, 1] > zero.com_m[k, 1] + 0.02  # the anticipation: toward the stance foot first
 
 
 def test_the_cop_error_objective_is_the_papers_2_norm_plus_a_fall_penalty():

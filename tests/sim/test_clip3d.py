@@ -1,0 +1,68 @@
+"""The leg-lift task on the 3D body (cmrt.sim.clip3d): the paper's reactive controller falls toward the lifted side
+without a CMRT, the library's CMRT shifts the CoM over the stance foot before lift-off and makes the lift a success
+on time; Yu's reference (the reference motion's own weight shift) lifts slowly without a CMRT and falls fast. Each
+clip judged by the planar verdict's rules, the timing rule included."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cmrt.errors import CmrtError
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.library import library_curve
+from cmrt.motion.taskfile import load_task
+from cmrt.sim.clip3d import clip_3d
+from cmrt.sim.objective import MAX_PLAN_COP_ERROR_M, joint_lags_s
+
+FAST_S = 2.3  # T of the shipped leg lift (and its library CMRT)
+
+
+def test_the_fast_lift_falls_sideways_without_a_cmrt_and_succeeds_with_the_librarys():
+    task = load_task("leg-lift")
+    assert task.speed == FAST_S and task.reference_mode == "center" and task.body == "humanoid3d"
+    zero = clip_3d(task, Cmrt.zero(task.clip_s))
+    assert zero.fell and zero.failed_rules[0] == "balance" and zero.objective > 5.0
+    assert zero.result.fall_time_s > zero.lift.lift_off_s  # after lift-off: its CoM never got over the foot
+    assert zero.result.fall_direction_xy[1] < -0.9  # toward the lifted (right, -y) side
+    found = clip_3d(task, library_curve(task))
+    assert found.success, found.failed_rules
+    assert found.timing_lag_s <= found.timing_lag_bound_s and found.result.max_plan_cop_error_m <= MAX_PLAN_COP_ERROR_M
+    assert abs(found.lift.foot_lift_m - 0.10) <= 0.01 and found.objective < 5.0
+    assert found.lift.com_shift_m > zero.lift.com_shift_m + 0.03  # the anticipation: toward the stance foot first
+
+
+@pytest.mark.slow  # two 4.5 s clips
+def test_with_yus_reference_a_slow_lift_needs_no_cmrt_and_a_fast_one_falls():
+    task = load_task("leg-lift").with_reference("yu")
+    slow = clip_3d(task.with_speed(3.5), Cmrt.zero(task.clip_s))
+    assert slow.success, slow.failed_rules
+    fast = clip_3d(task, Cmrt.zero(task.clip_s))
+    assert fast.fell
+
+
+def test_same_leg_lift_same_result():
+    task = load_task("leg-lift").with_params(duration_s=1.5, clip_s=2.5)
+    curve = Cmrt.from_params(np.full(8, 0.3), task.clip_s)
+    a, b = clip_3d(task, curve), clip_3d(task, curve)
+    assert a.objective == b.objective and np.array_equal(a.result.qpos, b.result.qpos)
+
+
+def test_a_standing_3d_task_takes_no_cmrt_and_a_lift_is_checked():
+    standing = load_task(str(Path(__file__).parents[2] / "docs" / "examples" / "stand3d.toml"))
+    with pytest.raises(CmrtError, match="takes no CMRT"):
+        clip_3d(standing, Cmrt.from_params(np.ones(8), standing.clip_s))
+    for sets, says in (({"stance_side": 0.5}, "stance_side must be"), ({"stance_side": 0}, "moves only to lift"),
+                       ({"clip_s": 3.0}, "a leg lift needs")):
+        with pytest.raises(CmrtError, match=says):
+            load_task("leg-lift").with_params(**sets)
+
+
+def test_the_3d_timing_rule_is_the_planar_ones_joint_rule():
+    """``joint_lags_s``: a joint is late by when it covers 90 % of its reference's excursion; a joint that moves
+    less than 0.2 rad is not a driving one."""
+    t = np.linspace(0.0, 1.0, 101)
+    ref = np.stack([np.clip(t, 0, 0.5) * 2.0, 0.1 * t], axis=1)  # 0 -> 1 rad by 0.5 s; a 0.1 rad joint
+    late = np.stack([np.clip(t - 0.1, 0, 0.5) * 2.0, np.zeros_like(t)], axis=1)
+    lags = joint_lags_s(t, late, ref, [0, 1], t <= 0.6, 0.0)
+    assert lags == pytest.approx([0.1])
