@@ -59,9 +59,9 @@ if _TYPE_CHECKING:
     from cmrt.service.store import Generation, Run, Store, StoredEvaluation, open_store
     from cmrt.service.warmstart import nearest_start
     from cmrt.sim.balance import BalanceLimits, FallReason
-    from cmrt.sim.objective import Evaluation, evaluate
-    from cmrt.sim.report import evaluation_dict, save_trace, sequence_report, simulate_report
-    from cmrt.sim.simulate import Trajectory, simulate
+    from cmrt.sim.objective import Evaluation
+    from cmrt.sim.report import evaluate, evaluation_dict, save_trace, sequence_report, simulate, simulate_report
+    from cmrt.sim.simulate import Trajectory
     from cmrt.sim.validate import robustness
 
 _API = {
@@ -89,7 +89,7 @@ _API = {
     "character": "cmrt.body.character",
     "check_reference": "cmrt.motion.feasibility",
     "claim": "cmrt.service.jobs",
-    "evaluate": "cmrt.sim.objective",
+    "evaluate": "cmrt.sim.report",
     "evaluation_dict": "cmrt.sim.report",
     "export_run": "cmrt.service.query",
     "interpolate": "cmrt.service.interpolate",
@@ -109,7 +109,7 @@ _API = {
     "run_details": "cmrt.service.query",
     "save_trace": "cmrt.sim.report",
     "sequence_report": "cmrt.sim.report",
-    "simulate": "cmrt.sim.simulate",
+    "simulate": "cmrt.sim.report",
     "simulate_report": "cmrt.sim.report",
     "submit": "cmrt.service.jobs",
     "superpose": "cmrt.service.interpolate",

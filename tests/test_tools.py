@@ -442,6 +442,13 @@ def test_interpolation_table_tool():
     assert "direct_objective" not in rows[1]  # nothing to optimize against beyond the family
 
 
+def test_interpolation_table_tool_on_the_3d_leg_lift():
+    rows = json.loads(_ok(run_tool("interpolation_table.py", "--task", "leg-lift", "--between", "2.55", "--beyond",
+                                   "", "--max-evals", "10", "--json")).stdout)
+    assert [(r["speed"], r["kind"]) for r in rows] == [(2.55, "interpolated")]
+    assert rows[0]["from"] == [2.3, 2.8] and rows[0]["interpolated_success"] and not rows[0]["zero_success"]
+
+
 def test_plausibility_tool():
     """Every case: cheap enough as it is (two clips per case, batched)."""
     tool = load_tool("plausibility.py")
@@ -794,10 +801,11 @@ def test_leg_lift_3d_tool(tmp_path):
     assert out[0]["com_shift_toward_stance_before_lift_off_m"] > 0.03 and out[0]["reference"] == "center"
     reactive = json.loads(_ok(run_tool("leg_lift_3d.py", "--json", "--speeds", "2.3")).stdout)
     assert reactive[0]["fell"] and reactive[0]["fall_time_s"] > reactive[0]["lift_off_s"]  # the paper's centre mode
-    right = json.loads(_ok(run_tool("leg_lift_3d.py", "--json", "--speeds", "3.5", "--reference", "yu",
-                                    "--set", "stance_side=-1")).stdout)
+    right = json.loads(_ok(run_tool("leg_lift_3d.py", "--json", "--speeds", "4.5", "--reference", "yu",
+                                    "--set", "stance_side=-1", "--set", "clip_s=6")).stdout)
     assert right[0]["success"] and right[0]["com_shift_toward_stance_before_lift_off_m"] > 0.05  # Yu's, slow
-    for args, says in ((("--speeds", "0.5"), "outside task 'leg-lift' range"), (("--curve", "nowhere.json"), "CMRT")):
+    for args, says in ((("--speeds", "0.5"), "outside task 'leg-lift' range"), (("--curve", "nowhere.json"), "CMRT"),
+                       (("--speeds", "4.5"), "clip_s")):
         bad = run_tool("leg_lift_3d.py", *args)
         assert bad.returncode == 2 and says in bad.stderr and len(bad.stderr.strip().splitlines()) == 1, bad.stderr
     film = tmp_path / "lift.png"

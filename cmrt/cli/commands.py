@@ -190,8 +190,21 @@ def _spatial_text(r: dict) -> str:
         f"  max joint speed {_n(r['max_joint_speed_rad_s'], '.1f')} rad/s  planted feet slid "
         f"{_n(r['max_foot_slip_m'], '.2f', 100)} cm  final CoM speed {_n(r['final_com_speed_m_s'], '.3f')} m/s",
         *([_lift_text(r)] if "lift_off_s" in r else []),
+        *([_pose_text(r)] if "tracking_bound_rad" in r else []),
         f"  judged as: {r['success_rule']}",
     ])
+
+
+def _rules_text(c: dict) -> str:
+    """A 3D clip's verdict in words (``render_3d``'s clips)."""
+    return "SUCCESS" if c["success"] else "not a success: " + ", ".join(c["failed_rules"])
+
+
+def _pose_text(r: dict) -> str:
+    """A 3D pose change's own line: tracking, end pose and timing, as the planar report's."""
+    return (f"  tracking {_n(r['tracking_error_rad'], '.3f')} rad (bound {_n(r['tracking_bound_rad'], '.3f')}); end "
+            f"pose off by {_n(r['final_pose_error_rad'], '.3f')} rad; late {_n(r['timing_lag_s'], '.3f')} s (bound "
+            f"{r['timing_lag_bound_s']:.3f})")
 
 
 def _lift_text(r: dict) -> str:
@@ -310,8 +323,13 @@ def _result_text(r: dict) -> str:
     if rb:
         survived = rb.get("survived_min_cop_margin_m")
         margin = "n/a" if survived is None else f"{survived * 100:.1f} cm"
-        lines.append(f"  validation:     {rb['validation_survived']}/{rb['validation_total']} perturbed clips "
-                     f"succeed, {rb['validation_fell']} fall; min CoP margin of the successes {margin}")
+        if rb["validation_total"] == 1:  # the 3D body: no ensemble yet
+            outcome = "succeeds" if rb["validation_survived"] else "falls" if rb["validation_fell"] else "fails"
+            lines.append(f"  validation:     the nominal clip alone {outcome} (no ensemble for this body); min CoP "
+                         f"margin {margin}")
+        else:
+            lines.append(f"  validation:     {rb['validation_survived']}/{rb['validation_total']} perturbed clips "
+                         f"succeed, {rb['validation_fell']} fall; min CoP margin of the successes {margin}")
     return "\n".join(lines)
 
 
@@ -340,14 +358,14 @@ def _progress(total_evals: int, label: str, enabled: bool, stream=None):
 def resolve_task(name: str, speed: float | None, sets: list[str] | None, reference: str | None = None,
                  steps: str | None = None, any_body: bool = False) -> Task:
     """The task arguments (name or path, ``--speed``, ``--set``, ``--reference``, ``--steps``) -> a validated
-    Task; a 3D task only where ``any_body`` (simulate, optimize, submit, best: the rest of the service is planar
-    for now)."""
+    Task; a 3D task only where ``any_body`` (simulate, optimize, submit, best, interpolate, render: the rest of
+    the service is planar for now)."""
     from cmrt.motion.taskfile import resolve_task as task_variant
 
     task = task_variant(name, speed, inputs.parse_sets(sets), reference, steps)
     if task.body != "planar" and not any_body:
         raise CmrtError(f"task {shown(task.name)} is done with the {task.body} body, which only `cmrt simulate`, "
-                        "`optimize`, `submit` and `best` take for now (docs/body3d.md)")
+                        "`optimize`, `submit`, `best`, `interpolate` and `render` take for now (docs/body3d.md)")
     return task
 
 
@@ -499,9 +517,9 @@ def _opt_task(args, speed: float | None) -> Task:
     task = resolve_task(args.task, speed, args.set, args.reference, args.steps, any_body=True)
     if task.body != "planar" and args.robust:
         raise CmrtError(f"--robust: the {task.body} body has no robust ensemble yet (docs/body3d.md)")
-    if task.body != "planar" and not task.params["stance_side"]:
-        raise CmrtError(f"task {shown(task.name)}: a standing 3D task has no CMRT to optimize (a leg lift has: "
-                        "stance_side +1 or -1; docs/body3d.md)")
+    if task.body != "planar" and not task.params["stance_side"] and task.end_pose_deg is None:
+        raise CmrtError(f"task {shown(task.name)}: a standing 3D task has no CMRT to optimize (a leg lift or a pose "
+                        "change has; docs/body3d.md)")
     if isinstance(args.init, int):
         with _store(args.store, readonly=True) as store:
             store.run(args.init)
@@ -882,7 +900,8 @@ class Interpolate(Command):
             inputs.param_name(args.param, "--param")
         if args.out is not None:
             _check_out(args, args.out, "--out", (".json",))
-        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None))
+        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None),
+                            any_body=True)
         store = _store(args.store, readonly=True) if args.source == "store" else None
         try:
             r = interpolate(task, args.param, args.source, store)
@@ -1000,13 +1019,22 @@ class Render(Command):
         from cmrt.viz.render import OUT_SUFFIXES, render  # OpenGL: only this verb pays for it
 
         _check_out(args, args.out, "--out", OUT_SUFFIXES)  # before anything is simulated
-        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None))
+        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None),
+                            any_body=True)
+        if task.body != "planar" and Path(args.out).suffix.lower() != ".png":
+            raise CmrtError(f"--out {shown(args.out)}: a {task.body} clip renders to a PNG filmstrip for now")
         curve, name = _curve(args, args.curve, task)
         compare, cname = _curve(args, args.compare, task, "--compare") if args.compare else (None, "")
-        r = render(task, curve, args.out, compare, (f"{name} CMRT", f"{cname} CMRT"), n_frames=args.frames,
-                   fps=args.fps)
+        if task.body != "planar":
+            from cmrt.viz.render3d import render_3d
+
+            r = render_3d(task, curve, args.out, compare, (f"{name} CMRT", f"{cname} CMRT"), n_frames=args.frames)
+        else:
+            r = render(task, curve, args.out, compare, (f"{name} CMRT", f"{cname} CMRT"), n_frames=args.frames,
+                       fps=args.fps)
         lines = [f"wrote {escape(r['out'])} ({r['frames']} frames)"] + [
-            f"  {escape(c['label'])}: {c['verdict']}, objective {c['objective']:.4f}" for c in r["clips"]
+            f"  {escape(c['label'])}: {c.get('verdict') or _rules_text(c)}, objective {c['objective']:.4f}"
+            for c in r["clips"]
         ]
         return Output(r, "\n".join(lines))
 
@@ -1036,6 +1064,7 @@ class Bench(Command):
         if unknown:
             raise CmrtError(f"--backends must be a comma-separated subset of {', '.join(BACKENDS)}, got "
                             f"{shown(args.backends)}")
+        resolve_task(args.task, None, None)  # a 3D task is refused by its body, not by the planar default speed
         task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None))
         return Output(run_bench(task, args.population, args.repeat, backends, args.workers,
                                 None if args.no_optimize else _timed_optimization), self._text)

@@ -119,6 +119,7 @@ class SpatialController:
         if targets.com_vel_xy_m_s is not None:
             vel_ref[:2] = targets.com_vel_xy_m_s
         ldot = c.k_l * self.mass_kg * (com_ref - com_seen) + c.d_l * self.mass_kg * (vel_ref - vel_seen)
+        ldot[2] = 0.0  # horizontal, as the planar rule: the CoM's height follows the pose (a bend lowers it)
         force = ldot + np.array([0.0, 0.0, self.mass_kg * GRAVITY_M_S2])
         cop_ref = self.cop_ref_m if targets.cop_xy_m is None else targets.cop_xy_m
         p_ref = np.array([cop_ref[0], cop_ref[1], 0.0])
@@ -179,8 +180,8 @@ class SpatialController:
         n = nv + 3 * n_pts
         H = np.zeros((n, n))
         f = np.zeros(n)
-        H[:nv, :nv] += c.beta_l * A[:3].T @ A[:3] + c.beta_h * A[3:].T @ A[3:]
-        f[:nv] -= c.beta_l * A[:3].T @ (ldot - a[:3]) + c.beta_h * A[3:].T @ (hdot - a[3:])
+        H[:nv, :nv] += c.beta_l * A[:2].T @ A[:2] + c.beta_h * A[3:].T @ A[3:]
+        f[:nv] -= c.beta_l * A[:2].T @ (ldot[:2] - a[:2]) + c.beta_h * A[3:].T @ (hdot - a[3:])
         q = d.qpos[self.act_qpos]
         qd = d.qvel[self.act_dofs]
         ref = self.q_ref if targets.q_ref is None else targets.q_ref

@@ -27,8 +27,9 @@ from cmrt.motion.task import Task
 from cmrt.service.interpolate import blend
 from cmrt.service.query import run_details, run_summary, search_summary, stored_curve, task_of
 from cmrt.service.store import Run, Store, StoredEvaluation
+from cmrt.sim.clip3d import Clip3d, clip_3d, sideways_trace
 from cmrt.sim.objective import evaluate
-from cmrt.sim.report import evaluation_dict
+from cmrt.sim.report import evaluation_dict, spatial_dict
 from cmrt.sim.simulate import simulate
 from cmrt.viz.plot import until_fall
 from cmrt.viz.render import render, task_label, verdict
@@ -192,7 +193,10 @@ def run_page(store: Store, run_id: int) -> dict:
 
 
 def _trace(task: Task, curve: Cmrt, label: str) -> dict:
-    """One clip's CoP error p - s and support edges (cm) up to its fall, thinned, with its score."""
+    """One clip's CoP error p - s and support edges (cm) up to its fall, thinned, with its score (a 3D clip's
+    sideways: ``_trace_3d``)."""
+    if task.body != "planar":
+        return _trace_3d(task, curve, label)
     traj = simulate(task, curve)
     ev = evaluate(task, traj)
     step = max(1, int(np.ceil(traj.time_s.size / MAX_TRACE_POINTS)))
@@ -207,6 +211,31 @@ def _trace(task: Task, curve: Cmrt, label: str) -> dict:
         "plausibility": {k: report.get(k) for k, _, _ in PLAUSIBILITY},
         "limits": {k: _limit(lim, report) for k, _, lim in PLAUSIBILITY},
         "failed_rules": list(ev.failed_rules),
+    })
+
+
+def _verdict_3d(c: Clip3d) -> str:
+    """A 3D clip's verdict in ``viz.render.verdict``'s words."""
+    if c.success:
+        return "SUCCESS"
+    return "lost balance" if c.fell else "balance kept, not a success: " + ", ".join(
+        r.replace("_", " ") for r in c.failed_rules)
+
+
+def _trace_3d(task: Task, curve: Cmrt, label: str) -> dict:
+    """A 3D clip's sideways CoP error and support edges (``clip3d.sideways_trace``), with its report's figures."""
+    c = clip_3d(task, curve)
+    report = spatial_dict(task, c, curve, label)
+    trace = sideways_trace(task, c)
+    step = max(1, int(np.ceil(trace["time_s"].size / MAX_TRACE_POINTS)))
+    return inputs.json_safe({
+        "label": label, "verdict": _verdict_3d(c), "objective": c.objective, "fall_time_s": c.result.fall_time_s,
+        "time_s": trace["time_s"][::step].tolist(), "cop_error_cm": (100 * trace["cop_error_m"][::step]).tolist(),
+        "support_lo_cm": (100 * trace["support_lo_m"][::step]).tolist(),
+        "support_hi_cm": (100 * trace["support_hi_m"][::step]).tolist(),
+        "plausibility": {k: report.get(k) for k, _, _ in PLAUSIBILITY},
+        "limits": {k: _limit(lim, report) for k, _, lim in PLAUSIBILITY},
+        "failed_rules": list(c.failed_rules), "axis": "y",
     })
 
 
@@ -240,10 +269,15 @@ def _interpolated(a: tuple[Run, Task, Cmrt], b: tuple[Run, Task, Cmrt], cache: S
     task, curve = ta.with_speed(speed), blend(ca, cb, 0.5)
 
     def make() -> dict:
-        ev = evaluate(task, simulate(task, curve, record=False))
+        if task.body != "planar":
+            c = clip_3d(task, curve)
+            objective, text, success = c.objective, _verdict_3d(c), c.success
+        else:
+            ev = evaluate(task, simulate(task, curve, record=False))
+            objective, text, success = ev.objective, verdict(ev), ev.success
         return inputs.json_safe({"label": f"interpolated {task_label(task)} (runs {ra.id}, {rb.id})",
-                                 "speed": speed, "objective": ev.objective, "verdict": verdict(ev),
-                                 "success": ev.success, "curve": curve_points(curve)})
+                                 "speed": speed, "objective": objective, "verdict": text,
+                                 "success": success, "curve": curve_points(curve)})
 
     return cache.get(_key("interpolated", task.to_dict(), curve.to_dict()), make)
 
@@ -287,6 +321,9 @@ def clip(store: Store, run_id: int, fps: int, cache_dir: Path) -> bytes:
     if not run.best_cmrt:
         raise NotFound(f"run {run_id} has no result to render yet (status {run.status})")
     task, best = task_of(run), stored_curve(run)
+    if task.body != "planar":
+        raise NotFound(f"run {run_id} is a {task.body} run: no video of it yet (a filmstrip: cmrt render "
+                       f"{task.name} --curve {run_id} --compare zero --out FILE.png)")
 
     def make(out: Path) -> None:
         render(task, best, out, Cmrt.zero(task.clip_s), (f"run {run_id} best CMRT", "zero CMRT"), fps=fps)

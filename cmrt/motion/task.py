@@ -87,14 +87,18 @@ def params_off_3d(params: dict[str, float]) -> list[str]:
     return sorted(k for k, v in params.items() if k not in PARAMS_3D and v != DEFAULT_PARAMS.get(k))
 
 
-def check_leg_lift(params: dict[str, float]) -> None:
+def check_motion_3d(params: dict[str, float], pose_change: bool) -> None:
     """A 3D task's motion: a leg lift (``stance_side`` +-1) has a T and holds the one-leg pose at least
-    ``MIN_HOLD_3D_S`` after it; standing (0) has none."""
+    ``MIN_HOLD_3D_S`` after it; a pose change (``pose_change``: an end pose) keeps both feet down; standing has
+    no T."""
     side, t_s = params["stance_side"], params["duration_s"]
     if side not in (-1.0, 0.0, 1.0):
         raise CmrtError(f"stance_side must be -1 (the right foot), 0 (both) or 1 (the left), got {side:g}")
-    if side == 0 and t_s > 0:
-        raise CmrtError(f"duration_s = {t_s:g}: a 3D task moves only to lift a foot (stance_side +1 or -1)")
+    if pose_change and side != 0:
+        raise CmrtError("a 3D task changes its pose or lifts a foot, not both (stance_side 0 with an end pose)")
+    if side == 0 and t_s > 0 and not pose_change:
+        raise CmrtError(f"duration_s = {t_s:g}: a 3D task moves to lift a foot (stance_side +1 or -1) or to an end "
+                        "pose")
     if side != 0 and not (t_s > 0 and params["preparation_s"] + t_s + MIN_HOLD_3D_S <= params["clip_s"]):
         raise CmrtError(f"a leg lift needs duration_s > 0 and preparation_s + duration_s + {MIN_HOLD_3D_S:g} s <= "
                         f"clip_s, got {params['preparation_s']:g} + {t_s:g} and {params['clip_s']:g}")
@@ -268,7 +272,10 @@ class Task:
         """A copy whose controller takes its reference CoM/CoP from ``mode`` (None: unchanged)."""
         if mode is None:
             return self
-        return replace(self, reference_mode=reference_mode(mode, "reference"))
+        task = replace(self, reference_mode=reference_mode(mode, "reference"))
+        if task.body != "planar":
+            task.validate()  # a 3D pose change takes the centre reference only
+        return task
 
     def with_steps(self, plan: tuple[PlannedStep, ...] | None) -> Task:
         """A copy that takes these footsteps (None: unchanged), checked against the clip."""
@@ -313,7 +320,10 @@ class Task:
             if off:
                 raise CmrtError(f"{', '.join(off)}: not for the {self.body} body yet (it takes "
                                 f"{', '.join(sorted(PARAMS_3D))})")
-            check_leg_lift(p)
+            check_motion_3d(p, self.end_pose_deg is not None)
+            if self.end_pose_deg is not None and self.reference_mode != DEFAULT_REFERENCE_MODE:
+                raise CmrtError(f"reference {self.reference_mode}: a 3D pose change takes the centre reference for "
+                                "now (docs/body3d.md)")
         if self.via_pose_deg is not None:
             if self.end_pose_deg is None or self.timing:
                 raise CmrtError("a via pose needs an end pose and no [timing] (each segment eases as a whole)")

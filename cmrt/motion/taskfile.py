@@ -95,22 +95,26 @@ def _body(raw: dict, where: str) -> str:
 
 
 def _checked_3d(task: Task, where: str) -> Task:
-    """A 3D task validated: it stands, pushed or not, or lifts a foot (docs/body3d.md) - no pose table, prop,
-    footsteps, timing or robust ensemble, no parameter but ``PARAMS_3D`` off its default, its speed (if any) T -
-    in a standing pose the 3D body can take (feet flat, the CoM over them)."""
+    """A 3D task validated: it stands, pushed or not, lifts a foot, or changes its pose sagittally (docs/body3d.md) -
+    no via pose, prop, footsteps, timing or robust ensemble, no parameter but ``PARAMS_3D`` off its default, its
+    speed (if any) T - in a standing pose the 3D body can take (feet flat, the CoM over them); a pose change's
+    poses name the planar body's joints (its reference is the planar one's, ``cmrt.body.sagittal``)."""
     task = replace(task, params={**DEFAULTS_3D, **task.params})
-    others = [key for key, value in (("end_pose_deg", task.end_pose_deg), ("via_pose_deg", task.via_pose_deg),
-                                     ("prop", task.prop), ("steps", task.steps), ("timing", task.timing),
-                                     ("robust", task.robust != RobustSpec() or None)) if value]
+    others = [key for key, value in (("via_pose_deg", task.via_pose_deg), ("prop", task.prop), ("steps", task.steps),
+                                     ("timing", task.timing), ("robust", task.robust != RobustSpec() or None))
+              if value]
     others += params_off_3d(task.params)
     if task.speed_param not in (None, "duration_s"):
         others.append(f"speed_param {task.speed_param}")
     if others:
-        raise CmrtError(f"{where}: a {task.body} task stands or lifts a foot for now (docs/body3d.md): it sets "
-                        f"the parameters {', '.join(sorted(PARAMS_3D))}, a start_pose_deg and its reference, not "
-                        f"{', '.join(others)}")
+        raise CmrtError(f"{where}: a {task.body} task stands, lifts a foot or changes its pose for now "
+                        f"(docs/body3d.md): it sets the parameters {', '.join(sorted(PARAMS_3D))}, its poses and "
+                        f"its reference, not {', '.join(others)}")
     try:
         task.validate()
+        if task.end_pose_deg is not None:
+            joint_angles_from_pose({k: 0.0 for k in {**task.start_pose_deg, **task.end_pose_deg}})  # planar names
+            task.end_qpos()
         feet_flat_qpos(joint_angles_from_pose({k: math.radians(v) for k, v in task.start_pose_deg.items()},
                                               task.body), body=task.body)
     except CmrtError as exc:

@@ -16,19 +16,29 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import mujoco
 import numpy as np
 
 from cmrt.body.character import character
+from cmrt.body.sagittal import planar_to_3d
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.task import Task
-from cmrt.sim.objective import NOT_PERFORMED_PENALTY, joint_lags_s, timing_lag_bound_s
+from cmrt.sim.objective import (
+    FINAL_POSE_TOLERANCE_RAD,
+    NOT_PERFORMED_PENALTY,
+    NOT_PLAUSIBLE_PENALTY,
+    Evaluation,
+    joint_lags_s,
+    timing_lag_bound_s,
+)
 from cmrt.sim.spatial import (
     LegLiftClip,
     StandResult,
     cop_error_objective,
     feet_centre_xy,
     leg_lift_3d,
+    pose_change_3d,
     stand_3d,
     stand_pose_qpos,
 )
@@ -47,10 +57,38 @@ class Clip3d:
     lift: LegLiftClip | None = None  # a leg lift's own figures
     timing_lag_s: float | None = None
     timing_lag_bound_s: float | None = None
+    tracking_error_rad: float | None = None  # a pose change's: RMS over [P, P + T] and its bound
+    tracking_bound_rad: float | None = None
+    final_pose_error_rad: float = 0.0  # the actuated joints' distance from the reference's last pose at the end
+    cop_reference_xy_m: np.ndarray | None = None  # (n, 2) the CoP's reference the objective measured against
+    kind: str = "standing"  # "standing", "leg lift" or "pose change"
 
     @property
     def success(self) -> bool:
         return not self.failed_rules
+
+    def evaluation(self) -> Evaluation:
+        """The clip as the planar scoring's record (``cmrt.evaluate``: the fields of ``cmrt simulate --json`` that
+        a 3D clip has; the planar-only ones - props, steps, after-fall figures - empty)."""
+        r = self.result
+        err = np.nan_to_num(r.cop_xy_m - self.cop_reference_xy_m, nan=0.3)
+        dt = float(r.time_s[1] - r.time_s[0]) if len(r.time_s) > 1 else 0.01
+        norm = float(np.linalg.norm(err)) * np.sqrt(dt / 0.01)  # as cop_error_objective samples it
+        moving = self.kind != "standing"
+        return Evaluation(
+            objective=self.objective, cop_error_norm=norm, penalty=self.objective - norm,
+            cop_error_own_reference_norm=norm, success=self.success,
+            performed=(not {"performed", "on_time"} & set(self.failed_rules) and not r.fell) if moving else None,
+            settled="settled" not in self.failed_rules and not r.fell, fell=r.fell, fall_time_s=r.fall_time_s,
+            fall_reason="capture point" if r.fell else None, diverged=False,
+            max_cop_error_m=float(np.linalg.norm(err, axis=1).max()) if len(err) else 0.0,
+            min_cop_margin_m=r.min_cop_margin_m, peak_normal_force_bw=r.peak_normal_force_bw,
+            airborne_s=r.airborne_s, max_joint_speed_rad_s=r.max_joint_speed_rad_s,
+            tracking_error_rad=self.tracking_error_rad, tracking_bound_rad=self.tracking_bound_rad,
+            final_pose_error_rad=self.final_pose_error_rad, final_com_speed_m_s=r.final_com_speed_m_s,
+            n_samples=len(r.time_s), max_plan_cop_error_m=r.max_plan_cop_error_m,
+            max_foot_slip_m=r.max_foot_slip_m, timing_lag_s=self.timing_lag_s,
+            timing_lag_bound_s=self.timing_lag_bound_s if moving else None, failed_rules=self.failed_rules)
 
     @property
     def fell(self) -> bool:
@@ -63,38 +101,103 @@ def stance_index(task: Task) -> int:
 
 
 def clip_3d(task: Task, curve: Cmrt) -> Clip3d:
-    """Simulate and score a 3D task with ``curve`` (its CMRT in y; a standing task takes only the zero one)."""
+    """Simulate and score a 3D task with ``curve`` (a leg lift's CMRT in y, a pose change's in x; a standing task
+    takes only the zero one)."""
     p = task.params
     push = (p["push_force_n"], p["push_force_y_n"], 0.0)
+    pushed = (push, p["push_start_s"], p["push_duration_s"]) if any(push) else None
+    if task.end_pose_deg is not None:
+        return _pose_change(task, curve, pushed)
     if p["stance_side"] == 0 and any(curve.values_m):
         raise CmrtError("a standing 3D task takes no CMRT (docs/body3d.md): only the zero one")
     if p["stance_side"] == 0:
+        start = stand_pose_qpos()
         r = stand_3d(clip_s=p["clip_s"], push_n=push, push_start_s=p["push_start_s"],
-                     push_duration_s=p["push_duration_s"])
-        centre = np.broadcast_to(feet_centre_xy(stand_pose_qpos()), r.cop_xy_m.shape)  # the CoP's reference
-        return Clip3d(r, cop_error_objective(r, centre), r.failed_rules)
+                     push_duration_s=p["push_duration_s"], start_qpos=start)
+        centre = np.broadcast_to(feet_centre_xy(start), r.cop_xy_m.shape)  # the CoP's reference
+        final = _final_pose_error(task, r, start)
+        failed, value = _judged(task, r, True, 0.0, None, centre, final)
+        return Clip3d(r, value, failed, final_pose_error_rad=final, cop_reference_xy_m=centre)
     lift_s = p["lift_fraction"] * p["duration_s"]
     lift = leg_lift_3d(shift_s=p["duration_s"] - lift_s, lift_s=lift_s, clip_s=p["clip_s"],
                        stance=stance_index(task), cmrt_y=curve, start_s=p["preparation_s"],
-                       reference=task.reference_mode,
-                       push=(push, p["push_start_s"], p["push_duration_s"]) if any(push) else None)
+                       reference=task.reference_mode, push=pushed)
     r = lift.result
-    lag, bound = _lag(task, lift), timing_lag_bound_s(task)
+    lag = _lag(task, r, lift.q_reference)
     done = abs(lift.foot_lift_m - LIFT_HEIGHT_M) <= FOOT_LIFT_TOLERANCE_M and not r.fell
+    final = _final_pose_error(task, r, lift.q_reference[-1])
+    failed, value = _judged(task, r, done, 1.0, lag, lift.cop_reference_xy_m, final)
+    return Clip3d(r, value, failed, lift, lag, timing_lag_bound_s(task), final_pose_error_rad=final,
+                  cop_reference_xy_m=lift.cop_reference_xy_m, kind="leg lift")
+
+
+def _pose_change(task: Task, curve: Cmrt, push) -> Clip3d:
+    """A planar task's pose change played by the 3D body (``cmrt.body.sagittal``), its CMRT forward: performed
+    as the planar rule says - the end pose within 0.1 rad (the actuated joints' distance) and the motion tracked
+    over [P, P + T] within the RMS of its own reference played ``max_tracking_lag`` x T late - and on time."""
+    if task.reference_mode != "center":
+        raise CmrtError(f"a 3D pose change takes the centre reference for now, not {task.reference_mode}")
+    start = stand_pose_qpos(task.start_pose_deg)
+
+    def reference(t: np.ndarray):
+        return planar_to_3d(*task.reference(t), start)
+
+    r, q_ref = pose_change_3d(reference, start, task.clip_s, curve, push=push)
+    m = character(task.body).model
+    act = m.jnt_qposadr[m.actuator_trnid[:, 0]]
+    final = _final_pose_error(task, r, q_ref[-1])
+    lo, hi = task.task_window_s()
+    window = (r.time_s >= lo - 1e-9) & (r.time_s <= hi + 1e-9)
+    if r.fell:
+        window &= r.time_s < r.fall_time_s
+    tracking = float(np.sqrt(np.mean((r.qpos[window][:, act] - q_ref[window][:, act]) ** 2))) if window.any() \
+        else float("inf")
+    late_ref = reference(r.time_s[window] - task.params["max_tracking_lag"] * task.duration_s)[0]
+    bound = float(np.sqrt(np.mean((late_ref[:, act] - q_ref[window][:, act]) ** 2))) if window.any() else 0.0
+    done = final < FINAL_POSE_TOLERANCE_RAD and tracking <= bound and not r.fell
+    lag = _lag(task, r, q_ref)
+    centre = np.broadcast_to(feet_centre_xy(start), r.cop_xy_m.shape)
+    failed, value = _judged(task, r, done, tracking / bound - 1.0 if bound > 0 else 1.0, lag, centre, None)
+    return Clip3d(r, value, failed, None, lag, timing_lag_bound_s(task), tracking, bound, final, centre,
+                  "pose change")
+
+
+def _final_pose_error(task: Task, r: StandResult, target: np.ndarray) -> float:
+    """The actuated joints' distance (rad) at the clip's end from ``target`` (a qpos): the planar final pose
+    error."""
+    m = character(task.body).model
+    act = m.jnt_qposadr[m.actuator_trnid[:, 0]]
+    return float(np.linalg.norm(r.qpos[-1, act] - target[act]))
+
+
+def _judged(task: Task, r: StandResult, done: bool, miss: float, lag: float | None, cop_reference: np.ndarray,
+            final: float | None) -> tuple[tuple[str, ...], float]:
+    """The planar verdict's order (balance, performed, on_time, then the clip's own rules, final_pose last) and
+    the paper's objective with the planar penalties: ``miss`` is how far a motion not done was off (its excess over
+    the tracking bound; 1 where it is not measured), ``lag`` how late it was, ``final`` the end pose's error where
+    a rule of its own judges it (None where "performed" does: a pose change)."""
+    bound = timing_lag_bound_s(task)
     failed = list(r.failed_rules)
-    at = 1 if "balance" in failed else 0  # the planar order: balance, performed, on_time, settled, ...
+    at = 1 if "balance" in failed else 0
     late = lag is not None and lag > bound + 1e-12
     failed[at:at] = [rule for rule, broken in (("performed", not done and not r.fell), ("on_time", late)) if broken]
-    value = cop_error_objective(r, lift.cop_reference_xy_m)
+    value = cop_error_objective(r, cop_reference)
+    if final is not None and not r.fell and final >= FINAL_POSE_TOLERANCE_RAD:
+        failed.append("final_pose")
+        if not r.failed_rules:  # cop_error_objective added no plausibility penalty for it
+            value += NOT_PLAUSIBLE_PENALTY * (1.0 + min(final / FINAL_POSE_TOLERANCE_RAD - 1.0, 1.0))
     if ("performed" in failed or "on_time" in failed) and not r.fell:
-        excess = 1.0 if "performed" in failed else min(max((lag or 0.0) / bound - 1.0, 0.0), 1.0)
-        value += NOT_PERFORMED_PENALTY * (1.0 + excess)
-    return Clip3d(r, value, tuple(failed), lift, lag, bound)
+        excess = miss if "performed" in failed else 0.0
+        if late:
+            excess = max(excess, lag / bound - 1.0)
+        value += NOT_PERFORMED_PENALTY * (1.0 + min(max(excess, 0.0), 1.0))
+    return tuple(failed), value
 
 
-def _lag(task: Task, lift: LegLiftClip) -> float | None:
-    """The planar timing rule on the 3D body's actuated joints over [P, P + T] (None: it fell first)."""
-    r, start = lift.result, task.preparation_s
+def _lag(task: Task, r: StandResult, q_reference: np.ndarray) -> float | None:
+    """The planar timing rule on the 3D body's actuated joints over [P, P + T], the task's balance joint (its
+    pitch and roll) excepted as on the planar body (None: it fell first)."""
+    start = task.preparation_s
     m = character(task.body).model
     keep = r.time_s >= start - 1e-9
     if r.fell:
@@ -102,6 +205,31 @@ def _lag(task: Task, lift: LegLiftClip) -> float | None:
     if not keep.any():
         return None
     t = r.time_s[keep]
-    joints = [int(m.jnt_qposadr[j]) for j in m.actuator_trnid[:, 0]]
-    lags = joint_lags_s(t, r.qpos[keep], lift.q_reference[keep], joints, t <= start + task.duration_s + 1e-9, start)
+    skip = task.balance_joint if task.end_pose_deg is not None else None
+    joints = [int(m.jnt_qposadr[j]) for j in m.actuator_trnid[:, 0]
+              if not (skip and m.joint(int(j)).name.split("_")[0] == skip)]
+    lags = joint_lags_s(t, r.qpos[keep], q_reference[keep], joints, t <= start + task.duration_s + 1e-9, start)
     return max(0.0, float(max(lags))) if lags else None
+
+
+def sideways_trace(task: Task, c: Clip3d) -> dict[str, np.ndarray]:
+    """The clip's sideways (y) CoP error from the controller's CoP reference and the support's sideways edges
+    about it (the foot points the verdict's support polygon is made of: both feet's until lift-off, the stance
+    foot's after), up to a fall: what a 3D run's CoP plot shows (m)."""
+    r = c.result
+    ch = character(task.body)
+    both = r.qpos[0]
+    d = mujoco.MjData(ch.model)
+    d.qpos[:] = both
+    mujoco.mj_kinematics(ch.model, d)
+    feet_y = [d.geom_xpos[list(pair), 1] for pair in ch.foot_points]
+    reference = c.lift.cop_reference_xy_m if c.lift is not None else np.broadcast_to(
+        feet_centre_xy(both), r.cop_xy_m.shape)
+    lifted = (r.time_s >= c.lift.lift_off_s) if c.lift is not None else np.zeros(r.time_s.size, bool)
+    stance_y = feet_y[stance_index(task)] if c.lift is not None else np.concatenate(feet_y)
+    all_y = np.concatenate(feet_y)
+    lo = np.where(lifted, stance_y.min(), all_y.min()) - reference[:, 1]
+    hi = np.where(lifted, stance_y.max(), all_y.max()) - reference[:, 1]
+    n = r.time_s.size if r.fall_time_s is None else int(np.searchsorted(r.time_s, r.fall_time_s, "right"))
+    return {"time_s": r.time_s[:n], "cop_error_m": (r.cop_xy_m[:, 1] - reference[:, 1])[:n],
+            "support_lo_m": lo[:n], "support_hi_m": hi[:n]}

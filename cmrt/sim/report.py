@@ -9,13 +9,15 @@ from dataclasses import fields
 import numpy as np
 
 from cmrt import inputs
-from cmrt.errors import CmrtError
+from cmrt.control.controller import ControllerConfig
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.sequence import SequenceTask
 from cmrt.motion.task import Task
-from cmrt.sim.clip3d import clip_3d
-from cmrt.sim.objective import ENFORCE_TIMING, Evaluation, evaluate, verdict_bounds
-from cmrt.sim.simulate import Trajectory, simulate
+from cmrt.sim import objective
+from cmrt.sim import simulate as planar
+from cmrt.sim.clip3d import Clip3d, clip_3d
+from cmrt.sim.objective import ENFORCE_TIMING, Evaluation, verdict_bounds
+from cmrt.sim.simulate import Trajectory
 
 
 def _finite(x):
@@ -38,6 +40,24 @@ def save_trace(path: str, task: Task | SequenceTask, traj: Trajectory, flag: str
     (``cmrt.inputs.atomic_output``): a failed write never leaves a half-written file."""
     with inputs.atomic_output(path, flag) as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(fh, **traj.as_npz_dict(), dof_names=dof_names(task))
+
+
+def simulate(task: Task, curve: Cmrt | None = None, config: ControllerConfig = ControllerConfig(),
+             record: bool = True) -> Trajectory | Clip3d:
+    """Simulate one clip of ``task`` with CMRT ``curve`` (None: zero CMRT): a planar task's recorded trajectory
+    (``cmrt.sim.simulate.simulate``), a 3D task's clip (``cmrt.sim.clip3d.clip_3d``, the default controller's);
+    ``evaluate`` scores either. What ``cmrt.simulate`` is."""
+    if getattr(task, "body", "planar") != "planar":
+        return clip_3d(task, curve if curve is not None else Cmrt.zero(task.clip_s))
+    return planar.simulate(task, curve, config, record)
+
+
+def evaluate(task: Task, clip: Trajectory | Clip3d) -> Evaluation:
+    """Score a clip ``simulate`` made: the planar scoring (``cmrt.sim.objective.evaluate``), or a 3D clip's
+    verdict and objective as the same record. What ``cmrt.evaluate`` is."""
+    if getattr(task, "body", "planar") != "planar":
+        return clip.evaluation()
+    return objective.evaluate(task, clip)
 
 
 def simulate_report(task: Task, curve: Cmrt, curve_name: str, trace: str | None = None) -> dict:
@@ -70,6 +90,9 @@ def simulate_report(task: Task, curve: Cmrt, curve_name: str, trace: str | None 
 SPATIAL_RULES = {
     "standing": "standing (the 3D body): no fall (the capture point within 1 cm of the soles), still at the end, "
                 "planned and executed CoP within 5 mm, the CoP inside the feet, ground force within 2.5 body weights",
+    "pose change": "pose change (the 3D body): the end pose within 0.1 rad, tracked within its bound and on time "
+                   "(the planar rules), no fall, still at the end, planned and executed CoP within 5 mm, the CoP "
+                   "inside the feet, ground force within 2.5 body weights",
     "leg lift": "leg lift (the 3D body): the foot 10 cm up within 1 cm at the end and on time (the planar timing "
                 "rule), no fall, still at the end, planned and executed CoP within 5 mm, the CoP inside the stance "
                 "foot, ground force within 2.5 body weights",
@@ -79,24 +102,28 @@ SPATIAL_RULES = {
 def spatial_report(task: Task, curve: Cmrt, curve_name: str, trace: str | None = None) -> dict:
     """A 3D task's clip (``cmrt.sim.clip3d``: standing, pushed or not, or a leg lift) and its verdict, as
     JSON-safe values; ``trace``: its samples as ``.npz``. A standing task's CMRT is the zero one."""
-    lifting = task.params["stance_side"] != 0
-    if any(curve.values_m) and not lifting:
-        raise CmrtError(f"--curve {curve_name}: a standing 3D task takes no CMRT (docs/body3d.md); use --curve zero")
     t0 = time.perf_counter()
     c = clip_3d(task, curve)
-    r = c.result
     wall = time.perf_counter() - t0
+    r = c.result
     if trace is not None:
         with inputs.atomic_output(trace, "--trace") as tmp, open(tmp, "wb") as fh:
             np.savez_compressed(fh, time_s=r.time_s, qpos=r.qpos, com_m=r.com_m, cop_xy_m=r.cop_xy_m,
                                 plan_cop_xy_m=r.plan_cop_xy_m)
+    return spatial_dict(task, c, curve, curve_name) | {"wall_s": round(wall, 4)}
+
+
+def spatial_dict(task: Task, c: Clip3d, curve: Cmrt, curve_name: str) -> dict:
+    """A scored 3D clip as ``cmrt simulate --json`` prints it (JSON-safe values; without the wall time)."""
+    r = c.result
     figures = ("fell", "fall_time_s", "max_plan_cop_error_m", "min_cop_margin_m", "peak_normal_force_bw",
                "airborne_s", "max_joint_speed_rad_s", "max_foot_slip_m", "final_com_speed_m_s", "infeasible_steps")
     out = {
         "task": task.name, "body": task.body, "speed": task.speed, "reference": task.reference_mode,
         "params": task.params, "curve": curve_name, "cmrt": curve.to_dict(), "objective": c.objective,
         "success": c.success, "failed_rules": list(c.failed_rules),
-        "success_rule": SPATIAL_RULES["leg lift" if lifting else "standing"],
+        "success_rule": SPATIAL_RULES["leg lift" if c.lift is not None else "pose change"
+                                      if c.tracking_error_rad is not None else "standing"],
         **{k: _finite(getattr(r, k)) for k in figures},
         "fall_direction_xy": None if r.fall_direction_xy is None else [float(v) for v in r.fall_direction_xy],
         "topple_direction_xy": None if r.topple_direction_xy is None else [float(v) for v in r.topple_direction_xy],
@@ -105,7 +132,11 @@ def spatial_report(task: Task, curve: Cmrt, curve_name: str, trace: str | None =
         out |= {"lift_off_s": c.lift.lift_off_s, "foot_lift_m": c.lift.foot_lift_m,
                 "com_shift_toward_stance_before_lift_off_m": c.lift.com_shift_m,
                 "timing_lag_s": c.timing_lag_s, "timing_lag_bound_s": c.timing_lag_bound_s}
-    return out | {"verdict_bounds": verdict_bounds(), "wall_s": round(wall, 4)}
+    if c.tracking_error_rad is not None:  # a pose change
+        out |= {"tracking_error_rad": c.tracking_error_rad, "tracking_bound_rad": c.tracking_bound_rad,
+                "final_pose_error_rad": c.final_pose_error_rad, "timing_lag_s": c.timing_lag_s,
+                "timing_lag_bound_s": c.timing_lag_bound_s}
+    return out | {"verdict_bounds": verdict_bounds()}
 
 
 def sequence_report(seq: SequenceTask, curve: Cmrt, curve_name: str, trace: str | None = None) -> dict:

@@ -32,6 +32,7 @@ from cmrt.service.interpolate import candidates, interpolate, superpose  # noqa:
 from cmrt.service.query import stored_curve, task_of  # noqa: E402
 from cmrt.service.store import Store, StoredEvaluation  # noqa: E402
 from cmrt.sim.objective import evaluate  # noqa: E402
+from cmrt.sim.report import simulate_report  # noqa: E402
 from cmrt.sim.simulate import simulate  # noqa: E402
 from cmrt.viz.render import verdict  # noqa: E402
 
@@ -193,10 +194,10 @@ def family_figure(task_name: str, between: tuple[float, ...] = (), source: str =
         task = base.with_speed(v)
         if kind == "int":
             curve = interpolate(task, source=source, store=store).curve
-        ev = evaluate(task, simulate(task, curve, record=False))
+        ev = simulate_report(task, curve, kind)  # either body's clip and score
         ax.plot(t, 100 * curve.displacement_m(t), "-" if kind == "opt" else "--", color=color, lw=1.4,
-                label=f"T={v:g} {'optimized' if kind == 'opt' else 'interpolated'} e={ev.objective:.3f}"
-                      f"{'' if ev.success else ' (not a success)'}")
+                label=f"T={v:g} {'optimized' if kind == 'opt' else 'interpolated'} e={ev['objective']:.3f}"
+                      f"{'' if ev['success'] else ' (not a success)'}")
         ax.axvline(task.preparation_s + v, color=color, lw=0.6,
                    label="motion ends, P + T (the curve's colour)" if i == 0 else "_nolegend_")
     ax.axvline(base.preparation_s, color="k", lw=1.0, label="motion starts, P")

@@ -14,9 +14,12 @@ import numpy as np
 
 from cmrt import inputs
 from cmrt.body.character import character
+from cmrt.motion.curve import Cmrt
+from cmrt.motion.task import Task
+from cmrt.sim.clip3d import clip_3d
 from cmrt.sim.spatial import BODY, StandResult
 from cmrt.viz import overlay
-from cmrt.viz.render import _renderer
+from cmrt.viz.render import _renderer, filmstrip_times
 
 VIEWS = (("front", 180.0), ("side", 90.0))  # (name, camera azimuth deg): facing the body; from its left
 DISTANCE_M = 3.4  # camera to the body's standing place: the whole body and a fall's first metre in frame
@@ -28,6 +31,40 @@ def filmstrip_3d(result: StandResult, times_s: np.ndarray, out: str | Path, heig
     """Render ``result`` at ``times_s`` (front row over side row) to the PNG ``out``; returns what was written."""
     out = Path(out)
     inputs.check_output(out, "--filmstrip", (".png",))
+    rows = _view_rows(result, times_s, height, width)
+    with inputs.atomic_output(out, "--filmstrip", (".png",)) as tmp:
+        overlay.save_png(np.concatenate(rows, axis=0), tmp)
+    return {"out": str(out), "times_s": [round(float(t), 3) for t in times_s], "views": [v for v, _ in VIEWS]}
+
+
+def render_3d(task: Task, curve: Cmrt, out: str | Path, compare: Cmrt | None = None,
+              labels: tuple[str, str] = ("", ""), n_frames: int = 8, height: int = 320, width: int = 240) -> dict:
+    """``cmrt render`` on a 3D task: each clip (``compare``'s first) as a front row over a side row, captioned
+    with its CMRT and verdict, to a PNG filmstrip; the frames denser over the motion and about a fall."""
+    out = Path(out)
+    inputs.check_output(out, "--out", (".png",))  # before anything is simulated; no video of a 3D clip yet
+    clips = ([(compare, labels[1])] if compare is not None else []) + [(curve, labels[0])]
+    scored = [(clip_3d(task, c), label) for c, label in clips]
+    p = task.params
+    falls = sorted({c.result.fall_time_s for c, _ in scored if c.fell})
+    times = filmstrip_times((p["preparation_s"], p["preparation_s"] + p["duration_s"]), falls, p["clip_s"], n_frames)
+    rows = []
+    for c, label in scored:
+        verdict = "SUCCESS" if c.success else ("lost balance" if c.fell else "not a success: " + ", ".join(
+            c.failed_rules))
+        rows += _view_rows(c.result, times, height, width, f"{label}: {verdict}")
+    with inputs.atomic_output(out, "--out", (".png",)) as tmp:
+        overlay.save_png(np.concatenate(rows, axis=0), tmp)
+    return {"out": str(out), "frames": len(times), "times_s": [round(float(t), 3) for t in times],
+            "views": [v for v, _ in VIEWS], "clips": [
+                {"label": label, "success": c.success, "failed_rules": list(c.failed_rules), "fell": c.fell,
+                 "fall_time_s": c.result.fall_time_s, "objective": c.objective} for c, label in scored]}
+
+
+def _view_rows(result: StandResult, times_s: np.ndarray, height: int, width: int, label: str = ""
+               ) -> list[np.ndarray]:
+    """One row of frames per view (``VIEWS``) of ``result`` at ``times_s``, each captioned with the view, the
+    time, ``label`` and whether the body has fallen."""
     m = character(BODY).model
     d = mujoco.MjData(m)
     renderer = _renderer(m, height, width)
@@ -47,11 +84,11 @@ def filmstrip_3d(result: StandResult, times_s: np.ndarray, out: str | Path, heig
                 renderer.update_scene(d, camera)
                 fallen = result.fall_time_s is not None and result.time_s[k] >= result.fall_time_s
                 lines = [(f"{name}  t = {result.time_s[k]:.2f} s", (255, 255, 255), True)]
+                if label:
+                    lines.append((label, (255, 255, 255), False))
                 lines.append(("fell" if fallen else "standing", (230, 25, 25) if fallen else (25, 205, 50), False))
                 row.append(overlay.caption(renderer.render(), lines))
             rows.append(np.concatenate(row, axis=1))
     finally:
         renderer.close()
-    with inputs.atomic_output(out, "--filmstrip", (".png",)) as tmp:
-        overlay.save_png(np.concatenate(rows, axis=0), tmp)
-    return {"out": str(out), "times_s": [round(float(t), 3) for t in times_s], "views": [v for v, _ in VIEWS]}
+    return rows

@@ -40,7 +40,8 @@ def test_what_the_3d_body_cannot_do_yet_is_one_line_and_exit_2(tmp_path):
                        (("simulate", TASK, "--curve", "library"), "no library CMRT"),
                        (("simulate", TASK, "--set", "stepping=1"), "stepping: not for the humanoid3d body"),
                        (("optimize", "leg-lift", "--robust", "--store", str(store)), "no robust ensemble yet"),
-                       (("interpolate", "leg-lift", "--speed", "2.5", "--store", str(store)), "only `cmrt simulate`"),
+                       (("check", "leg-lift"), "only `cmrt simulate`"),
+                       (("simulate", "bend3d", "--reference", "yu"), "takes the centre reference"),
                        (("check", TASK), "only `cmrt simulate`")):
         out = run(*args)
         assert out.returncode == 2 and says in out.stderr and len(out.stderr.strip().splitlines()) == 1, out.stderr
@@ -74,3 +75,16 @@ def test_optimize_and_best_on_the_leg_lift_through_a_store(tmp_path):
     assert runs[0]["evaluations"] <= 20 and runs[0]["baseline_fell"] and runs[0]["robustness"]["validation_total"] == 1
     best = json.loads(run("best", "leg-lift", "--json", "--store", str(tmp_path / "a.sqlite")).stdout)
     assert best["run_id"] == runs[0]["run_id"] and best["best_cmrt"] == runs[0]["best_cmrt"]
+
+
+@pytest.mark.slow  # a cmrt process, two clips rendered
+def test_render_a_leg_lift_beside_the_zero_cmrt(tmp_path):
+    out = tmp_path / "lift.png"
+    r = run("render", "leg-lift", "--curve", "library", "--compare", "zero", "--frames", "4", "--out", str(out),
+            "--json")
+    assert r.returncode == 0, r.stderr
+    done = json.loads(r.stdout)
+    assert [c["label"] for c in done["clips"]] == ["zero CMRT", "library CMRT"] and done["views"] == ["front", "side"]
+    assert done["clips"][0]["fell"] and done["clips"][1]["success"] and out.stat().st_size > 0
+    video = run("render", "leg-lift", "--out", str(tmp_path / "lift.mp4"))
+    assert video.returncode == 2 and "PNG filmstrip" in video.stderr and not (tmp_path / "lift.mp4").exists()

@@ -112,6 +112,10 @@ def test_every_task_has_stepping_off_and_its_hash_ignores_the_unused_step_parame
     footstep plan (its supervisor steps with them)."""
     for name in available_tasks():
         task = load_task(name)
+        if task.body != "planar":  # the 3D body does not step yet: it refuses the step parameters
+            with pytest.raises(CmrtError, match="not for the humanoid3d body"):
+                task.with_params(step_time_s=0.6)
+            continue
         if name != "push-recovery":
             assert task.stepping == 0
             unused = task.with_params(step_time_s=0.6).content_hash() == task.content_hash()

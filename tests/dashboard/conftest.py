@@ -67,6 +67,26 @@ def store_path(_template_store, tmp_path) -> Path:
     return folder / "cmrt.sqlite"
 
 
+def asgi_get(app, path: str, host: str = "127.0.0.1:8080", server: tuple[str, int] = ("127.0.0.1", 8080)
+             ) -> tuple[int, bytes]:
+    """GET ``path`` of the app as ASGI (no server) with this Host header, arriving at ``server``: status, body."""
+    import asyncio
+
+    scope = {"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": "GET", "scheme": "http",
+             "path": path, "raw_path": path.encode(), "query_string": b"", "root_path": "",
+             "headers": [(b"host", host.encode())], "client": ("192.0.2.99", 5000), "server": server}
+    sent = []
+
+    async def receive():
+        return {"type": "http.request", "body": b"", "more_body": False}
+
+    async def send(message):
+        sent.append(message)
+
+    asyncio.run(app(scope, receive, send))
+    return sent[0]["status"], b"".join(m.get("body", b"") for m in sent if m["type"] == "http.response.body")
+
+
 def snapshot(path: Path) -> dict:
     """The store's bytes and its side files: what the dashboard must never change."""
     return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(path.parent.iterdir())

@@ -13,7 +13,7 @@ import pytest
 from cmrt.dashboard import data
 from cmrt.dashboard.app import DashboardConfig
 
-from .conftest import Server
+from .conftest import Server, asgi_get
 
 FPS = 5
 RENDERED = b"\0\0\0\x18ftypmp42 rendered by the dashboard"
@@ -143,26 +143,12 @@ def test_the_address_served_and_localhost_are_answered(server):
 def test_a_wildcard_server_answers_the_address_a_request_came_in_on_and_nothing_else(store_path, tmp_path):
     """``--host 0.0.0.0`` reached at a LAN address its name does not resolve to: that address (the connection's
     own local address) is answered, another address or name is not. Called as ASGI: the address is 192.0.2.7."""
-    import asyncio
-
     from cmrt.dashboard.app import create_app
 
     app = create_app(DashboardConfig(store_path=store_path, host="0.0.0.0", cache_dir=tmp_path / "clips"))
 
     def status(host: str) -> int:
-        scope = {"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": "GET", "scheme": "http",
-                 "path": "/api/runs", "raw_path": b"/api/runs", "query_string": b"", "root_path": "",
-                 "headers": [(b"host", host.encode())], "client": ("192.0.2.99", 5000), "server": ("192.0.2.7", 8080)}
-        sent = []
-
-        async def receive():
-            return {"type": "http.request", "body": b"", "more_body": False}
-
-        async def send(message):
-            sent.append(message)
-
-        asyncio.run(app(scope, receive, send))
-        return sent[0]["status"]
+        return asgi_get(app, "/api/runs", host, ("192.0.2.7", 8080))[0]
 
     assert status("192.0.2.7:8080") == 200 and status("192.0.2.7") == 200 and status("localhost:8080") == 200
     for other in ("192.0.2.8:8080", "evil.example.com:8080", "192.0.2.7.nip.io", "[::1]x"):

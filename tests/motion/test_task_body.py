@@ -22,7 +22,11 @@ def test_a_3d_task_round_trips_and_a_planar_one_has_no_body_key():
 
 @pytest.mark.parametrize("extra, says", [
     ({"body": "robot"}, "body must be one of"),
-    ({"end_pose_deg": {"hip": -30.0}}, "not end_pose_deg"),
+    ({"end_pose_deg": {"hip": -30.0}}, "a pose-change task needs duration_s > 0"),
+    ({"end_pose_deg": {"hip_roll": 10.0}, "params": {"clip_s": 2.0, "duration_s": 0.5}}, "hip_roll"),
+    ({"via_pose_deg": {"hip": -30.0}}, "not via_pose_deg"),
+    ({"end_pose_deg": {"hip": -30.0}, "params": {"clip_s": 3.0, "duration_s": 0.5, "stance_side": 1.0}},
+     "not both"),
     ({"steps": [{"foot": "R", "x_m": 0.2, "duration_s": 0.6}]}, "not steps"),
     ({"params": {"stepping": 1.0}}, "not stepping"),
     ({"start_pose_deg": {"knee": 400.0}}, "start_pose_deg"),

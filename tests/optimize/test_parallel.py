@@ -10,10 +10,10 @@ from cmrt.service.jobs import claim, run_claimed, submit
 from cmrt.service.store import open_store
 
 
-def optimize_with(tmp_path, backend):
-    task = load_task("bend").with_speed(0.4)
-    with open_store(tmp_path / f"{backend}.sqlite") as store:
-        rid = submit(store, task, seed=11, max_evals=16, popsize=8, backend=backend, init="none")
+def optimize_with(tmp_path, backend, task=None, max_evals=16, popsize=8):
+    task = task or load_task("bend").with_speed(0.4)
+    with open_store(tmp_path / f"{task.name}-{backend}.sqlite") as store:
+        rid = submit(store, task, seed=11, max_evals=max_evals, popsize=popsize, backend=backend, init="none")
         with Evaluator(backend, workers=2) as ev:  # dask: a real LocalCluster of 2 worker processes
             run_claimed(store, claim(store, "t", run_id=rid), ev)
         return store.run(rid), store.evaluations(rid)
@@ -26,6 +26,17 @@ def test_every_backend_gives_identical_results(tmp_path):
         run, evals = optimize_with(tmp_path, backend)
         assert run.best_params == serial[0].best_params, backend
         assert run.best_objective == serial[0].best_objective, backend
+        assert [e.objective for e in evals] == [e.objective for e in serial[1]], backend
+
+
+@pytest.mark.slow  # four short optimizations, loky and dask process pools
+def test_every_backend_gives_identical_results_on_a_3d_task(tmp_path):
+    """The 3D leg lift's clips (cmrt.sim.clip3d, one after another in each process) score the same everywhere."""
+    lift = load_task("leg-lift").with_params(duration_s=1.5, clip_s=2.5, stop_threshold=0.0)
+    serial = optimize_with(tmp_path, "serial", lift, max_evals=8, popsize=4)
+    for backend in ("batch", "loky", "dask"):
+        run, evals = optimize_with(tmp_path, backend, lift, max_evals=8, popsize=4)
+        assert run.best_params == serial[0].best_params, backend
         assert [e.objective for e in evals] == [e.objective for e in serial[1]], backend
 
 

@@ -62,6 +62,22 @@ def test_the_cop_margin_is_the_distance_inside_the_touching_points():
     assert _margin(np.array([0.1, 0.0]), square[:2]) == 0.0  # fewer than three points: no area
 
 
+def test_the_cop_margin_is_qhulls_to_rounding():
+    """``_margin`` finds the hull's edges itself (ten times quicker than qhull for eight points): the same
+    distance as ``scipy.spatial.ConvexHull``'s equations on random point sets, repeated points included."""
+    from scipy.spatial import ConvexHull
+
+    rng = np.random.default_rng(7)
+    for n in (3, 4, 5, 8):
+        for _ in range(200):
+            pts = rng.normal(scale=0.1, size=(n, 2))
+            pts = np.vstack([pts, pts[:1]])  # a point twice, as two touching spheres can be
+            cop = rng.normal(scale=0.1, size=2)
+            hull = ConvexHull(pts)
+            assert _margin(cop, pts) == pytest.approx(-(hull.equations[:, :2] @ cop + hull.equations[:, 2]).max(),
+                                                      abs=1e-12)
+
+
 def test_the_weight_shifts_over_the_stance_foot_before_the_other_lifts():
     """The anticipatory part of a leg lift: by lift-off the CoM is over the stance foot's sole (within its half
     width, 4 cm, of the sole's centre line): one-leg balance is possible the moment the other foot leaves."""

@@ -219,14 +219,16 @@ function drawTraces(t) {
         line: { color: "#c62828", dash: "dot" } });
     }
   });
-  const edge = t.clips[1];
-  traces.push({ x: edge.time_s, y: edge.support_lo_cm, name: "support edges (heel, toe)", mode: "lines",
+  const edge = t.clips[1], sideways = edge.axis === "y";  // a 3D clip: its sideways CoP error and support
+  traces.push({ x: edge.time_s, y: edge.support_lo_cm, name: sideways ? "support edges (the feet's sides)"
+    : "support edges (heel, toe)", mode: "lines",
     type: "scatter", line: { color: "#000", dash: "dash", width: 0.8 } });
   traces.push({ x: edge.time_s, y: edge.support_hi_cm, showlegend: false, mode: "lines", type: "scatter",
     line: { color: "#000", dash: "dash", width: 0.8 } });
   traces.push(motionLegend(t.task));
   Plotly.react("cop", traces, layout({ shapes, xaxis: Object.assign({ title: { text: "time (s)" } }, AXIS),
-    yaxis: Object.assign({ title: { text: "CoP error p - s (cm)" } }, AXIS) }), PLOT_CONFIG);
+    yaxis: Object.assign({ title: { text: sideways ? "sideways CoP error p - s, y (cm)" : "CoP error p - s (cm)" } },
+      AXIS) }), PLOT_CONFIG);
   const head = el("tr", {}, el("th", {}, "figure"), ...t.clips.map((c) => el("th", {}, c.label)), el("th", {}, "limit"));
   const rows = t.plausibility_fields.map((f) => el("tr", {}, el("td", {}, f.label),
     ...t.clips.map((c) => el("td", { class: "num" }, num(c.plausibility[f.key]))),

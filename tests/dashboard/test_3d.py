@@ -1,0 +1,32 @@
+"""The dashboard on a 3D run (the leg lift): its run page, its sideways CoP traces with the report's figures, and a
+clear 404 for its video (a 3D clip renders to a PNG filmstrip: `cmrt render`)."""
+
+import json
+
+from cmrt.dashboard.app import DashboardConfig, create_app
+from tests.dashboard.conftest import _finish, asgi_get
+
+
+def test_a_leg_lift_runs_page_traces_and_clip(tmp_path):
+    from cmrt import load_task
+    from cmrt.motion.library import library_curve
+    from cmrt.service.jobs import submit
+    from cmrt.service.store import open_store
+
+    task = load_task("leg-lift")
+    path = tmp_path / "s.sqlite"
+    with open_store(path) as store:
+        run_id = submit(store, task, init="none", max_evals=8, popsize=4)
+        _finish(store, run_id, library_curve(task), [[11.0, 9.0, 0.6, 7.0], [0.5, 6.0, 8.0, 9.0]])
+    app = create_app(DashboardConfig(store_path=path, cache_dir=tmp_path / "clips"))
+    assert asgi_get(app, f"/runs/{run_id}")[0] == 200
+    status, body = asgi_get(app, f"/api/runs/{run_id}/traces")
+    assert status == 200, body
+    traces = json.loads(body)
+    zero, best = traces["clips"]
+    assert zero["axis"] == best["axis"] == "y" and zero["verdict"] == "lost balance" and best["verdict"] == "SUCCESS"
+    assert len(best["time_s"]) == len(best["cop_error_cm"]) == len(best["support_lo_cm"])
+    assert all(lo < 0.0 < hi for lo, hi in zip(best["support_lo_cm"], best["support_hi_cm"], strict=True))
+    assert best["plausibility"]["timing_lag_s"] <= best["limits"]["timing_lag_s"]
+    status, body = asgi_get(app, f"/clips/run{run_id}.mp4")
+    assert status == 404 and b"no video of it yet" in body
