@@ -358,14 +358,15 @@ def _progress(total_evals: int, label: str, enabled: bool, stream=None):
 def resolve_task(name: str, speed: float | None, sets: list[str] | None, reference: str | None = None,
                  steps: str | None = None, any_body: bool = False) -> Task:
     """The task arguments (name or path, ``--speed``, ``--set``, ``--reference``, ``--steps``) -> a validated
-    Task; a 3D task only where ``any_body`` (simulate, optimize, submit, best, interpolate, render: the rest of
-    the service is planar for now)."""
+    Task; a 3D task only where ``any_body`` (simulate, optimize, submit, best, interpolate, render, check: the rest
+    of the service is planar for now)."""
     from cmrt.motion.taskfile import resolve_task as task_variant
 
     task = task_variant(name, speed, inputs.parse_sets(sets), reference, steps)
     if task.body != "planar" and not any_body:
         raise CmrtError(f"task {shown(task.name)} is done with the {task.body} body, which only `cmrt simulate`, "
-                        "`optimize`, `submit`, `best`, `interpolate` and `render` take for now (docs/body3d.md)")
+                        "`optimize`, `submit`, `best`, `interpolate`, `render` and `check` take for now "
+                        "(docs/body3d.md)")
     return task
 
 
@@ -598,9 +599,13 @@ class Check(Command):
     def run(self, args):
         from cmrt.motion.feasibility import check_reference
 
-        task = resolve_task(args.task, args.speed, args.set, args.reference, args.steps)
+        task = resolve_task(args.task, args.speed, args.set, args.reference, args.steps, any_body=True)
+        out = {}
+        if task.body != "planar":  # its planar twin: the same sagittal motion, the same centroidal dynamics
+            out = {"body": task.body, "checked_as": "its planar twin (docs/body3d.md)"}
+            task = task.sagittal_twin()
         found = check_reference(task)
-        return Output(found.to_dict(), _check_text, status=0 if found.feasible else 1)
+        return Output(found.to_dict() | out, _check_text, status=0 if found.feasible else 1)
 
 
 def _check_text(r: dict) -> str:
@@ -617,6 +622,7 @@ def _check_text(r: dict) -> str:
         peak = [max(d["peak_torque_nm"][n] for n in sides) for d in (keyed, best)]
         rows.append((f"{joint} torque (N m)", *peak, f"<= {max(r['torque_limit_nm'][n] for n in sides):g}"))
     lines = [f"{escape(r['task'])}{speed}: {_verdict(r)}",
+             *([f"  (the {r['body']} body, checked as {r['checked_as']})"] if "checked_as" in r else []),
              *(f"  (not included: {escape(x)})" for x in r["ignored"]),
              f"  {'':26}{'keyed ankle':>12}{'best ankle path':>17}   limit"]
     lines += [f"  {name:26}{_n(a, '12.3g')}{_n(b, '17.3g')}   {limit}" for name, a, b, limit in rows]

@@ -277,6 +277,18 @@ class Task:
             task.validate()  # a 3D pose change takes the centre reference only
         return task
 
+    def sagittal_twin(self) -> Task:
+        """A 3D pose change as the planar task of the same poses and timing (``cmrt.body.sagittal``: the 3D body
+        playing it has the planar body's centroidal dynamics, so its reference asks the same ground force and CoP);
+        CmrtError for any other 3D task."""
+        if self.body == "planar":
+            return self
+        if self.end_pose_deg is None:
+            raise CmrtError(f"task {shown(self.name)}: cmrt check judges a pose change's reference; a {self.body} "
+                            "standing task or leg lift has none it can check yet (docs/body3d.md)")
+        params = {k: v for k, v in self.params.items() if k not in DEFAULTS_3D}
+        return replace(self, body="planar", params=params)
+
     def with_steps(self, plan: tuple[PlannedStep, ...] | None) -> Task:
         """A copy that takes these footsteps (None: unchanged), checked against the clip."""
         if plan is None:

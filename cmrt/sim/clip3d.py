@@ -1,15 +1,17 @@
 """A 3D task's clip and its score: what ``cmrt simulate``, the evaluators and the driver see of the 3D body.
 
-A 3D task (``Task.body`` "humanoid3d", docs/body3d.md) stands, pushed or not (``cmrt.sim.spatial.stand_3d``), or
-lifts a foot (``stance_side`` +-1: ``cmrt.sim.spatial.leg_lift_3d``): the weight shift over ``1 - lift_fraction``
-of T from P, the lift over the rest, then the one-leg pose held to the clip's end. The CMRT acts sideways (y),
-across the support's change, where the leg lift's anticipation is; the planar CMRT's 8 parameters and the same
-driver. The verdict is the planar one's (the same rules, bounds and order, ``cmrt.sim.objective``) with the
-leg lift's "performed" (the foot up within ``FOOT_LIFT_TOLERANCE_M`` of its height at the end and off the floor)
-and "on_time" (the planar timing rule on the driving joints, ``objective.joint_lags_s``, bound 0.1 T and 0.05 s).
-The objective is the paper's: the CoP error's 2-norm against the controller's own CoP reference, plus the planar
-penalties' shapes (``cmrt.sim.spatial.cop_error_objective``, and ``NOT_PERFORMED_PENALTY`` for a motion not done or
-late).
+A 3D task (``Task.body`` "humanoid3d", docs/body3d.md) stands, pushed or not (``cmrt.sim.spatial.stand_3d``),
+lifts a foot (``stance_side`` +-1: ``cmrt.sim.spatial.leg_lift_3d``: the weight shift over ``1 - lift_fraction`` of
+T from P, the lift over the rest, then the one-leg pose held to the clip's end), or changes its pose sagittally (an
+end pose: the planar reference on the 3D body, ``cmrt.sim.spatial.pose_change_3d``). A leg lift's CMRT acts sideways
+(y), across the support's change, where its anticipation is; a pose change's forward (x), as on the planar body;
+the planar CMRT's 8 parameters and the same driver. The verdict is the planar one's (the same rules, bounds and
+order, ``cmrt.sim.objective``): "performed" (a leg lift's foot up within ``FOOT_LIFT_TOLERANCE_M`` of its height at
+the end; a pose change's end pose and tracking bound), "on_time" (the planar timing rule on the driving joints,
+``objective.joint_lags_s``, bound 0.1 T and 0.05 s), the standing rules, and "final_pose" where "performed" does
+not judge the end pose. The objective is the paper's: the CoP error's 2-norm against the controller's own CoP
+reference, plus the planar penalties' shapes (``cmrt.sim.spatial.cop_error_objective``; ``NOT_PERFORMED_PENALTY``
+for a motion not done or late; ``NOT_PLAUSIBLE_PENALTY`` for the end pose).
 """
 
 from __future__ import annotations
@@ -57,8 +59,8 @@ class Clip3d:
     lift: LegLiftClip | None = None  # a leg lift's own figures
     timing_lag_s: float | None = None
     timing_lag_bound_s: float | None = None
-    tracking_error_rad: float | None = None  # a pose change's: RMS over [P, P + T] and its bound
-    tracking_bound_rad: float | None = None
+    tracking_error_rad: float | None = None  # a pose change's: RMS over [P, P + T] and its bound (None: it fell
+    tracking_bound_rad: float | None = None  # before P, or not a pose change)
     final_pose_error_rad: float = 0.0  # the actuated joints' distance from the reference's last pose at the end
     cop_reference_xy_m: np.ndarray | None = None  # (n, 2) the CoP's reference the objective measured against
     kind: str = "standing"  # "standing", "leg lift" or "pose change"
@@ -150,14 +152,16 @@ def _pose_change(task: Task, curve: Cmrt, push) -> Clip3d:
     window = (r.time_s >= lo - 1e-9) & (r.time_s <= hi + 1e-9)
     if r.fell:
         window &= r.time_s < r.fall_time_s
-    tracking = float(np.sqrt(np.mean((r.qpos[window][:, act] - q_ref[window][:, act]) ** 2))) if window.any() \
-        else float("inf")
-    late_ref = reference(r.time_s[window] - task.params["max_tracking_lag"] * task.duration_s)[0]
-    bound = float(np.sqrt(np.mean((late_ref[:, act] - q_ref[window][:, act]) ** 2))) if window.any() else 0.0
-    done = final < FINAL_POSE_TOLERANCE_RAD and tracking <= bound and not r.fell
+    tracking = bound = None  # None: it fell before the motion began
+    if window.any():
+        tracking = float(np.sqrt(np.mean((r.qpos[window][:, act] - q_ref[window][:, act]) ** 2)))
+        late_ref = reference(r.time_s[window] - task.params["max_tracking_lag"] * task.duration_s)[0]
+        bound = float(np.sqrt(np.mean((late_ref[:, act] - q_ref[window][:, act]) ** 2)))
+    done = tracking is not None and final < FINAL_POSE_TOLERANCE_RAD and tracking <= bound and not r.fell
     lag = _lag(task, r, q_ref)
     centre = np.broadcast_to(feet_centre_xy(start), r.cop_xy_m.shape)
-    failed, value = _judged(task, r, done, tracking / bound - 1.0 if bound > 0 else 1.0, lag, centre, None)
+    miss = tracking / bound - 1.0 if tracking is not None and bound > 0 else 1.0
+    failed, value = _judged(task, r, done, miss, lag, centre, None)
     return Clip3d(r, value, failed, None, lag, timing_lag_bound_s(task), tracking, bound, final, centre,
                   "pose change")
 

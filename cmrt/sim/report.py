@@ -89,19 +89,20 @@ def simulate_report(task: Task, curve: Cmrt, curve_name: str, trace: str | None 
 
 SPATIAL_RULES = {
     "standing": "standing (the 3D body): no fall (the capture point within 1 cm of the soles), still at the end, "
-                "planned and executed CoP within 5 mm, the CoP inside the feet, ground force within 2.5 body weights",
+                "planned and executed CoP within 5 mm, the CoP inside the feet, ground force within 2.5 body weights, "
+                "back in its pose within 0.1 rad",
     "pose change": "pose change (the 3D body): the end pose within 0.1 rad, tracked within its bound and on time "
                    "(the planar rules), no fall, still at the end, planned and executed CoP within 5 mm, the CoP "
                    "inside the feet, ground force within 2.5 body weights",
     "leg lift": "leg lift (the 3D body): the foot 10 cm up within 1 cm at the end and on time (the planar timing "
                 "rule), no fall, still at the end, planned and executed CoP within 5 mm, the CoP inside the stance "
-                "foot, ground force within 2.5 body weights",
+                "foot, ground force within 2.5 body weights, the one-leg pose within 0.1 rad",
 }
 
 
 def spatial_report(task: Task, curve: Cmrt, curve_name: str, trace: str | None = None) -> dict:
-    """A 3D task's clip (``cmrt.sim.clip3d``: standing, pushed or not, or a leg lift) and its verdict, as
-    JSON-safe values; ``trace``: its samples as ``.npz``. A standing task's CMRT is the zero one."""
+    """A 3D task's clip (``cmrt.sim.clip3d``: standing, pushed or not, a leg lift or a pose change) and its verdict,
+    as JSON-safe values; ``trace``: its samples as ``.npz``. A standing task's CMRT is the zero one."""
     t0 = time.perf_counter()
     c = clip_3d(task, curve)
     wall = time.perf_counter() - t0
@@ -122,8 +123,7 @@ def spatial_dict(task: Task, c: Clip3d, curve: Cmrt, curve_name: str) -> dict:
         "task": task.name, "body": task.body, "speed": task.speed, "reference": task.reference_mode,
         "params": task.params, "curve": curve_name, "cmrt": curve.to_dict(), "objective": c.objective,
         "success": c.success, "failed_rules": list(c.failed_rules),
-        "success_rule": SPATIAL_RULES["leg lift" if c.lift is not None else "pose change"
-                                      if c.tracking_error_rad is not None else "standing"],
+        "success_rule": SPATIAL_RULES[c.kind], "final_pose_error_rad": _finite(c.final_pose_error_rad),
         **{k: _finite(getattr(r, k)) for k in figures},
         "fall_direction_xy": None if r.fall_direction_xy is None else [float(v) for v in r.fall_direction_xy],
         "topple_direction_xy": None if r.topple_direction_xy is None else [float(v) for v in r.topple_direction_xy],
@@ -132,9 +132,9 @@ def spatial_dict(task: Task, c: Clip3d, curve: Cmrt, curve_name: str) -> dict:
         out |= {"lift_off_s": c.lift.lift_off_s, "foot_lift_m": c.lift.foot_lift_m,
                 "com_shift_toward_stance_before_lift_off_m": c.lift.com_shift_m,
                 "timing_lag_s": c.timing_lag_s, "timing_lag_bound_s": c.timing_lag_bound_s}
-    if c.tracking_error_rad is not None:  # a pose change
+    if c.kind == "pose change":
         out |= {"tracking_error_rad": c.tracking_error_rad, "tracking_bound_rad": c.tracking_bound_rad,
-                "final_pose_error_rad": c.final_pose_error_rad, "timing_lag_s": c.timing_lag_s,
+                "timing_lag_s": c.timing_lag_s,
                 "timing_lag_bound_s": c.timing_lag_bound_s}
     return out | {"verdict_bounds": verdict_bounds()}
 

@@ -40,9 +40,10 @@ def test_what_the_3d_body_cannot_do_yet_is_one_line_and_exit_2(tmp_path):
                        (("simulate", TASK, "--curve", "library"), "no library CMRT"),
                        (("simulate", TASK, "--set", "stepping=1"), "stepping: not for the humanoid3d body"),
                        (("optimize", "leg-lift", "--robust", "--store", str(store)), "no robust ensemble yet"),
-                       (("check", "leg-lift"), "only `cmrt simulate`"),
+                       (("check", "leg-lift"), "judges a pose change's reference"),
+                       (("bench", "--task", "leg-lift"), "only `cmrt simulate`"),
                        (("simulate", "bend3d", "--reference", "yu"), "takes the centre reference"),
-                       (("check", TASK), "only `cmrt simulate`")):
+                       (("check", TASK), "judges a pose change's reference")):
         out = run(*args)
         assert out.returncode == 2 and says in out.stderr and len(out.stderr.strip().splitlines()) == 1, out.stderr
     assert not store.exists()
@@ -88,3 +89,15 @@ def test_render_a_leg_lift_beside_the_zero_cmrt(tmp_path):
     assert done["clips"][0]["fell"] and done["clips"][1]["success"] and out.stat().st_size > 0
     video = run("render", "leg-lift", "--out", str(tmp_path / "lift.mp4"))
     assert video.returncode == 2 and "PNG filmstrip" in video.stderr and not (tmp_path / "lift.mp4").exists()
+
+
+@pytest.mark.slow  # a cmrt process
+def test_check_judges_the_3d_bend_on_its_planar_twin():
+    """`cmrt check bend3d`: the planar bend's verdict (the 3D body playing it has the planar centroidal dynamics:
+    tests/body/test_sagittal.py), said to be the twin's."""
+    r = run("check", "bend3d", "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    planar = json.loads(run("check", "bend", "--speed", "0.4", "--json").stdout)
+    assert out["feasible"] and out["body"] == "humanoid3d" and "planar twin" in out["checked_as"]
+    assert out["keyed"] == planar["keyed"] and out["best"] == planar["best"]
