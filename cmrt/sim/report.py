@@ -42,13 +42,15 @@ def save_trace(path: str, task: Task | SequenceTask, traj: Trajectory, flag: str
         np.savez_compressed(fh, **traj.as_npz_dict(), dof_names=dof_names(task))
 
 
-def simulate(task: Task, curve: Cmrt | None = None, config: ControllerConfig = ControllerConfig(),
+def simulate(task: Task, curve: Cmrt | None = None, config: ControllerConfig | None = None,
              record: bool = True) -> Trajectory | Clip3d:
     """Simulate one clip of ``task`` with CMRT ``curve`` (None: zero CMRT): a planar task's recorded trajectory
     (``cmrt.sim.simulate.simulate``), a 3D task's clip (``cmrt.sim.clip3d.clip_3d``, the default controller's);
-    ``evaluate`` scores either. What ``cmrt.simulate`` is."""
+    ``evaluate`` scores either. What ``cmrt.simulate`` is (``config``: the planar controller's, None its default)."""
     if getattr(task, "body", "planar") != "planar":
         return clip_3d(task, curve if curve is not None else Cmrt.zero(task.clip_s))
+    if config is None:
+        return planar.simulate(task, curve, record=record)
     return planar.simulate(task, curve, config, record)
 
 
