@@ -96,3 +96,14 @@ def test_the_public_simulate_and_evaluate_take_a_3d_task():
     assert zero.fell and zero.failed_rules[0] == "balance" and zero.performed is False
     planar = load_task("bend").with_speed(1.2)
     assert cmrt.evaluate(planar, cmrt.simulate(planar, record=False)).success
+
+
+def test_standing_on_the_right_foot_mirrors_the_left():
+    """stance_side -1: the zero CMRT falls toward the lifted (left, +y) side; the library's right-foot CMRT moves the
+    CoM toward the right foot before lift-off and succeeds."""
+    task = load_task("leg-lift").with_params(stance_side=-1)
+    zero = clip_3d(task, Cmrt.zero(task.clip_s))
+    assert zero.fell and zero.result.fall_direction_xy[1] > 0.9
+    found = clip_3d(task, library_curve(task))
+    assert found.success, found.failed_rules
+    assert found.lift.com_shift_m > 0.03 and all(v <= 0.0 for v in library_curve(task).values_m[1:3])
