@@ -195,11 +195,6 @@ def _spatial_text(r: dict) -> str:
     ])
 
 
-def _rules_text(c: dict) -> str:
-    """A 3D clip's verdict in words (``render_3d``'s clips)."""
-    return "SUCCESS" if c["success"] else "not a success: " + ", ".join(c["failed_rules"])
-
-
 def _pose_text(r: dict) -> str:
     """A 3D pose change's own line: tracking, end pose and timing, as the planar report's."""
     return (f"  tracking {_n(r['tracking_error_rad'], '.3f')} rad (bound {_n(r['tracking_bound_rad'], '.3f')}); end "
@@ -1039,7 +1034,7 @@ class Render(Command):
             r = render(task, curve, args.out, compare, (f"{name} CMRT", f"{cname} CMRT"), n_frames=args.frames,
                        fps=args.fps)
         lines = [f"wrote {escape(r['out'])} ({r['frames']} frames)"] + [
-            f"  {escape(c['label'])}: {c.get('verdict') or _rules_text(c)}, objective {c['objective']:.4f}"
+            f"  {escape(c['label'])}: {c['verdict']}, objective {c['objective']:.4f}"
             for c in r["clips"]
         ]
         return Output(r, "\n".join(lines))

@@ -27,7 +27,7 @@ from cmrt.motion.task import Task
 from cmrt.service.interpolate import blend
 from cmrt.service.query import run_details, run_summary, search_summary, stored_curve, task_of
 from cmrt.service.store import Run, Store, StoredEvaluation
-from cmrt.sim.clip3d import Clip3d, clip_3d, sideways_trace
+from cmrt.sim.clip3d import clip_3d, sideways_trace
 from cmrt.sim.objective import evaluate
 from cmrt.sim.report import evaluation_dict, spatial_dict
 from cmrt.sim.simulate import simulate
@@ -214,14 +214,6 @@ def _trace(task: Task, curve: Cmrt, label: str) -> dict:
     })
 
 
-def _verdict_3d(c: Clip3d) -> str:
-    """A 3D clip's verdict in ``viz.render.verdict``'s words."""
-    if c.success:
-        return "SUCCESS"
-    return "lost balance" if c.fell else "balance kept, not a success: " + ", ".join(
-        r.replace("_", " ") for r in c.failed_rules)
-
-
 def _trace_3d(task: Task, curve: Cmrt, label: str) -> dict:
     """A 3D clip's sideways CoP error and support edges (``clip3d.sideways_trace``), with its report's figures."""
     c = clip_3d(task, curve)
@@ -229,7 +221,8 @@ def _trace_3d(task: Task, curve: Cmrt, label: str) -> dict:
     trace = sideways_trace(task, c)
     step = max(1, int(np.ceil(trace["time_s"].size / MAX_TRACE_POINTS)))
     return inputs.json_safe({
-        "label": label, "verdict": _verdict_3d(c), "objective": c.objective, "fall_time_s": c.result.fall_time_s,
+        "label": label, "verdict": verdict(c.evaluation()), "objective": c.objective,
+        "fall_time_s": c.result.fall_time_s,
         "time_s": trace["time_s"][::step].tolist(), "cop_error_cm": (100 * trace["cop_error_m"][::step]).tolist(),
         "support_lo_cm": (100 * trace["support_lo_m"][::step]).tolist(),
         "support_hi_cm": (100 * trace["support_hi_m"][::step]).tolist(),
@@ -271,7 +264,7 @@ def _interpolated(a: tuple[Run, Task, Cmrt], b: tuple[Run, Task, Cmrt], cache: S
     def make() -> dict:
         if task.body != "planar":
             c = clip_3d(task, curve)
-            objective, text, success = c.objective, _verdict_3d(c), c.success
+            objective, text, success = c.objective, verdict(c.evaluation()), c.success
         else:
             ev = evaluate(task, simulate(task, curve, record=False))
             objective, text, success = ev.objective, verdict(ev), ev.success

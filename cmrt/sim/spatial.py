@@ -331,9 +331,15 @@ def leg_lift_3d(shift_s: float = 1.5, lift_s: float = 0.8, clip_s: float = 5.0, 
                                  qd_ref=qd, qdd_ref=qdd, swing_foot=swing, swing_pos_m=foot, swing_vel_m_s=foot_vel)
 
     force, push_start_s, push_duration_s = push if push is not None else ((0.0, 0.0, 0.0), clip_s, 0.1)
+    given: dict[float, tuple[np.ndarray, SpatialTargets]] = {}  # what each control step was given, by its time
+
+    def motion(t: float) -> SpatialTargets:
+        given[t] = plan(t)
+        return given[t][1]
+
     result = stand_3d(clip_s=clip_s, push_n=force, push_start_s=push_start_s, push_duration_s=push_duration_s,
-                      config=config, motion=lambda t: plan(t)[1])
-    planned = [plan(float(t)) for t in result.time_s]
+                      config=config, motion=motion)
+    planned = [given.get(float(t)) or plan(float(t)) for t in result.time_s]  # after a fall no step asked
     scratch.qpos[:] = result.qpos[-1]
     mujoco.mj_kinematics(m, scratch)
     k0 = int(np.searchsorted(result.time_s, start_s - 1e-9))

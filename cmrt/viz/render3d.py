@@ -19,7 +19,7 @@ from cmrt.motion.task import Task
 from cmrt.sim.clip3d import clip_3d
 from cmrt.sim.spatial import BODY, StandResult
 from cmrt.viz import overlay
-from cmrt.viz.render import _renderer, filmstrip_times
+from cmrt.viz.render import _renderer, filmstrip_times, verdict
 
 VIEWS = (("front", 180.0), ("side", 90.0))  # (name, camera azimuth deg): facing the body; from its left
 DISTANCE_M = 3.4  # camera to the body's standing place: the whole body and a fall's first metre in frame
@@ -50,14 +50,13 @@ def render_3d(task: Task, curve: Cmrt, out: str | Path, compare: Cmrt | None = N
     times = filmstrip_times((p["preparation_s"], p["preparation_s"] + p["duration_s"]), falls, p["clip_s"], n_frames)
     rows = []
     for c, label in scored:
-        verdict = "SUCCESS" if c.success else ("lost balance" if c.fell else "not a success: " + ", ".join(
-            c.failed_rules))
-        rows += _view_rows(c.result, times, height, width, f"{label}: {verdict}")
+        rows += _view_rows(c.result, times, height, width, f"{label}: {verdict(c.evaluation())}")
     with inputs.atomic_output(out, "--out", (".png",)) as tmp:
         overlay.save_png(np.concatenate(rows, axis=0), tmp)
     return {"out": str(out), "frames": len(times), "times_s": [round(float(t), 3) for t in times],
             "views": [v for v, _ in VIEWS], "clips": [
-                {"label": label, "success": c.success, "failed_rules": list(c.failed_rules), "fell": c.fell,
+                {"label": label, "verdict": verdict(c.evaluation()), "success": c.success,
+                 "failed_rules": list(c.failed_rules), "fell": c.fell,
                  "fall_time_s": c.result.fall_time_s, "objective": c.objective} for c, label in scored]}
 
 
