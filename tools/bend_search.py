@@ -71,8 +71,8 @@ class CommittedConfig(ControllerConfig):
 
     commit: float = 1.0
 
-    def tracking_weights(self, ch):
-        w = super().tracking_weights(ch)
+    def tracking_weights(self, ch, walking=False):
+        w = super().tracking_weights(ch, walking)
         for i, name in enumerate(ch.dof_names):
             if name.split("_")[0] in DRIVING:
                 w[i] *= self.commit

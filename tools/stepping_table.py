@@ -1,12 +1,13 @@
 """Directed steps measured (docs/stepping.md): footstep plans of a grid of step lengths and durations, a longer
 plan, and thorax pushes during it.
 
-    python tools/stepping_table.py [--json] [--lengths 0.2,0.3,0.4] [--durations 0.4,0.6] [--steps 7]
+    python tools/stepping_table.py [--json] [--lengths 0.2,0.3,0.4] [--durations 0.4,0.6] [--steps N]
                                    [--pushes 100,150,-50] [--push-times 1.5,2.0,2.5]
 
 * **Plans**: for every step length L and duration T of the grid, two steps forward from standing (``R:+L:T,
-  L:+2L:T``), and one plan of ``--steps`` steps of the first length and the longest duration, the last bringing
-  the trailing foot beside the leading one. Per plan: success, whether it was performed (every step within
+  L:+2L:T``), and a long plan: the ``walk`` task as shipped, or with ``--steps N`` N steps of the first length and
+  the longest duration, the last bringing the trailing foot beside the leading one. Per plan: success, whether it
+  was performed (every step within
   ``FOOTSTEP_TOLERANCE_M`` of its target), the largest placement error, the peak ground force in the 0.1 s after
   any touchdown (body weights), the fastest a landing foot's heel or toe came down just before it landed (m/s),
   how late the latest touchdown came after its planned duration, and how far the thorax pitched (degrees in the
@@ -55,11 +56,15 @@ def _clip_s(plan: tuple[PlannedStep, ...]) -> float:
     return timeline(plan)[-1][1] + SETTLE_S
 
 
-def run_plan(plan: tuple[PlannedStep, ...], push_n: float = 0.0, push_start_s: float = 0.0) -> dict:
-    """One clip of ``stand`` with this plan (and push): its verdict and figures."""
-    params = {"clip_s": round(_clip_s(plan), 2), "push_force_n": push_n, "push_start_s": push_start_s,
-              "push_duration_s": 0.1}
-    task = resolve_task("stand", params=params, steps=plan)
+def run_plan(plan: tuple[PlannedStep, ...] | None, push_n: float = 0.0, push_start_s: float = 0.0) -> dict:
+    """One clip of ``stand`` with this plan (and push), or of the ``walk`` task as shipped (``plan`` None): its
+    verdict and figures."""
+    params = {"push_force_n": push_n, "push_start_s": push_start_s, "push_duration_s": 0.1}
+    if plan is None:
+        task = resolve_task("walk", params=params)
+        plan = task.plan
+    else:
+        task = resolve_task("stand", params={**params, "clip_s": round(_clip_s(plan), 2)}, steps=plan)
     return {"plan": plan_text(plan), **_figures(task, [s.duration_s for s in plan], push_n, push_start_s)}
 
 
@@ -121,6 +126,7 @@ def _figures(task, durations: list[float], push_n: float, push_start_s: float) -
         "thorax_most_backward_deg": float(thorax.min()) if thorax.size else None,
         "peak_normal_force_bw": e.peak_normal_force_bw, "airborne_s": e.airborne_s,
         "max_foot_slip_m": e.max_foot_slip_m,  # the farthest a heel or toe point slid while touching the floor
+        "min_stance_cop_roll": e.min_stance_cop_roll, "walk_speed_m_s": e.walk_speed_m_s,
     }
 
 
@@ -162,7 +168,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--lengths", default="0.2,0.3,0.4", help="step lengths, m")
     ap.add_argument("--durations", default="0.4,0.6", help="step durations, s")
-    ap.add_argument("--steps", type=int, default=7, help="steps of the long plan (its last brings the feet together)")
+    ap.add_argument("--steps", type=int, default=None,
+                    help="steps of a uniform long plan (its last brings the feet together; default: the walk task)")
     ap.add_argument("--pushes", default="100,150,-50", help="thorax pushes during the long plan, N (0.1 s each)")
     ap.add_argument("--push-times", default="1.5,2.0,2.5", help="when they start, s")
     ap.add_argument("--json", action="store_true")
@@ -172,13 +179,13 @@ def main(argv: list[str] | None = None) -> int:
         durations = _numbers(args.durations, "durations", 0.3, 1.5)
         pushes = _numbers(args.pushes, "pushes", 0.0, 1000.0) if args.pushes else []
         times = _numbers(args.push_times, "push-times", 0.0, 30.0)
-        if not 2 <= args.steps <= 30:
+        if args.steps is not None and not 2 <= args.steps <= 30:
             raise CmrtError(f"--steps must be 2 to 30, got {args.steps}")
         if any(v <= 0 for v in lengths):
             raise CmrtError("--lengths are forward steps: positive")
         start = time.perf_counter()
         plans = [run_plan(two_steps(length, duration)) for length in lengths for duration in durations]
-        longest = long_plan(args.steps, lengths[0], max(durations))
+        longest = None if args.steps is None else long_plan(args.steps, lengths[0], max(durations))
         plans.append(run_plan(longest))
         pushed = [run_plan(longest, force, at) for force in pushes for at in times]
         gaits = [_refused_or(run_gait, length, duration) for length in lengths for duration in durations]
@@ -194,12 +201,16 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(out, indent=1, allow_nan=False, default=lambda v: None))
         return 0
     print("| plan | outcome | placement error (mm) | peak touchdown force (BW) | touchdown speed (m/s) "
-          "| latest landing (s late) | thorax (deg) |")
-    print("|---|---|---|---|---|---|---|")  # thorax: its pitch's range, most forward to most backward
+          "| latest landing (s late) | thorax (deg) | slip (cm) | heel-to-toe roll | walking speed (m/s) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")  # thorax: its pitch's range, most backward to most forward
     for r in plans:
         late = "-" if r["max_timing_error_s"] is None else f"{r['max_timing_error_s']:.3f}"
         err, peak, speed, thorax = _cells(r)
-        print(f"| `{r['plan']}` | {_verdict(r)} | {err} | {peak} | {speed} | {late} | {thorax} |")
+        slip = "-" if r["max_foot_slip_m"] is None else f"{r['max_foot_slip_m'] * 100:.2f}"
+        roll = "-" if r["min_stance_cop_roll"] is None else f"{r['min_stance_cop_roll']:.2f}"
+        pace = "-" if r["walk_speed_m_s"] is None else f"{r['walk_speed_m_s']:.2f}"
+        print(f"| `{r['plan']}` | {_verdict(r)} | {err} | {peak} | {speed} | {late} | {thorax} | {slip} | {roll} "
+              f"| {pace} |")
     _push_table("push (N)", "steps (planned)", pushed)
     print()
     print("| Yu's tracked walk | outcome | placement error (mm) | peak touchdown force (BW) | touchdown speed (m/s) "

@@ -232,7 +232,10 @@ def _report_text(r: dict) -> str:
            + (f"; planted feet slid {r['max_foot_slip_m'] * 100:.2f} cm"
               if r.get("max_foot_slip_m") is not None else "")
            + (f"; a stance foot's CoP rolled {r['min_stance_cop_roll'] * 100:.0f} % heel to toe at least"
-              if r.get("min_stance_cop_roll") is not None else "") + ")"]
+              if r.get("min_stance_cop_roll") is not None else "")
+           + (f"; walked at {r['walk_speed_m_s']:.2f} m/s" if r.get("walk_speed_m_s") is not None else "")
+           + (f"; thorax within {r['max_thorax_pitch_deg']:.1f} deg of upright"
+              if r.get("max_thorax_pitch_deg") is not None else "") + ")"]
           if r.get("steps") and isinstance(r.get("step_times_s"), list | tuple) else []),
         f"  planned vs executed CoP {_n(r.get('max_plan_cop_error_m'), '.2f', 1000)} mm (bound "
         f"{_n((r.get('verdict_bounds') or {}).get('max_plan_cop_error_m'), '.0f', 1000)})  timing lag "

@@ -69,6 +69,11 @@ class ControllerConfig:
     weight_upper: float = 1.0  # W for lumbar, neck and arms
     weight_leg: float = 1.0  # W for hips, knees, ankles
     weight_root_pitch: float = 1.0  # W for the trunk's absolute pitch
+    # ...and while a footstep plan walks (cmrt.control.stepping.GaitPattern): its firmer linear-momentum objective
+    # otherwise pitched the trunk to and fro, 20-25 deg forward every swing of a 0.6 m/s walk; held this firmly the
+    # thorax stays within 2-9 deg (docs/stepping.md, *The walking pattern*)
+    gait_weight_root_pitch: float = 20.0
+    gait_weight_lumbar: float = 2.0
     regularization: float = 1e-6  # eps on |qdd|^2, keeps the KKT matrix regular
     control_every: int = 4  # physics steps per control step: 125 Hz at the 2 ms step (ABC: 60-120 Hz)
     friction_coef: float = 0.8  # planned |F_x| <= mu F_z (the MJCF's floor friction is 1.0)
@@ -107,14 +112,17 @@ class ControllerConfig:
     stop_d: float = 40.0  # 1/s, its damping (critical)
     stop_margin_rad: float = 0.02  # the plan keeps this far from every joint stop
 
-    def tracking_weights(self, ch: Character) -> np.ndarray:
-        """Per-dof weight of joint tracking in the QP (root translation untracked: momentum sets it)."""
+    def tracking_weights(self, ch: Character, walking: bool = False) -> np.ndarray:
+        """Per-dof weight of joint tracking in the QP (root translation untracked: momentum sets it); ``walking``:
+        while a footstep plan walks."""
         w = np.full(ch.nv, self.weight_upper)
         w[ch.root_dofs[0]] = w[ch.root_dofs[1]] = 0.0  # root translation is not tracked
-        w[ch.root_dofs[2]] = self.weight_root_pitch
+        w[ch.root_dofs[2]] = self.gait_weight_root_pitch if walking else self.weight_root_pitch
         for i, name in enumerate(ch.dof_names):
             if name.split("_")[0] in ("hip", "knee", "ankle"):
                 w[i] = self.weight_leg
+            elif walking and name == "lumbar":
+                w[i] *= self.gait_weight_lumbar
         return w
 
 
@@ -169,7 +177,7 @@ class MomentumBalanceController:
         self.nv, self.nbody, self.nM = ch.model.nv, ch.model.nbody, ch.model.nM
         self.chain = kin.chain.astype(bool)
         self.m_rows, self.m_cols = kin.m_rows.astype(np.int64), kin.m_cols.astype(np.int64)
-        self.w2 = config.tracking_weights(ch) ** 2
+        self.w2 = np.stack([config.tracking_weights(ch) ** 2, config.tracking_weights(ch, walking=True) ** 2])
         self.actuated = np.array(ch.actuated_dofs, dtype=np.int64)
         self.limits = ch.torque_limit_nm.astype(float)
         # per actuator: torque limit, and the joint range less the stop margin (rows of the QP)

@@ -34,7 +34,7 @@ N_PARAMS = 26
 # The swing foot's task-space target (cmrt.control.stepping): heel point x, z, foot pitch; their rates
 # and accelerations; then the bend added to the stance knee's reference while the foot swings (rad).
 # ``swing_foot`` per simulation: -1 (both feet support), 0 (right swings), 1 (left).
-N_SWING = 27
+N_SWING = 34
 S_CROUCH = 9
 S_SWING_KNEE = 10  # the bend added to the swing knee's reference (rad; a straight knee cannot lift its foot)
 S_SWING_GAINS = 12  # (weight, stiffness 1/s^2, damping 1/s) of this swing's foot objective; 0: the controller's
@@ -42,6 +42,11 @@ S_SETTLED = 15  # nonzero: both feet down after a step; S_STANCE.. S_STANCE + 5 
 S_LANDING = 22  # (foot + 1, pitch rad, weight, stiffness 1/s^2, damping 1/s): a foot landed heel first lowers its
 # toe toward this pitch (+ toe down, past flat: a heel sunk under the body's weight leaves a foot at pitch 0 with its
 # toe still off the floor) instead of the rolling foot's soft return to flat; 0: none
+S_HEIGHT = 27  # (CoM height m, its rate m/s and acceleration m/s^2, weight, stiffness 1/s^2, damping 1/s): a vertical
+# linear-momentum objective toward that height (a walking plan's; weight 0: none - otherwise the CoM's height is in no
+# objective and the legs' tracking sets it)
+S_GAIT = 33  # > 0: a walking plan's row (cmrt.control.stepping.GaitPattern): its linear-momentum objective weighs this
+# many times the standing one, and the joints are tracked with the gait's weights (the trunk held firmer)
 S_STANCE = 16  # (hip, knee, ankle) offsets from the reference to the stance over the landed feet (rad)
 S_SWING_TRACKED = 11  # nonzero: the swing leg tracks the reference motion's own swing at full weight (a keyed
 # gait, cmrt.control.gait: its knee bends in the reference) instead of leaving the leg to the foot's target
@@ -308,10 +313,13 @@ def _objective(A, a, qd, q, com, mass, mg, params, w2, leg_dofs, swing, i, targe
         hdot = -com[2] * ldot_x - (cop_des_x[i] - com[0]) * mg
     else:  # the ground gives the rates less the field's wrench; its moment at the desired CoP, plus the field's
         hdot = (-com[2] * (ldot_x - field_w[0]) - (cop_des_x[i] - com[0]) * (mg - field_w[1])) + field_w[2]
-    Q = params[P_BL] * np.outer(A[0], A[0]) + params[P_BH] * np.outer(A[2], A[2])
-    g = params[P_BL] * (ldot_x - a[0]) * A[0] + params[P_BH] * (hdot - a[2]) * A[2]
+    gait = swing_target[i, S_GAIT] > 0.0
+    b_l = params[P_BL] * swing_target[i, S_GAIT] if gait else params[P_BL]
+    Q = b_l * np.outer(A[0], A[0]) + params[P_BH] * np.outer(A[2], A[2])
+    g = b_l * (ldot_x - a[0]) * A[0] + params[P_BH] * (hdot - a[2]) * A[2]
+    weights = w2[1] if gait else w2[0]
     for j in range(nv):
-        wj = w2[j]
+        wj = weights[j]
         qr = q_ref[i, j]
         if swing >= 0:
             if j == leg_dofs[swing, 0] or j == leg_dofs[swing, 1] or j == leg_dofs[swing, 2]:
@@ -333,6 +341,13 @@ def _objective(A, a, qd, q, com, mass, mg, params, w2, leg_dofs, swing, i, targe
         Q[j, j] += params[P_BT] * wj + params[P_EPS]
         g[j] += params[P_BT] * wj * (params[P_KT] * (qr - q[j])
                                      + params[P_DT] * (qd_ref[i, j] - qd[j]) + qdd_ref[i, j])
+    w_z = swing_target[i, S_HEIGHT + 3]
+    if w_z > 0.0:  # the CoM's height along its plan: Ldot_z = m (z_r'' + k (z_r - z) + d (z_r' - z'))
+        ldot_z = mass * (swing_target[i, S_HEIGHT + 2] + swing_target[i, S_HEIGHT + 4] * (swing_target[i, S_HEIGHT]
+                                                                                         - com[2])
+                         + swing_target[i, S_HEIGHT + 5] * (swing_target[i, S_HEIGHT + 1] - (A[1] @ qd) / mass))
+        Q += w_z * np.outer(A[1], A[1])
+        g += w_z * (ldot_z - a[1]) * A[1]
     return Q, g
 
 
@@ -737,7 +752,8 @@ def _clear_of_limits(x, dyn, loaded, load_gen, geo, motors):
 # qfrc_passive, com_all, geom_xpos) are the batch's bound MuJoCo fields, of which simulation ``i`` reads row
 # ``rows[i]`` (the compiled scoring loop passes the whole batch and its active rows: no copies when rows drop out)
 # - only the humanoid's leading slices are read; ``model`` (chain, m_rows, m_cols, points, point_bodies, leg_dofs,
-# actuated, limits, w2, params) the controller's constants; ``refs`` (q_ref, qd_ref, qdd_ref, com_ref_x,
+# actuated, limits, w2, params) the controller's constants (w2 (2, nv): the squared tracking weights standing and
+# walking); ``refs`` (q_ref, qd_ref, qdd_ref, com_ref_x,
 # com_ref_vel_x, cop_des_x) per-simulation targets (references (n, nv): an ensemble's members may play the motion
 # at different speeds); ``support`` (contact, mass_all, swing_foot, swing_target): ``mass_all`` (n,) is each
 # character's mass with what it carries (a caught ball's mass moves into the forearms); ``warm`` (warm_in,

@@ -47,6 +47,28 @@ SETTLE_SPLIT_M = 0.41  # the split a step's full stance-knee bend is made for (a
 
 
 @dataclass(frozen=True)
+class GaitPattern:
+    """How a footstep plan walks, beyond where the feet go: from its first touchdown on (the first step from standing
+    is a start, not a gait cycle), while its steps are not steps back. Without it a 0.4 m / 0.5 s walk bounced:
+    nothing held the CoM's height, the stance knee straightened as the other foot lifted, the CoM rose 4.7 cm, the
+    ground force fell to 0.35 body weights and the CoP ran onto a toe; the trunk swung 20-25 deg forward each step.
+    Measured, and what each part does: docs/stepping.md, *The walking pattern*."""
+
+    momentum_gain: float = 10.0  # the plan's linear-momentum objective weighs this many times the standing one's
+    # (the CoP the capture-point plan asks for, carried out; at 1 the executed CoP lagged it and broke ``plan``)
+    height_drop_m: float = 0.047  # the CoM walks this far below its standing height in steps of height_drop_step_m
+    # (in shorter ones by the square of their length: the hip's drop between two straight legs grows so), reached
+    # over a step; a step bringing the feet together rises back to the standing height
+    height_drop_step_m: float = 0.4
+    vault_m: float = 0.01  # and rises this much over the stance leg at mid-swing (a bell; 0: cop_margin broken)
+    height_weight: float = 0.3  # of the vertical linear-momentum objective (the horizontal's is 0.1 x momentum_gain)
+    height_k: float = 50.0  # 1/s^2
+    height_d: float = 14.0  # 1/s (about critical for height_k)
+    roll_m: float = 0.05  # the capture-point plan's anchor travels from this far behind the stance foot's centre to
+    # this far ahead over the stance (heel to toe: the stance foot's CoP rolls, as a person's does)
+
+
+@dataclass(frozen=True)
 class StepConfig:
     """The supervisor's gains and the step's shape. Values and why: docs/stepping.md."""
 
@@ -90,6 +112,7 @@ class StepConfig:
     # has covered 0.6 % of its path): a push still going on at lift-off makes the step longer
     touchdown_after: float = 0.5  # contact of the swing foot counts as touchdown after this fraction
     min_double_support_s: float = 0.05  # after a touchdown, the next step waits at least this long
+    gait: GaitPattern | None = GaitPattern()  # how a footstep plan's forward steps walk (None: the steps alone)
 
     @staticmethod
     def from_task(params: dict[str, float]) -> StepConfig | None:
@@ -138,6 +161,13 @@ def _toe_up(s: np.ndarray, start: float = 0.5, end: float = 0.95) -> tuple[np.nd
 def bezier(s: np.ndarray, p0, p1, p2) -> tuple[np.ndarray, np.ndarray]:
     """Quadratic Bezier through control points p0, p1, p2 at s in [0, 1], and its derivative in s."""
     return (1 - s) ** 2 * p0 + 2 * s * (1 - s) * p1 + s**2 * p2, 2 * (1 - s) * (p1 - p0) + 2 * s * (p2 - p1)
+
+
+def _dcm_start(xi_end: float, anchor_start: float, anchor_end: float, length_s: float, omega: float) -> float:
+    """Where the capture point must be for it to reach ``xi_end`` after ``length_s`` over a CoP moving linearly from
+    ``anchor_start`` to ``anchor_end``: xi' = omega (xi - p) solved backward (p' / omega ahead of a moving CoP)."""
+    lead = (anchor_end - anchor_start) / max(length_s, 1e-3) / omega
+    return anchor_start + lead + (xi_end - anchor_end - lead) * math.exp(-omega * length_s)
 
 
 @dataclass(frozen=True)
@@ -295,6 +325,9 @@ class StepSupervisor:
         self.start_heel_x = np.zeros(n)
         self.target_heel_x = np.zeros(n)
         self.com0_x = np.zeros(n)
+        self.com0_z = np.zeros(n)  # the CoM's height at a planned step's lift-off ...
+        self.touchdown_z = np.zeros(n)  # ... at the last touchdown ...
+        self.standing_z = np.full(n, np.nan)  # ... and where the plan started
         self.pivot_x = np.zeros(n)
         self.direction = np.zeros(n)
         self.last_touchdown_s = np.full(n, -np.inf)
@@ -327,11 +360,11 @@ class StepSupervisor:
         reactive decisions - whether to step, where, how far to stretch a step under way - are a person's reaction
         and are made from them (None: from the state of now); the feet are felt as they touch now."""
         c = self.config
-        swing = self.swing[ids]
         new = np.isnan(self.origin_x[ids])
-        if new.any():  # the plan's x = 0: where the feet start
+        if new.any():  # the plan's x = 0: where the feet start, and the CoM's standing height
             self.origin_x[ids[new]] = 0.5 * (point_x[new].min(axis=1) + point_x[new].max(axis=1))
-        self._touchdowns(ids, time_s, contact, point_x)
+            self.standing_z[ids[new]] = com_z[new]
+        self._touchdowns(ids, time_s, contact, point_x, com_z)
         swing = self.swing[ids]
 
         f_x, f_z, f_lx, f_hy = (com_x, com_z, momentum_x, ang_momentum_y) if felt is None else felt
@@ -353,33 +386,10 @@ class StepSupervisor:
         ready = (swing < 0) & (time_s - self.last_touchdown_s[ids] >= c.min_double_support_s)
         start = np.flatnonzero(outside & ready)
         if start.size:
-            heel_x, toe_x = point_x[start][:, 0::2], point_x[start][:, 1::2]  # (k, 2) per foot
-            centers = 0.5 * (heel_x + toe_x)
-            # the trailing foot steps (ties: the right foot); the other is the pivot
-            dist = np.abs(centers - p_test[start, None])
-            foot = np.where(dist[:, 1] > dist[:, 0] + 1e-3, 1, 0)
-            pivot = centers[np.arange(start.size), 1 - foot]
-            direction = np.sign(p_test[start] - pivot)
-            direction[direction == 0] = 1.0
-            sims = ids[start]
-            self.swing[sims] = foot
-            self.t0[sims] = time_s
-            self.start_heel_x[sims] = heel_x[np.arange(start.size), foot]
-            self.com0_x[sims] = com_x[start]
-            self.pivot_x[sims] = pivot
-            self.direction[sims] = direction
-            self.target_heel_x[sims] = self._target_heel(start, pivot, p_place[start], direction)
-            self.duration_s[sims] = c.step_time_s
-            if self.plan is not None:  # taking over from a plan: as long as its next step (0.4 s reactive steps
-                # from a walk's split stance had 0.65 m to swing: the foot dragged on the floor)
-                nxt = self.plan.duration_s[np.minimum(self.next_planned[sims], self.plan.foot.size - 1)]
-                self.duration_s[sims] = np.where(self.recovering[sims], nxt, c.step_time_s)
-            self.planned[sims] = self.heel_first[sims] = False  # a reactive step lands flat
-            for s in sims:
-                self.step_times[s].append(time_s)
+            self._start_reactive(ids, start, time_s, com_x, point_x, (p_test, p_place))
             swing = self.swing[ids]
         if self.plan is not None:
-            self._start_planned(ids, time_s, com_x, point_x, swing < 0)
+            self._start_planned(ids, time_s, (com_x, com_z), point_x, swing < 0)
             swing = self.swing[ids]
         phase = (time_s - self.t0[ids]) / self.duration_s[ids]
 
@@ -392,11 +402,44 @@ class StepSupervisor:
             self.target_heel_x[sims] = self._target_heel(reactive, pivot, p_place[reactive], self.direction[sims])
 
         command = self._command(ids, np.clip(phase, 0.0, 1.0), phase)
-        if self.plan is not None:
+        if self.plan is not None:  # a footstep plan's targets: its CoM height (a walking pattern's), CoM and CoP
+            self._gait_height(command, ids, np.clip(phase, 0.0, 1.0), phase)
             self._walk_targets(command, ids, time_s, com_x, com_z, momentum_x / mass_kg, point_x, contact, cmrt)
         return command
 
-    def _touchdowns(self, ids: np.ndarray, time_s: float, contact: np.ndarray, point_x: np.ndarray) -> None:
+    def _start_reactive(self, ids: np.ndarray, start: np.ndarray, time_s: float, com_x: np.ndarray,
+                        point_x: np.ndarray, p: tuple[np.ndarray, np.ndarray]) -> None:
+        """Lift off a reactive step in rows ``start`` of ``ids``: the trailing foot toward ``p`` (p_test: the
+        direction; p_place: where it lands)."""
+        c = self.config
+        p_test, p_place = p
+        heel_x, toe_x = point_x[start][:, 0::2], point_x[start][:, 1::2]  # (k, 2) per foot
+        centers = 0.5 * (heel_x + toe_x)
+        # the trailing foot steps (ties: the right foot); the other is the pivot
+        dist = np.abs(centers - p_test[start, None])
+        foot = np.where(dist[:, 1] > dist[:, 0] + 1e-3, 1, 0)
+        pivot = centers[np.arange(start.size), 1 - foot]
+        direction = np.sign(p_test[start] - pivot)
+        direction[direction == 0] = 1.0
+        sims = ids[start]
+        self.swing[sims] = foot
+        self.t0[sims] = time_s
+        self.start_heel_x[sims] = heel_x[np.arange(start.size), foot]
+        self.com0_x[sims] = com_x[start]
+        self.pivot_x[sims] = pivot
+        self.direction[sims] = direction
+        self.target_heel_x[sims] = self._target_heel(start, pivot, p_place[start], direction)
+        self.duration_s[sims] = c.step_time_s
+        if self.plan is not None:  # taking over from a plan: as long as its next step (0.4 s reactive steps
+            # from a walk's split stance had 0.65 m to swing: the foot dragged on the floor)
+            nxt = self.plan.duration_s[np.minimum(self.next_planned[sims], self.plan.foot.size - 1)]
+            self.duration_s[sims] = np.where(self.recovering[sims], nxt, c.step_time_s)
+        self.planned[sims] = self.heel_first[sims] = False  # a reactive step lands flat
+        for s in sims:
+            self.step_times[s].append(time_s)
+
+    def _touchdowns(self, ids: np.ndarray, time_s: float, contact: np.ndarray, point_x: np.ndarray,
+                    com_z: np.ndarray) -> None:
         """End the steps of rows ``ids`` whose swing foot is on the floor late enough in its step, recording the
         footprint (and, for a planned step, where it landed against its target)."""
         self.flat.update(ids, time_s, contact)
@@ -420,11 +463,13 @@ class StepSupervisor:
                 self.stance_offsets[sim] = self.stance(float(point_x[r, 0]), float(point_x[r, 2]))
         self.swing[ids[rows[down]]] = NO_SWING
         self.last_touchdown_s[ids[rows[down]]] = time_s
+        self.touchdown_z[ids[rows[down]]] = com_z[rows[down]]
 
-    def _start_planned(self, ids: np.ndarray, time_s: float, com_x: np.ndarray, point_x: np.ndarray,
+    def _start_planned(self, ids: np.ndarray, time_s: float, com: tuple[np.ndarray, np.ndarray], point_x: np.ndarray,
                        idle: np.ndarray) -> None:
-        """Lift off the plan's next step in rows ``ids`` where it is due and no foot swings."""
+        """Lift off the plan's next step in rows ``ids`` where it is due and no foot swings (``com``: x, z)."""
         plan, c = self.plan, self.config
+        com_x, com_z = com
         nxt = self.next_planned[ids]
         left = nxt < plan.foot.size
         when = np.where(left, self._due_s(ids), np.inf)
@@ -444,12 +489,15 @@ class StepSupervisor:
         self.t0[sims] = time_s
         self.start_heel_x[sims] = point_x[rows, 2 * foot]
         self.com0_x[sims] = com_x[rows]
+        self.com0_z[sims] = com_z[rows]
         self.pivot_x[sims] = pivot
         self.direction[sims] = direction
         self.target_heel_x[sims] = target_center - self.heel_to_center_m
         self.duration_s[sims] = plan.duration_s[j]
         self.planned[sims] = True
         self.heel_first[sims] = (direction > 0) & (c.heel_strike_rad > 0.0)
+        if c.gait is not None:  # a step closing the feet lands flat beside the stance foot, under the body
+            self.heel_first[sims] &= target_center - pivot > c.min_step_m
         self.next_planned[sims] = j + 1
         # the arms swing opposite the legs: at touchdown the swinging leg's arm is back (+), the other forward;
         # the plan's last step brings them back to hang
@@ -514,8 +562,9 @@ class StepSupervisor:
         CoP is the anchor plus (1 + DCM_GAIN) times the error, within the support; the CoM target asks for the
         pendulum's acceleration omega^2 (c - p) through the controller's stiffness. With the CoP the plan's, the
         angular-momentum objective asks for nothing: the trunk has no reason to pitch."""
-        plan = self.plan
+        plan, gait = self.plan, self.config.gait
         n_plan = plan.foot.size
+        roll_m = 0.0 if gait is None else gait.roll_m
         for r, sim in enumerate(ids):
             j = self.next_planned[sim]
             swinging = self.swing[sim] >= 0
@@ -524,27 +573,40 @@ class StepSupervisor:
                 continue  # a reactive step of no push on a plan (its Bezier), or between reactive steps (the task's)
             centers = 0.5 * (point_x[r, 0::2] + point_x[r, 1::2])  # the feet now
             feet = centers.copy()
-            segments = []  # (anchor, length s) from now on
+            # (anchor: the stance foot's centre, length s from now on, anchor roll m, s since the segment began)
+            segments = []
+            walking = False
+            landed = np.isfinite(self.last_touchdown_s[sim])  # a segment after a touchdown rolls (not the first)
+            since = time_s - self.last_touchdown_s[sim] if landed else 0.0
             if swinging:  # the planned step j - 1 under way: its stance foot is the anchor
                 left_s = max(self.duration_s[sim] - (time_s - self.t0[sim]), 0.0)
-                segments.append((self.pivot_x[sim], left_s))
+                forward = self.target_heel_x[sim] + self.heel_to_center_m - self.pivot_x[sim] > self.config.min_step_m
+                segments.append((self.pivot_x[sim], left_s, roll_m * (forward and landed), since))
+                walking = self.direction[sim] > 0  # the step under way is not a step back: the pattern holds
                 feet[self.swing[sim]] = self.target_heel_x[sim] + self.heel_to_center_m
             for k in range(j, n_plan if not recovering else j):  # a reactive step: the capture point to rest
                 stance = feet[1 - (plan.foot[k] ^ self.mirrored[sim])]
-                if k == j and not swinging:  # waiting for this lift-off now
+                land = self.origin_x[sim] + plan.x_m[k] + self.plan_offset_m[sim]
+                now = k == j and not swinging  # waiting for this lift-off now
+                if now:
                     wait = max(float(self._due_s(np.array([sim]))[0]) - time_s, 0.0)
                 else:
                     wait = plan.double_support_s if not np.isfinite(plan.start_s[k]) else 0.0
-                segments.append((stance, wait + plan.duration_s[k]))
-                feet[plan.foot[k] ^ self.mirrored[sim]] = self.origin_x[sim] + plan.x_m[k] + self.plan_offset_m[sim]
+                forward = land - stance > self.config.min_step_m
+                segments.append((stance, wait + plan.duration_s[k], roll_m * (forward and (landed or not now)),
+                                 since if now else 0.0))
+                walking = land - stance > -self.config.min_step_m if len(segments) == 1 else walking
+                feet[plan.foot[k] ^ self.mirrored[sim]] = land
             if not segments:
                 continue  # the plan is done: the task's own targets bring the body to rest
             omega = math.sqrt(GRAVITY_M_S2 / max(float(com_z[r]), 0.5))
             xi_end = 0.5 * (feet[0] + feet[1])  # at rest over the feet after the last step
-            for anchor, length in reversed(segments[1:]):
-                xi_end = anchor + (xi_end - anchor) * math.exp(-omega * length)
-            anchor, length = segments[0]
-            xi_ref = anchor + (xi_end - anchor) * math.exp(-omega * length)
+            for anchor, length, roll, _ in reversed(segments[1:]):
+                xi_end = _dcm_start(xi_end, anchor - roll, anchor + roll, length, omega)
+            centre, length, roll, since = segments[0]
+            rate = 2.0 * roll / max(since + length, 1e-3)  # the anchor rolls heel to toe over the whole segment
+            anchor = centre - roll + rate * since
+            xi_ref = _dcm_start(xi_end, anchor, centre + roll, length, omega)
             if cmrt is not None:  # anticipation: the CMRT displaces the plan's capture point (its d + d' / omega)
                 xi_ref += float(cmrt[0][r]) + float(cmrt[1][r]) / omega
             xi = com_x[r] + vel_x[r] / omega
@@ -568,6 +630,43 @@ class StepSupervisor:
             command.com_ref_x_m[r] = com_x[r] + accel / plan.com_stiffness
             command.com_ref_vel_x_m_s[r] = vel_x[r]
             command.cop_x_m[r] = cop
+            if gait is not None and walking and landed:  # from the first touchdown: a start is not a gait cycle
+                command.swing_target[r, kernel.S_GAIT] = gait.momentum_gain
+
+    def _gait_height(self, command: StepCommand, ids: np.ndarray, s: np.ndarray, phase: np.ndarray) -> None:
+        """The CoM's height along a walking plan (``GaitPattern``), into ``command``: a forward step goes from its
+        height at lift-off toward the walking height (standing less ``height_drop_m``) with a ``vault_m`` bell over
+        the stance leg; a step closing the feet rises back to the standing height; the double support between steps
+        holds the height of the touchdown."""
+        gait, c = self.config.gait, self.config
+        if gait is None:
+            return
+        target = command.swing_target
+        swing = self.swing[ids]
+        reach = np.abs(self.target_heel_x[ids] + self.heel_to_center_m - self.pivot_x[ids])
+        walking_z = self.standing_z[ids] - gait.height_drop_m * np.minimum(1.0, (reach / gait.height_drop_step_m) ** 2)
+        rows = np.flatnonzero((swing >= 0) & self.planned[ids] & (self.direction[ids] > 0)
+                              & np.isfinite(self.last_touchdown_s[ids]))
+        if rows.size:
+            sims = ids[rows]
+            T = self.duration_s[sims]
+            phi, dphi, ddphi, h, dh, ddh = swing_profile(s[rows], c.width)
+            closing = self.target_heel_x[sims] + self.heel_to_center_m - self.pivot_x[sims] <= c.min_step_m
+            z0 = self.com0_z[sims]
+            z1 = np.where(closing, self.standing_z[sims], np.minimum(z0, walking_z[rows]))
+            vault = np.where(closing, 0.0, gait.vault_m)
+            late = phase[rows] > 1.0  # not down yet: hold the step's end
+            target[rows, kernel.S_HEIGHT] = np.where(late, z1, z0 + (z1 - z0) * phi + vault * h)
+            target[rows, kernel.S_HEIGHT + 1] = np.where(late, 0.0, ((z1 - z0) * dphi + vault * dh) / T)
+            target[rows, kernel.S_HEIGHT + 2] = np.where(late, 0.0, ((z1 - z0) * ddphi + vault * ddh) / T**2)
+            target[rows, kernel.S_HEIGHT + 3:kernel.S_HEIGHT + 6] = (gait.height_weight, gait.height_k, gait.height_d)
+        between = np.flatnonzero((swing < 0) & np.isfinite(self.last_touchdown_s[ids]) & self.planned[ids]
+                                 & (self.next_planned[ids] < self.plan.foot.size))
+        if between.size:
+            target[between, kernel.S_HEIGHT] = np.minimum(self.touchdown_z[ids[between]], walking_z[between])
+            target[between, kernel.S_HEIGHT + 1:kernel.S_HEIGHT + 3] = 0.0
+            target[between, kernel.S_HEIGHT + 3:kernel.S_HEIGHT + 6] = (gait.height_weight, gait.height_k,
+                                                                        gait.height_d)
 
     def _command(self, ids: np.ndarray, s: np.ndarray, phase: np.ndarray) -> StepCommand:
         c = self.config

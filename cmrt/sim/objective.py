@@ -152,6 +152,13 @@ class Evaluation:
     # lift-off, the least over the plan's stances (a fraction of heel to toe; None without such a stance). A
     # person's walk rolls from heel strike to toe-off, the whole foot
     min_stance_cop_roll: float | None = None
+    # ... and a walk's pace (a plan of four steps or more): the CoM's mean forward speed from the second step's lift-off
+    # to the last's - its steady steps, the start and the stop left out as a gait lab's walkway does (m/s; people walk
+    # at 1.2-1.4, slowly at 0.6-0.8)
+    walk_speed_m_s: float | None = None
+    # the thorax's largest pitch from upright before any fall (deg, either way; the body stands at +3.7), for a clip
+    # that steps: people walk with the trunk within a few degrees of upright
+    max_thorax_pitch_deg: float | None = None
     # diagnostics (docs/controller.md, *Diagnostics*); the plan gap, timing lag and the figures above enter the verdict
     max_plan_cop_error_m: float | None = None  # planned vs executed CoP (recorded runs)
     max_foot_slip_m: float | None = None  # how far a heel/toe point slid along the support while planted on it
@@ -475,7 +482,34 @@ def _step_figures(task: Task, traj: Trajectory, before: np.ndarray, weight_n: fl
         "max_footstep_error_m": (float(np.max(np.abs(traj.footstep_errors_m)))
                                  if planned and traj.footstep_errors_m else None),
         "min_stance_cop_roll": stance_cop_roll(traj, weight_n) if planned else None,
+        "walk_speed_m_s": walk_speed_m_s(traj, before) if planned else None,
+        "max_thorax_pitch_deg": max_thorax_pitch_deg(traj, before) if traj.step_times_s else None,
     }
+
+
+WALK_MIN_STEPS = 4  # a plan of this many steps or more walks: it has steady steps between its start and its stop
+
+
+def walk_speed_m_s(traj: Trajectory, before: np.ndarray) -> float | None:
+    """The CoM's mean forward speed between the second step's lift-off and the last step's, before any fall (None:
+    fewer than ``WALK_MIN_STEPS`` steps, or no CoM sample there)."""
+    lifts = traj.step_times_s
+    if len(lifts) < WALK_MIN_STEPS:
+        return None
+    x, t = np.asarray(traj.com_m)[:, 0], np.asarray(traj.time_s)
+    rows = np.flatnonzero(before & np.isfinite(x) & (t >= lifts[1] - 1e-9) & (t <= lifts[-1] + 1e-9))
+    if rows.size < 2 or t[rows[-1]] <= t[rows[0]]:
+        return None
+    return float((x[rows[-1]] - x[rows[0]]) / (t[rows[-1]] - t[rows[0]]))
+
+
+def max_thorax_pitch_deg(traj: Trajectory, before: np.ndarray) -> float | None:
+    """The thorax's largest |pitch| in the world before any fall (the root's pitch and the lumbar joint's; deg)."""
+    lumbar = character().dof("lumbar")
+    qpos = np.asarray(traj.qpos)
+    pitch = qpos[before, 2] + qpos[before, lumbar]
+    pitch = pitch[np.isfinite(pitch)]
+    return float(np.degrees(np.abs(pitch).max())) if pitch.size else None
 
 
 def stance_cop_roll(traj: Trajectory, weight_n: float, edge_s: float = 0.02) -> float | None:

@@ -183,3 +183,45 @@ def test_at_a_low_load_the_planned_cop_keeps_the_middle_half_of_the_feet():
     weight = ch.mass_kg * 9.81
     assert len(low) >= 5 and loads.min() < 0.25 * weight  # the plan sat on its floor for a while ...
     assert np.abs(offsets).min() > 0.01  # ... with its CoP where the motion asks it (the heel), not at the centre
+
+
+def test_the_height_objective_asks_the_ground_for_the_cms_vertical_acceleration():
+    """``kernel.S_HEIGHT`` (a walking plan's CoM height): standing still with the target 3 cm below the CoM the plan
+    asks the ground for less than the body's weight, 3 cm above for more, by about m k dz; weight 0 plans exactly as
+    no target (every other row of the swing target zero: both feet down, no step)."""
+    from cmrt.control import kernel
+    from cmrt.control.controller import ControllerConfig, MomentumBalanceController
+    from cmrt.sim.simulate import CONTROL_FIELDS, _in_contact
+
+    ch = character()
+    m = ch.model
+    task = load_task("stand")
+    d = mujoco.MjData(m)
+    d.qpos[:] = task.start_qpos()
+    mujoco.mj_forward(m, d)
+    f = {name: getattr(d, name)[None].copy() for name in CONTROL_FIELDS}
+    points = np.array(ch.foot_point_geoms)
+    xs = d.geom_xpos[points, 0]
+    center = np.array([0.5 * (xs.min() + xs.max())])
+    controller = MomentumBalanceController(ch, ControllerConfig(feedback_delay_s=0.0))
+    contact = _in_contact(d.geom_xpos[None], points)
+    q = task.start_qpos()
+    zero = np.zeros(m.nv)
+
+    def planned_fz(dz_m: float, weight: float) -> float:
+        target = np.zeros((1, kernel.N_SWING))
+        target[0, kernel.S_HEIGHT] = d.subtree_com[1, 2] + dz_m
+        target[0, kernel.S_HEIGHT + 3:kernel.S_HEIGHT + 6] = (weight, 50.0, 14.0)
+        out = controller.torques(f, q, zero, zero, center, np.zeros(1), center, contact,
+                                 swing_foot=np.full(1, -1.0), swing_target=target)
+        return float(out.ground_force_n[0, 1])
+
+    weight_n = ch.mass_kg * 9.81
+    none = controller.torques(f, q, zero, zero, center, np.zeros(1), center, contact).ground_force_n[0, 1]
+    assert planned_fz(-0.03, 0.0) == none
+    # against the joints' tracking of the standing pose the ground's answer grows with the weight (measured: +-1.3 N
+    # at the walk's 0.3, +-14 N at 10, +-35 N at 100; m k dz is 105 N)
+    downs = [planned_fz(-0.03, w) - weight_n for w in (0.3, 10.0, 100.0)]
+    ups = [planned_fz(0.03, w) - weight_n for w in (0.3, 10.0, 100.0)]
+    assert 0.0 > downs[0] > downs[1] > downs[2] > -ch.mass_kg * 50.0 * 0.03
+    assert 0.0 < ups[0] < ups[1] < ups[2] < ch.mass_kg * 50.0 * 0.03
