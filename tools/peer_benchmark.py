@@ -14,6 +14,9 @@ default):
   the search box +-``BOX`` parameter units, its own step size (a sixth of the box), the flat CMRT enqueued as
   its first trial and told before any other is asked (so the CMA-ES, not the random start-up sampler, draws
   every later trial), generations of the project's population, no restarts (optuna offers none);
+* ``optuna-tpe``: optuna's multivariate ``TPESampler`` (a Bayesian optimizer of another family: a tree-structured
+  Parzen estimator; ``constant_liar`` for the generation asked before it is told), the same box and first trial,
+  generations of the project's population;
 * ``cmaes``: the ``cmaes`` library's ``CMA`` from the flat CMRT with the project's step size and population,
   restarted IPOP-style (population doubled) on stagnation - its own ``should_stop()``, or the best not improved
   by 0.1 % over ``STALL_GENERATIONS`` generations (``should_stop`` alone never fired on these objectives);
@@ -53,7 +56,7 @@ import numpy as np
 from cmrt import CmrtError, Evaluator, OptimizeSettings, Task, open_store, optimize_now, resolve_task
 from cmrt.optimize.driver import N_PARAMS
 
-OPTIMIZERS = ("cmrt", "optuna", "cmaes", "cmaes-lra", "pycma-bipop", "pycma-lq", "random")
+OPTIMIZERS = ("cmrt", "optuna", "optuna-tpe", "cmaes", "cmaes-lra", "pycma-bipop", "pycma-lq", "random")
 BOX = 10.0  # optuna's search box, +- parameter units (+-0.5 m of CoM shift): wider than any shipped CMRT (<= 7.5)
 STALL_GENERATIONS = 20  # the cmaes peers restart when the best improved < 0.1 % over this many generations (the
 STALL_IMPROVEMENT = 1e-3  # project's own stagnation rule, OptimizeSettings.stall_generations)
@@ -128,11 +131,12 @@ def run_cmrt(budget: Budget, seed: int, sigma: float, popsize: int) -> dict:
     return {"stop_reason": run.stop_reason, "restarts": run.restarts}
 
 
-def run_optuna(budget: Budget, seed: int, sigma: float, popsize: int, box: float = BOX) -> dict:
+def run_optuna(budget: Budget, seed: int, sigma: float, popsize: int, box: float = BOX, tpe: bool = False) -> dict:
     import optuna
 
     optuna.logging.set_verbosity(optuna.logging.ERROR)
-    sampler = optuna.samplers.CmaEsSampler(seed=seed, popsize=popsize)
+    sampler = (optuna.samplers.TPESampler(seed=seed, multivariate=True, constant_liar=True) if tpe
+               else optuna.samplers.CmaEsSampler(seed=seed, popsize=popsize))
     study = optuna.create_study(sampler=sampler, direction="minimize")
     dists = {f"u{i}": optuna.distributions.FloatDistribution(-box, box) for i in range(N_PARAMS)}
     study.enqueue_trial({f"u{i}": 0.0 for i in range(N_PARAMS)})  # the flat CMRT first, told alone
@@ -337,8 +341,8 @@ def benchmark(tasks: list[Task], optimizers: list[str], seeds: list[int], max_ev
                 for seed in seeds:
                     t0 = time.perf_counter()
                     budget = Budget(unstopped, ev, max_evals)
-                    extra = (run_optuna(budget, seed, sigma, popsize, optuna_box) if name == "optuna"
-                             else RUNNERS[name](budget, seed, sigma, popsize))
+                    extra = (run_optuna(budget, seed, sigma, popsize, optuna_box, tpe=name == "optuna-tpe")
+                             if name.startswith("optuna") else RUNNERS[name](budget, seed, sigma, popsize))
                     extras.append({**extra, "wall_s": round(time.perf_counter() - t0, 2)})
                     runs.append(budget)
                     if progress:
