@@ -514,8 +514,6 @@ def _opt_task(args, speed: float | None) -> Task:
     """The task an optimization runs: with ``--robust``, scored on its ensemble. A run id as ``--init`` must
     exist before a store is created or written."""
     task = resolve_task(args.task, speed, args.set, args.reference, args.steps, any_body=True)
-    if task.body != "planar" and args.robust:
-        raise CmrtError(f"--robust: the {task.body} body has no robust ensemble yet (docs/body3d.md)")
     if task.body != "planar" and not task.params["stance_side"] and task.end_pose_deg is None:
         raise CmrtError(f"task {shown(task.name)}: a standing 3D task has no CMRT to optimize (a leg lift or a pose "
                         "change has; docs/body3d.md)")

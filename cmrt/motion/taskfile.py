@@ -96,13 +96,13 @@ def _body(raw: dict, where: str) -> str:
 
 def _checked_3d(task: Task, where: str) -> Task:
     """A 3D task validated: it stands, pushed or not, lifts a foot, or changes its pose sagittally (docs/body3d.md) -
-    no via pose, prop, footsteps, timing or robust ensemble, no parameter but ``PARAMS_3D`` off its default, its
+    no via pose, prop, footsteps or timing, no parameter but ``PARAMS_3D`` off its default (a robust ensemble's
+    table is its own: ``cmrt.sim.clip3d.perturbed_3d`` plays its members), its
     speed (if any) T - in a standing pose the 3D body can take (feet flat, the CoM over them); a pose change's
     poses name the planar body's joints (its reference is the planar one's, ``cmrt.body.sagittal``)."""
     task = replace(task, params={**DEFAULTS_3D, **task.params})
     others = [key for key, value in (("via_pose_deg", task.via_pose_deg), ("prop", task.prop), ("steps", task.steps),
-                                     ("timing", task.timing), ("robust", task.robust != RobustSpec() or None))
-              if value]
+                                     ("timing", task.timing)) if value]
     others += params_off_3d(task.params)
     if task.speed_param not in (None, "duration_s"):
         others.append(f"speed_param {task.speed_param}")

@@ -69,8 +69,11 @@ def evaluate_batch(task: Task, xs: Sequence[np.ndarray], threads: int | None = N
 def _score_batch(task: Task, xs: Sequence[np.ndarray], members: list, threads: int | None) -> list[EvalRecord]:
     curves = [Cmrt.from_params(x, task.clip_s) for x in xs]
     if task.body != "planar":  # the 3D body's clips, one after another (cmrt.sim.clip3d): no lockstep batch yet
-        return [EvalRecord(objective=float(c.objective), fell=c.fell, seconds=0.0, success=c.success)
-                for c in (clip_3d(task, curve) for curve in curves)]
+        clips = [[clip_3d(task, curve, member) for member in members] for curve in curves]
+        return [EvalRecord(objective=combine([float(c.objective) for c in group], task.robust)
+                           if members != [None] else float(group[0].objective),
+                           fell=any(c.fell for c in group), seconds=0.0, success=all(c.success for c in group))
+                for group in clips]
     if members == [None]:
         return [EvalRecord(objective=float(e.objective), fell=bool(e.fell), seconds=0.0, success=bool(e.success))
                 for e in (evaluate(task, tr) for tr in simulate_batch(task, curves, threads=threads))]

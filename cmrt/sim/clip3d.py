@@ -16,7 +16,7 @@ for a motion not done or late; ``NOT_PLAUSIBLE_PENALTY`` for the end pose).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import mujoco
 import numpy as np
@@ -25,6 +25,7 @@ from cmrt.body.character import character
 from cmrt.body.sagittal import planar_to_3d
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
+from cmrt.motion.ensemble import Perturbation
 from cmrt.motion.task import Task
 from cmrt.sim.objective import (
     FINAL_POSE_TOLERANCE_RAD,
@@ -102,9 +103,26 @@ def stance_index(task: Task) -> int:
     return 1 if task.params["stance_side"] > 0 else 0
 
 
-def clip_3d(task: Task, curve: Cmrt) -> Clip3d:
+def perturbed_3d(task: Task, member: Perturbation) -> Task:
+    """The 3D task as an ensemble member plays it (``cmrt.motion.ensemble``): its motion's timing scaled, and its
+    thorax push along the axis the CMRT acts in - sideways (+y, to the left) for a leg lift, forward for a pose
+    change - where the planar members push forward. A task that pushes of its own takes no member's push (one push
+    window per clip)."""
+    task = member.task_variant(task)
+    if member.push_force_n == 0.0:
+        return task
+    if task.params["push_force_n"] or task.params["push_force_y_n"]:
+        raise CmrtError("a 3D task that pushes of its own has no robust ensemble (one push per clip)")
+    axis = "push_force_n" if task.end_pose_deg is not None else "push_force_y_n"
+    return replace(task, params={**task.params, axis: member.push_force_n, "push_start_s": member.push_start_s,
+                                 "push_duration_s": member.push_duration_s})
+
+
+def clip_3d(task: Task, curve: Cmrt, member: Perturbation | None = None) -> Clip3d:
     """Simulate and score a 3D task with ``curve`` (a leg lift's CMRT in y, a pose change's in x; a standing task
-    takes only the zero one)."""
+    takes only the zero one); ``member``: as that ensemble member plays it (``perturbed_3d``)."""
+    if member is not None:
+        task = perturbed_3d(task, member)
     p = task.params
     push = (p["push_force_n"], p["push_force_y_n"], 0.0)
     pushed = (push, p["push_start_s"], p["push_duration_s"]) if any(push) else None

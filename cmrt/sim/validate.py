@@ -23,15 +23,14 @@ def robustness(task: Task, curve: Cmrt, threads: int | None = None) -> dict:
     balance held, motion done on time, plan carried out, settled, goal reached), ``validation_fell``, the
     smallest CoP margin inside the feet over all of them (``min_cop_margin_m``; 0: the CoP reached an end of the
     feet, as it does in every fall) and over the survivors alone (``survived_min_cop_margin_m``: how close a
-    success came to that edge). A 3D task has no ensemble yet: its nominal clip is the one member."""
-    if task.body != "planar":
-        c = clip_3d(task, curve)
-        margin = c.result.min_cop_margin_m if math.isfinite(c.result.min_cop_margin_m) else None
-        return {"validation_total": 1, "validation_survived": int(c.success), "validation_fell": int(c.fell),
-                "min_cop_margin_m": margin, "survived_min_cop_margin_m": margin if c.success else None}
+    success came to that edge). A 3D task's members are its clips one after another (``clip3d.perturbed_3d``: the
+    push along the axis its CMRT acts in)."""
     members = validation_members(task, task.robust, prop_class(task.prop).mass_body is not None)
-    trajs = simulate_batch(task, [curve] * len(members), threads=threads, perturbations=members)
-    scores = [evaluate(m.task_variant(task), tr) for m, tr in zip(members, trajs, strict=True)]
+    if task.body != "planar":
+        scores = [clip_3d(task, curve, m).evaluation() for m in members]
+    else:
+        trajs = simulate_batch(task, [curve] * len(members), threads=threads, perturbations=members)
+        scores = [evaluate(m.task_variant(task), tr) for m, tr in zip(members, trajs, strict=True)]
 
     def smallest(evals) -> float | None:
         margins = [e.min_cop_margin_m for e in evals if e.min_cop_margin_m is not None

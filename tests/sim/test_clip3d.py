@@ -107,3 +107,35 @@ def test_standing_on_the_right_foot_mirrors_the_left():
     found = clip_3d(task, library_curve(task))
     assert found.success, found.failed_rules
     assert found.lift.com_shift_m > 0.03 and all(v <= 0.0 for v in library_curve(task).values_m[1:3])
+
+
+def test_a_3d_ensemble_member_pushes_along_the_cmrts_axis_and_scales_the_timing():
+    """``perturbed_3d``: a leg lift's member pushes sideways (its CMRT is in y), a pose change's forward (in x), each
+    in the member's window; the timing member scales T; a task with a push of its own takes no member's push."""
+    from cmrt.motion.ensemble import Perturbation
+    from cmrt.sim.clip3d import perturbed_3d
+
+    member = Perturbation(push_force_n=-25.0, push_start_s=1.2, push_duration_s=0.1, time_scale=0.95)
+    lift = perturbed_3d(load_task("leg-lift"), member)
+    assert (lift.params["push_force_y_n"], lift.params["push_force_n"]) == (-25.0, 0.0)
+    assert lift.params["push_start_s"] == 1.2 and lift.params["duration_s"] == pytest.approx(0.95 * 2.3)
+    bend = perturbed_3d(load_task("bend3d"), member)
+    assert (bend.params["push_force_n"], bend.params["push_force_y_n"]) == (-25.0, 0.0)
+    assert perturbed_3d(load_task("leg-lift"), Perturbation()) == load_task("leg-lift")
+    pushed = load_task("leg-lift").with_params(push_force_y_n=50.0)
+    with pytest.raises(CmrtError, match="pushes of its own"):
+        perturbed_3d(pushed, member)
+
+
+def test_a_robust_3d_candidate_is_scored_on_every_member():
+    """The evaluator scores a robust 3D task's candidate as the planar one's: ``ensemble.combine`` of its members'
+    clips, a success only if every member is one."""
+    from cmrt.motion.ensemble import combine, training_members
+    from cmrt.optimize.parallel import evaluate_batch
+
+    task = load_task("bend3d").with_robust()
+    curve = library_curve(task)
+    (record,) = evaluate_batch(task, [curve.to_params()])
+    clips = [clip_3d(task, curve, m) for m in training_members(task, task.robust, False)]
+    assert len(clips) > 1 and record.objective == combine([c.objective for c in clips], task.robust)
+    assert record.success == all(c.success for c in clips)
