@@ -1023,14 +1023,13 @@ class Render(Command):
         _check_out(args, args.out, "--out", OUT_SUFFIXES)  # before anything is simulated
         task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None),
                             any_body=True)
-        if task.body != "planar" and Path(args.out).suffix.lower() != ".png":
-            raise CmrtError(f"--out {shown(args.out)}: a {task.body} clip renders to a PNG filmstrip for now")
         curve, name = _curve(args, args.curve, task)
         compare, cname = _curve(args, args.compare, task, "--compare") if args.compare else (None, "")
         if task.body != "planar":
             from cmrt.viz.render3d import render_3d
 
-            r = render_3d(task, curve, args.out, compare, (f"{name} CMRT", f"{cname} CMRT"), n_frames=args.frames)
+            r = render_3d(task, curve, args.out, compare, (f"{name} CMRT", f"{cname} CMRT"), n_frames=args.frames,
+                          fps=args.fps)
         else:
             r = render(task, curve, args.out, compare, (f"{name} CMRT", f"{cname} CMRT"), n_frames=args.frames,
                        fps=args.fps)

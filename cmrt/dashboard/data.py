@@ -33,6 +33,7 @@ from cmrt.sim.report import evaluation_dict, spatial_dict
 from cmrt.sim.simulate import simulate
 from cmrt.viz.plot import until_fall
 from cmrt.viz.render import render, task_label, verdict
+from cmrt.viz.render3d import render_3d
 
 CURVE_SAMPLES = 200  # points of a CMRT curve d(t) sent to the page
 MAX_TRACE_POINTS = 1500  # a CoP trace is thinned to at most this many points (a 2 ms step: every second one)
@@ -314,12 +315,10 @@ def clip(store: Store, run_id: int, fps: int, cache_dir: Path) -> bytes:
     if not run.best_cmrt:
         raise NotFound(f"run {run_id} has no result to render yet (status {run.status})")
     task, best = task_of(run), stored_curve(run)
-    if task.body != "planar":
-        raise NotFound(f"run {run_id} is a {task.body} run: no video of it yet (a filmstrip: cmrt render "
-                       f"{task.name} --curve {run_id} --compare zero --out FILE.png)")
+    draw = render if task.body == "planar" else render_3d  # a 3D clip: each clip's front over its side view
 
     def make(out: Path) -> None:
-        render(task, best, out, Cmrt.zero(task.clip_s), (f"run {run_id} best CMRT", "zero CMRT"), fps=fps)
+        draw(task, best, out, Cmrt.zero(task.clip_s), (f"run {run_id} best CMRT", "zero CMRT"), fps=fps)
 
     with _render_lock:
         return clipcache.cached(cache_dir, clip_name(run, fps), make)

@@ -386,19 +386,29 @@ def render(
 
 def _video(out: Path, task: Task, trajs, captions, times, fps: int, size: tuple[int, int], bar,
            footprints: bool) -> None:
-    """The clips side by side as an MP4 (imageio's ffmpeg), rendered ``VIDEO_CHUNK`` frames at a time, each
-    frame captioned and the markers' key under them."""
+    """The clips side by side as an MP4, rendered ``VIDEO_CHUNK`` frames at a time, each frame captioned and the
+    markers' key under them."""
+    key = overlay.key_band(size[1] * len(trajs), footprints, task.reference_mode)
+
+    def frames():
+        for start in range(0, len(times), VIDEO_CHUNK):
+            chunk = times[start:start + VIDEO_CHUNK]
+            rows = [_captioned(task, render_frames(task, tr, chunk, *size, bar), chunk, lab, s)
+                    for tr, (lab, s) in zip(trajs, captions, strict=True)]
+            for i in range(len(chunk)):
+                yield np.concatenate([np.concatenate([row[i] for row in rows], axis=1), key])
+
+    write_video(out, frames(), fps)
+
+
+def write_video(out: Path, frames, fps: int) -> None:
+    """``frames`` (an iterable of equal-sized RGB images) as an H.264 MP4 (imageio's ffmpeg plugin)."""
     import imageio.v2 as imageio
 
-    key = overlay.key_band(size[1] * len(trajs), footprints, task.reference_mode)
     try:
         with imageio.get_writer(out, format="FFMPEG", fps=fps, codec="libx264", quality=7,
                                 macro_block_size=8) as writer:
-            for start in range(0, len(times), VIDEO_CHUNK):
-                chunk = times[start:start + VIDEO_CHUNK]
-                rows = [_captioned(task, render_frames(task, tr, chunk, *size, bar), chunk, lab, s)
-                        for tr, (lab, s) in zip(trajs, captions, strict=True)]
-                for i in range(len(chunk)):
-                    writer.append_data(np.concatenate([np.concatenate([row[i] for row in rows], axis=1), key]))
+            for frame in frames:
+                writer.append_data(frame)
     except (RuntimeError, ValueError) as exc:  # ffmpeg missing or failing
         raise CmrtError(f"cannot write the video: {type(exc).__name__}: {str(exc).splitlines()[0]}") from None

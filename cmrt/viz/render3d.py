@@ -1,5 +1,6 @@
-"""Filmstrips of a 3D clip (``cmrt.sim.spatial``): a front view above a side view, so that sideways motion - a
-lean, a foot lifting, a fall to the side - shows as clearly as the sagittal one does on the planar body.
+"""Filmstrips and videos of a 3D clip (``cmrt.sim.spatial``): a front view above a side view, so that sideways
+motion - a lean, a foot lifting, a fall to the side - shows as clearly as the sagittal one does on the planar body.
+A video puts each clip's two views in a column, the clips side by side.
 
 The camera stands still, aimed at where the body stood (a fall leaves the frame's centre rather than dragging
 the camera along); each frame is captioned with its time and, from the fall on, that the body fell.
@@ -19,7 +20,7 @@ from cmrt.motion.task import Task
 from cmrt.sim.clip3d import clip_3d
 from cmrt.sim.spatial import BODY, StandResult
 from cmrt.viz import overlay
-from cmrt.viz.render import _renderer, filmstrip_times, verdict
+from cmrt.viz.render import OUT_SUFFIXES, VIDEO_CHUNK, _renderer, filmstrip_times, verdict, write_video
 
 VIEWS = (("front", 180.0), ("side", 90.0))  # (name, camera azimuth deg): facing the body; from its left
 DISTANCE_M = 3.4  # camera to the body's standing place: the whole body and a fall's first metre in frame
@@ -38,32 +39,55 @@ def filmstrip_3d(result: StandResult, times_s: np.ndarray, out: str | Path, heig
 
 
 def render_3d(task: Task, curve: Cmrt, out: str | Path, compare: Cmrt | None = None,
-              labels: tuple[str, str] = ("", ""), n_frames: int = 8, height: int = 320, width: int = 240) -> dict:
+              labels: tuple[str, str] = ("", ""), n_frames: int = 8, height: int = 320, width: int = 240,
+              fps: int = 30) -> dict:
     """``cmrt render`` on a 3D task: each clip (``compare``'s first) as a front row over a side row, captioned
-    with its CMRT and verdict, to a PNG filmstrip; the frames denser over the motion and about a fall."""
+    with its CMRT and verdict, to a PNG filmstrip (the frames denser over the motion and about a fall) or an MP4
+    (``fps`` frames a second over the whole clip; each clip a column of its two views)."""
     out = Path(out)
-    inputs.check_output(out, "--out", (".png",))  # before anything is simulated; no video of a 3D clip yet
+    inputs.check_output(out, "--out", OUT_SUFFIXES)  # before anything is simulated
     clips = ([(compare, labels[1])] if compare is not None else []) + [(curve, labels[0])]
     scored = [(clip_3d(task, c), label) for c, label in clips]
     p = task.params
     falls = sorted({c.result.fall_time_s for c, _ in scored if c.fell})
-    times = filmstrip_times((p["preparation_s"], p["preparation_s"] + p["duration_s"]), falls, p["clip_s"], n_frames)
-    rows = []
-    for c, label in scored:
-        rows += _view_rows(c.result, times, height, width, f"{label}: {verdict(c.evaluation())}")
-    with inputs.atomic_output(out, "--out", (".png",)) as tmp:
-        overlay.save_png(np.concatenate(rows, axis=0), tmp)
-    return {"out": str(out), "frames": len(times), "times_s": [round(float(t), 3) for t in times],
+    video = out.suffix.lower() == ".mp4"
+    times = (np.arange(0.0, min(c.result.time_s[-1] for c, _ in scored), 1.0 / fps) if video else
+             filmstrip_times((p["preparation_s"], p["preparation_s"] + p["duration_s"]), falls, p["clip_s"], n_frames))
+    captions = [f"{label}: {verdict(c.evaluation())}" for c, label in scored]
+    with inputs.atomic_output(out, "--out", OUT_SUFFIXES) as tmp:
+        if video:
+            write_video(tmp, _video_frames([c.result for c, _ in scored], captions, times, height, width), fps)
+        else:
+            rows = [row for (c, _), caption in zip(scored, captions, strict=True)
+                    for row in _view_rows(c.result, times, height, width, caption)]
+            overlay.save_png(np.concatenate(rows, axis=0), tmp)
+    return {"out": str(out), "frames": len(times), "times_s": None if video else [round(float(t), 3) for t in times],
             "views": [v for v, _ in VIEWS], "clips": [
                 {"label": label, "verdict": verdict(c.evaluation()), "success": c.success,
                  "failed_rules": list(c.failed_rules), "fell": c.fell,
                  "fall_time_s": c.result.fall_time_s, "objective": c.objective} for c, label in scored]}
 
 
+def _video_frames(results: list[StandResult], captions: list[str], times_s: np.ndarray, height: int, width: int):
+    """The video's frames, ``VIDEO_CHUNK`` times at a time: each clip's front view over its side view, side by
+    side."""
+    for start in range(0, len(times_s), VIDEO_CHUNK):
+        chunk = times_s[start:start + VIDEO_CHUNK]
+        views = [_view_frames(r, chunk, height, width, caption) for r, caption in zip(results, captions, strict=True)]
+        for i in range(len(chunk)):
+            yield np.concatenate([np.concatenate([v[i] for v in clip], axis=0) for clip in views], axis=1)
+
+
 def _view_rows(result: StandResult, times_s: np.ndarray, height: int, width: int, label: str = ""
                ) -> list[np.ndarray]:
-    """One row of frames per view (``VIEWS``) of ``result`` at ``times_s``, each captioned with the view, the
-    time, ``label`` and whether the body has fallen."""
+    """One row of frames per view (``VIEWS``) of ``result`` at ``times_s`` (``_view_frames`` side by side)."""
+    return [np.concatenate(view, axis=1) for view in _view_frames(result, times_s, height, width, label)]
+
+
+def _view_frames(result: StandResult, times_s: np.ndarray, height: int, width: int, label: str = ""
+                 ) -> list[list[np.ndarray]]:
+    """Per view (``VIEWS``), the frames of ``result`` at ``times_s``, each captioned with the view, the time,
+    ``label`` and whether the body has fallen."""
     m = character(BODY).model
     d = mujoco.MjData(m)
     renderer = _renderer(m, height, width)
@@ -71,7 +95,7 @@ def _view_rows(result: StandResult, times_s: np.ndarray, height: int, width: int
     camera.type = mujoco.mjtCamera.mjCAMERA_FREE
     camera.lookat[:] = (result.com_m[0, 0], result.com_m[0, 1], 0.7)
     camera.distance, camera.elevation = DISTANCE_M, ELEVATION_DEG
-    rows = []
+    views = []
     try:
         for name, azimuth in VIEWS:
             camera.azimuth = azimuth
@@ -87,7 +111,7 @@ def _view_rows(result: StandResult, times_s: np.ndarray, height: int, width: int
                     lines.append((label, (255, 255, 255), False))
                 lines.append(("fell" if fallen else "standing", (230, 25, 25) if fallen else (25, 205, 50), False))
                 row.append(overlay.caption(renderer.render(), lines))
-            rows.append(np.concatenate(row, axis=1))
+            views.append(row)
     finally:
         renderer.close()
-    return rows
+    return views
