@@ -93,8 +93,8 @@ class StepConfig:
     swing_d: float = 60.0
     # a planned step forward lands heel first: its foot pitches toe-up over the second half of the swing to this at
     # touchdown (0: lands flat), then lowers its toe toward ``landing_pitch_rad`` past flat with the pitch objective
-    # (weight, stiffness 1/s^2, damping 1/s). On the heel pad the walk lands at 1.39 body weights and its stance
-    # feet's CoP rolls 0.75 of heel to toe; flat, 1.46 and -0.06 (docs/stepping.md, *Directed steps*)
+    # (weight, stiffness 1/s^2, damping 1/s). On the heel pad v0.6's 0.2 m walk landed at 1.39 body weights and its
+    # stance feet's CoP rolled 0.75 of heel to toe; flat, 1.46 and -0.06 (docs/stepping.md, *Directed steps*)
     heel_strike_rad: float = 0.05
     landing_pitch_rad: float = 0.03
     landing_weight: float = 100.0
@@ -254,8 +254,8 @@ TAKEOVER_ERROR_M = 0.06  # in double support, the momentum rule's call for a ste
 # push, while p_test was beyond the feet: at most 0.035 m in the walk, 0.053 m in two 0.4 m steps of 0.6 s; with
 # +200 N at 2.0 s in the walk it passed 0.06 m 0.04 s before the capture point left the feet
 ARM_SWING_RAD_PER_M = 0.6  # a planned step swings the arms opposite the legs, each shoulder this many rad per m of
-# the step (foot to stance foot at landing): 0.12 rad (7 deg) each way in the walk's 0.2 m steps, 0.24 at 0.4 m (people:
-# about 10-20 deg each way at 1-1.3 m/s). The arm on the swinging leg's side goes back as the leg goes forward
+# the step (foot to stance foot at landing): 0.24 rad (14 deg) each way in the walk's 0.4 m steps, 0.12 at 0.2 m
+# (people: about 10-20 deg each way at 1-1.3 m/s). The arm on the swinging leg's side goes back as the leg goes forward
 PLANNED_TOUCHDOWN_AFTER = 0.85  # a planned swing foot touching the floor counts as landed after this fraction of
 # its step (a reactive one after ``touchdown_after``): at 0.5 the second step of a 0.3 m plan grazed the floor at
 # mid-swing and "landed" 35 cm short
