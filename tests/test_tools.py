@@ -760,6 +760,15 @@ def test_stepping_table_measures_plans_pushes_and_yus_walk():
     assert (pushed["push_n"], pushed["push_start_s"]) == (100.0, 1.0) and pushed["outcome"] in ("success", "fell")
 
 
+def test_stepping_tables_long_plan_is_the_walk_task_as_shipped():
+    """Without ``--steps`` the long plan is the ``walk`` task itself (its steps, clip and parameters): a success at
+    its walking speed, with the roll and pace columns filled."""
+    tool = load_tool("stepping_table.py")
+    row = tool.run_plan(None)
+    assert row["plan"] == "R:+0.2:0.5,L:+0.6:0.5,R:+1:0.5,L:+1.4:0.5,R:+1.8:0.5,L:+2.2:0.5,R:+2.2:0.5"
+    assert row["outcome"] == "success" and row["walk_speed_m_s"] >= 0.6 and row["min_stance_cop_roll"] >= 0.5
+
+
 def test_stepping_table_reports_a_gait_it_cannot_key_as_refused():
     """A step length no crouch of the table's reaches (or outside the gait's range) is a row saying why."""
     tool = load_tool("stepping_table.py")
