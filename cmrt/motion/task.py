@@ -265,7 +265,12 @@ class Task:
         return param_range(key, prop_class(self.prop).LIMITS)
 
     def with_robust(self, enabled: bool = True) -> Task:
-        """A copy scored on its robust ensemble (``cmrt.motion.ensemble``), or on the nominal clip alone."""
+        """A copy scored on its robust ensemble (``cmrt.motion.ensemble``), or on the nominal clip alone. A 3D clip
+        has one push window, the ensemble members' (``cmrt.sim.clip3d.perturbed_3d``): a 3D task that pushes of its
+        own is refused here, before anything is simulated or stored."""
+        if enabled and self.body != "planar" and (self.params.get("push_force_n") or self.params.get("push_force_y_n")):
+            raise CmrtError(f"--robust: a {self.body} task that pushes of its own has no robust ensemble (one push "
+                            "window per 3D clip: the members')")
         return replace(self, robust=replace(self.robust, enabled=enabled))
 
     def with_reference(self, mode: str | None) -> Task:

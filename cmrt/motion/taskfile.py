@@ -101,6 +101,7 @@ def _checked_3d(task: Task, where: str) -> Task:
     speed (if any) T - in a standing pose the 3D body can take (feet flat, the CoM over them); a pose change's
     poses name the planar body's joints (its reference is the planar one's, ``cmrt.body.sagittal``)."""
     task = replace(task, params={**DEFAULTS_3D, **task.params})
+    task = task.with_robust(task.robust.enabled) if task.robust.enabled else task  # a push of its own: refused
     others = [key for key, value in (("via_pose_deg", task.via_pose_deg), ("prop", task.prop), ("steps", task.steps),
                                      ("timing", task.timing)) if value]
     others += params_off_3d(task.params)

@@ -41,6 +41,8 @@ def test_what_the_3d_body_cannot_do_yet_is_one_line_and_exit_2(tmp_path):
     for args, says in ((("optimize", TASK, "--store", str(store)), "a standing 3D task has no CMRT to optimize"),
                        (("simulate", TASK, "--curve", "library"), "no library CMRT"),
                        (("simulate", TASK, "--set", "stepping=1"), "stepping: not for the humanoid3d body"),
+                       (("optimize", "leg-lift", "--robust", "--set", "push_force_y_n=50", "--store", str(store)),
+                        "pushes of its own"),
                        (("check", "leg-lift"), "judges a pose change's reference"),
                        (("bench", "--task", "leg-lift"), "only `cmrt simulate`"),
                        (("simulate", "bend3d", "--reference", "yu"), "takes the centre reference"),
