@@ -69,23 +69,24 @@ def evaluate_batch(task: Task, xs: Sequence[np.ndarray], threads: int | None = N
 def _score_batch(task: Task, xs: Sequence[np.ndarray], members: list, threads: int | None) -> list[EvalRecord]:
     curves = [Cmrt.from_params(x, task.clip_s) for x in xs]
     if task.body != "planar":  # the 3D body's clips, one after another (cmrt.sim.clip3d): no lockstep batch yet
-        clips = [[clip_3d(task, curve, member) for member in members] for curve in curves]
-        return [EvalRecord(objective=combine([float(c.objective) for c in group], task.robust)
-                           if members != [None] else float(group[0].objective),
-                           fell=any(c.fell for c in group), seconds=0.0, success=all(c.success for c in group))
-                for group in clips]
-    if members == [None]:
-        return [EvalRecord(objective=float(e.objective), fell=bool(e.fell), seconds=0.0, success=bool(e.success))
-                for e in (evaluate(task, tr) for tr in simulate_batch(task, curves, threads=threads))]
-    trajs = simulate_batch(task, [c for c in curves for _ in members], threads=threads,
-                           perturbations=members * len(curves))
-    scores = [evaluate(members[j % len(members)].task_variant(task), tr) for j, tr in enumerate(trajs)]
-    out = []
-    for i in range(len(curves)):
-        group = scores[i * len(members) : (i + 1) * len(members)]
-        out.append(EvalRecord(objective=combine([float(e.objective) for e in group], task.robust),
-                              fell=any(e.fell for e in group), seconds=0.0, success=all(e.success for e in group)))
-    return out
+        scores = [clip_3d(task, curve, member) for curve in curves for member in members]
+    elif members == [None]:
+        scores = [evaluate(task, tr) for tr in simulate_batch(task, curves, threads=threads)]
+    else:
+        trajs = simulate_batch(task, [c for c in curves for _ in members], threads=threads,
+                               perturbations=members * len(curves))
+        scores = [evaluate(members[j % len(members)].task_variant(task), tr) for j, tr in enumerate(trajs)]
+    k = len(members)
+    return [_candidate(scores[i * k : (i + 1) * k], task.robust if members != [None] else None)
+            for i in range(len(curves))]
+
+
+def _candidate(group: list, robust) -> EvalRecord:
+    """One candidate's record from its members' scores (each an Evaluation or a 3D clip): the ensemble's combined
+    objective (``robust``: its spec) or the nominal clip's, a success only if every member is one."""
+    objective = float(group[0].objective) if robust is None else combine([float(e.objective) for e in group], robust)
+    return EvalRecord(objective=objective, fell=any(bool(e.fell) for e in group), seconds=0.0,
+                      success=all(bool(e.success) for e in group))
 
 
 def _chunks(xs: Sequence[np.ndarray], k: int) -> list[list[np.ndarray]]:
