@@ -342,7 +342,11 @@ def _objective(A, a, qd, q, com, mass, mg, params, w2, leg_dofs, swing, i, targe
         g[j] += params[P_BT] * wj * (params[P_KT] * (qr - q[j])
                                      + params[P_DT] * (qd_ref[i, j] - qd[j]) + qdd_ref[i, j])
     w_z = swing_target[i, S_HEIGHT + 3]
-    if w_z > 0.0:  # the CoM's height along its plan: Ldot_z = m (z_r'' + k (z_r - z) + d (z_r' - z'))
+    # the CoM's height along its plan: Ldot_z = m (z_r'' + k (z_r - z) + d (z_r' - z')). The angular target above
+    # still takes F_z = m g, so while the height moves the CoP it implies is off by F_z / (m g) - 1 of (p - c_x)
+    # (the walk's ground force stays within 0.8-1.4 body weights); the QP's own CoP follows its wrench, and the plan
+    # gap stays 1.6-3.2 mm in the walk (docs/stepping.md)
+    if w_z > 0.0:
         ldot_z = mass * (swing_target[i, S_HEIGHT + 2] + swing_target[i, S_HEIGHT + 4] * (swing_target[i, S_HEIGHT]
                                                                                          - com[2])
                          + swing_target[i, S_HEIGHT + 5] * (swing_target[i, S_HEIGHT + 1] - (A[1] @ qd) / mass))
