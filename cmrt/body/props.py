@@ -54,7 +54,7 @@ import mujoco
 import numpy as np
 
 from cmrt.body import surface
-from cmrt.body.character import GRAVITY_M_S2, MODEL_PATH
+from cmrt.body.character import BODIES, GRAVITY_M_S2
 from cmrt.errors import CmrtError
 from cmrt.inputs import Range
 
@@ -93,6 +93,11 @@ def _free_planar(body, prefix: str) -> None:
         j = body.add_joint(name=name, type=jtype, axis=axis)
         j.limited = mujoco.mjtLimited.mjLIMITED_FALSE
         j.armature = 0.0
+
+
+def spatial_spec(spec: mujoco.MjSpec) -> bool:
+    """Whether the humanoid in ``spec`` is the 3D body (a free root): a prop on it moves in space."""
+    return any(j.type == mujoco.mjtJoint.mjJNT_FREE for j in spec.joints)
 
 
 def ball_release(p: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
@@ -245,9 +250,11 @@ class Ball(Prop):
     PARAMS = {"ball_mass_kg": 7.0, "ball_speed_m_s": 4.0, "ball_angle_deg": 10.0, "ball_flight_s": 0.4,
               "ball_arrival_s": 1.35, "ball_height_m": 1.36, "ball_reach_m": 0.86, "max_ball_sag_m": 0.1,
               "ball_hold_s": BALL_HOLD_S, "ball_grip_timeconst_s": GRIP_TIMECONST_S,
-              "ball_grip_settle_s": GRIP_SETTLE_S, "ball_balanced": 1.0, "ball_counterweight": 0.0}
-    MODEL_PARAMS = ("ball_mass_kg", "ball_grip_timeconst_s")
+              "ball_grip_settle_s": GRIP_SETTLE_S, "ball_balanced": 1.0, "ball_counterweight": 0.0,
+              "ball_radius_m": BALL_RADIUS_M}
+    MODEL_PARAMS = ("ball_mass_kg", "ball_grip_timeconst_s", "ball_radius_m")
     LIMITS = {"ball_mass_kg": Range(0.1, 100.0, unit="kg"),  # above BALL_RESIDUAL_MASS_KG: the hand-over moves it
+              "ball_radius_m": Range(0.02, 0.5, unit="m"),
               "ball_speed_m_s": Range(0.0, 50.0, unit="m/s"), "ball_angle_deg": Range(-90.0, 90.0, unit="deg"),
               "ball_flight_s": Range(0.01, 10.0, unit="s"), "ball_arrival_s": Range(0.0, 60.0, unit="s"),
               "ball_height_m": Range(0.0, 5.0, unit="m"), "ball_reach_m": Range(-5.0, 5.0, unit="m"),
@@ -277,9 +284,13 @@ class Ball(Prop):
     @classmethod
     def add_to_spec(cls, spec, p):
         body = spec.worldbody.add_body(name="ball", pos=[0, 0, 0])
-        _free_planar(body, "ball")
-        body.add_geom(name="ball", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[BALL_RADIUS_M, 0, 0],
-                      mass=p["ball_mass_kg"], contype=1, conaffinity=1, rgba=[0.8, 0.3, 0.1, 1])
+        if spatial_spec(spec):  # on the 3D body a ball, free in space (its hands may squeeze it, not the world)
+            body.add_freejoint(name="ball")
+        else:
+            _free_planar(body, "ball")
+        radius = p.get("ball_radius_m", BALL_RADIUS_M)
+        body.add_geom(name="ball", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[radius, 0, 0], mass=p["ball_mass_kg"],
+                      contype=1, conaffinity=1, rgba=[0.8, 0.3, 0.1, 1])
         for side in ("r", "l"):  # both hands grip: the load is shared by the two arms
             eq = spec.add_equality(name=f"catch_{side}", type=mujoco.mjtEq.mjEQ_CONNECT, name1=f"forearm_{side}",
                                    name2="ball", objtype=mujoco.mjtObj.mjOBJ_BODY, active=False)
@@ -289,12 +300,21 @@ class Ball(Prop):
         super().__init__(model, params)
         self.body = model.body("ball").id
         self.geom = model.geom("ball").id
-        adr = model.joint("ball_x")
-        self.dofs = slice(adr.dofadr[0], adr.dofadr[0] + 3)
-        self.qpos = slice(adr.qposadr[0], adr.qposadr[0] + 3)
+        self.spatial = model.jnt_type[0] == mujoco.mjtJoint.mjJNT_FREE
+        adr = model.joint("ball" if self.spatial else "ball_x")
+        n_q, n_v = (7, 6) if self.spatial else (3, 3)
+        self.dofs = slice(adr.dofadr[0], adr.dofadr[0] + n_v)
+        self.qpos = slice(adr.qposadr[0], adr.qposadr[0] + n_q)
+        self.xz = [0, 2] if self.spatial else [0, 1]  # x, z within both
+        # the ball's x and z in its qpos and qvel: planar joints (x, z, pitch), or a free joint on the 3D body
+        # (position, quaternion; linear, angular velocity)
         self.forearms = (model.body("forearm_r").id, model.body("forearm_l").id)
         self.release_pos, self.release_vel = ball_release(params)
         self.release_s = params["ball_arrival_s"] - params["ball_flight_s"]
+        self.radius_m = params.get("ball_radius_m", BALL_RADIUS_M)
+        # the grip's gap: on the 3D body the hands are where they are, and the ball is gripped where its surface
+        # meets a hand's in space; the planar body's arms swing in planes either side of the ball's, so there it is
+        # gripped where they meet in the sagittal plane
         # per-clip state, set by start() for the clip's n simulations
         self.reference_tip_z = math.nan  # height of the right fingertip in the task's end pose (m)
         self.released = np.zeros(0, bool)  # the ball has left the thrower's hand
@@ -319,7 +339,8 @@ class Ball(Prop):
         return {"xmat", "eq_active", "qacc"}
 
     def _hold(self, b: dict, rows) -> None:
-        b["qpos"][rows, self.qpos] = [*self.release_pos, 0.0]
+        x, z = self.release_pos
+        b["qpos"][rows, self.qpos] = [x, 0.0, z, 1.0, 0.0, 0.0, 0.0] if self.spatial else [x, z, 0.0]
         b["qvel"][rows, self.dofs] = 0.0
 
     def settle_hold(self, b):
@@ -356,7 +377,8 @@ class Ball(Prop):
             self.out_s[held[off]] = t
         release = ids[~self.released[ids]]
         if release.size and t >= self.release_s - 1e-9:
-            b["qvel"][release, self.dofs] = [*self.release_vel, 0.0]
+            vx, vz = self.release_vel
+            b["qvel"][release, self.dofs] = [vx, 0.0, vz, 0.0, 0.0, 0.0] if self.spatial else [vx, vz, 0.0]
             self.gravcomp[release, self.body] = 0.0
             self.released[release] = True
         elif release.size:
@@ -388,16 +410,19 @@ class Ball(Prop):
 
     def _hand_gap(self, b: dict, rows: np.ndarray) -> np.ndarray:
         """Gap (m) between the ball's surface and the right hand's (the last ``HAND_LENGTH_M`` of the forearm
-        capsule, to the fingertip), in the plane: < 0 where they overlap."""
+        capsule, to the fingertip), in the sagittal plane (in space on the 3D body): < 0 where they overlap."""
         hand = self.forearms[0]
+        axes = [0, 1, 2] if self.spatial else [0, 2]
         R = b["xmat"][rows, hand].reshape(-1, 3, 3)
-        tip = (b["xpos"][rows, hand] + R @ HAND_OFFSET_M)[:, [0, 2]]
-        wrist = (b["xpos"][rows, hand] + R @ WRIST_OFFSET_M)[:, [0, 2]]
-        ball = b["xpos"][rows, self.body][:, [0, 2]]
+        tip = (b["xpos"][rows, hand] + R @ HAND_OFFSET_M)[:, axes]
+        wrist = (b["xpos"][rows, hand] + R @ WRIST_OFFSET_M)[:, axes]
+        ball = b["xpos"][rows, self.body][:, axes]
         axis = tip - wrist
         s = np.clip(np.einsum("ij,ij->i", ball - wrist, axis) / np.einsum("ij,ij->i", axis, axis), 0.0, 1.0)
         nearest = wrist + s[:, None] * axis
-        return np.hypot(*(ball - nearest).T) - BALL_RADIUS_M - FOREARM_RADIUS_M
+        gap = ball - nearest
+        distance = np.linalg.norm(gap, axis=1) if self.spatial else np.hypot(*gap.T)
+        return distance - self.radius_m - FOREARM_RADIUS_M
 
     def _settled(self, b: dict, rows: np.ndarray, t: float) -> np.ndarray:
         """Has the grip brought the ball to the hands' motion? The drift of the ball away from its anchor
@@ -419,7 +444,7 @@ class Ball(Prop):
         """Move the ball's mass into the forearms (half each, at the ball's place in their frames)."""
         m_ball = self.mass[sim, self.body] - BALL_RESIDUAL_MASS_KG
         half = 0.5 * m_ball
-        own = 0.4 * half * BALL_RADIUS_M**2  # a solid sphere's inertia about its centre
+        own = 0.4 * half * self.radius_m**2  # a solid sphere's inertia about its centre
         for body in self.forearms:
             R = b["xmat"][sim, body].reshape(3, 3)
             r = R.T @ (b["xpos"][sim, self.body] - b["xpos"][sim, body])  # ball centre, forearm frame
@@ -442,22 +467,24 @@ class Ball(Prop):
             self.mass[sim, body], self.ipos[sim, body] = total, c
             self.inertia[sim, body], self.iquat[sim, body] = values, quat
         self.mass[sim, self.body] = BALL_RESIDUAL_MASS_KG
-        self.inertia[sim, self.body] = 0.4 * BALL_RESIDUAL_MASS_KG * BALL_RADIUS_M**2
+        self.inertia[sim, self.body] = 0.4 * BALL_RESIDUAL_MASS_KG * self.radius_m**2
         self.contype[sim, self.geom] = self.conaffinity[sim, self.geom] = 0
         self.carried_kg[sim] = m_ball
         self.handed_over[sim] = True
 
     def hand_load(self, b, rows):
-        """The held ball's pull on the hands, (force (n, 2) x/z N, point (n, 3), the forearms): -m (a - g) of the
-        ball over the last step while it is gripped, zero otherwise."""
-        f = np.zeros((rows.size, 2))
+        """The held ball's pull on the hands, (force (n, 2) x/z N - (n, 3) x/y/z on the 3D body, point (n, 3), the
+        forearms): -m (a - g) of the ball over the last step while it is gripped, zero otherwise."""
+        f = np.zeros((rows.size, 3 if self.spatial else 2))
         held = ~np.isnan(self.grip_s[rows])
         if held.any():
             r = rows[held]
             acc = b["qacc"][r, self.dofs]
             m = self.mass[r, self.body]
             f[held, 0] = -m * acc[:, 0]
-            f[held, 1] = -m * (acc[:, 1] + GRAVITY_M_S2)
+            if self.spatial:
+                f[held, 1] = -m * acc[:, 1]
+            f[held, -1] = -m * (acc[:, self.xz[1]] + GRAVITY_M_S2)
         return f, np.ascontiguousarray(b["xpos"][rows, self.body]), np.array(self.forearms, np.int64)
 
     def held_mass(self, b, rows):
@@ -480,6 +507,8 @@ class Ball(Prop):
         """|m (a - g)| of the ball: what the hands (or anything else) apply to it."""
         acc = b["qacc"][sel, self.dofs]
         mass = self.mass[sel, self.body]
+        if self.spatial:
+            return mass * np.sqrt(acc[:, 0] ** 2 + acc[:, 1] ** 2 + (acc[:, 2] + GRAVITY_M_S2) ** 2)
         return mass * np.hypot(acc[:, 0], acc[:, 1] + GRAVITY_M_S2)
 
     def success(self, b, rows, contact_force_n, times, window):
@@ -716,10 +745,16 @@ def model_values(kind: str | None, params: dict[str, float]) -> tuple[tuple[str,
     return tuple((k, float(params[k])) for k in sorted(prop_class(kind).MODEL_PARAMS)) + surface.model_values(params)
 
 
+def build_model(kind: str | None, values: tuple[tuple[str, float], ...] = (), body: str = "planar") -> mujoco.MjModel:
+    """The humanoid (``body``, a key of ``cmrt.body.character.BODIES``) plus one prop (or none), compiled once per
+    distinct parameter set. A prop is the same on both bodies: its joints are planar (x, z, pitch) in the sagittal
+    plane y = 0, where the 3D body's sagittal motion plays the planar one's (``cmrt.body.sagittal``)."""
+    return _build_model(kind, values, body)
+
+
 @functools.lru_cache(maxsize=32)
-def build_model(kind: str | None, values: tuple[tuple[str, float], ...] = ()) -> mujoco.MjModel:
-    """The humanoid plus one prop (or none), compiled once per distinct parameter set."""
-    spec = mujoco.MjSpec.from_file(str(MODEL_PATH))
+def _build_model(kind: str | None, values: tuple[tuple[str, float], ...], body: str) -> mujoco.MjModel:
+    spec = mujoco.MjSpec.from_file(str(BODIES[body][0]))
     surface.add_to_spec(spec, dict(values))
     if kind is not None:
         if kind not in PROPS:

@@ -72,11 +72,16 @@ class SpatialTargets:
 
 class SpatialController:
     """The 3D momentum controller of one simulation: ``plan`` once per control step on a forward-computed MjData.
-    ``q_ref`` (nq) is the pose it holds, kept ``stop_margin_rad`` inside every joint's stops."""
+    ``q_ref`` (nq) is the pose it holds, kept ``stop_margin_rad`` inside every joint's stops. ``model``: the clip's
+    own (default the body's): a task's prop comes after the humanoid in it (``cmrt.body.props``), so the humanoid's
+    bodies and dofs lead and the plan is over them - a prop is a separate tree, its dofs no part of the humanoid's
+    inertia or Jacobians - and what the prop does to the hands reaches the plan as a load (``plan``'s ``load``)."""
 
     def __init__(self, ch: Character, q_ref: np.ndarray, config: ControllerConfig = ControllerConfig(),
-                 control_step_s: float | None = None):
+                 control_step_s: float | None = None, model: mujoco.MjModel | None = None):
         m = ch.model
+        self.model = m if model is None else model
+        self.nv = m.nv  # the humanoid's dofs: the plan's qdd
         if m.nv - len(ch.actuated_dofs) != N_BASE:
             raise CmrtError(f"the 3D controller needs a free root: body {ch.body!r} has {m.nv - len(ch.actuated_dofs)}"
                             " unactuated dofs")
@@ -93,7 +98,7 @@ class SpatialController:
         # the planar floor per heel or toe point, shared by the points across that end of a 3D foot: the same
         # force per length of foot, so the same share of the foot stays open to the CoP
         self.point_floor_n = config.min_point_force_n * 4 / len(self.points)
-        self.mass_kg = float(m.body_subtreemass[1])
+        self.mass_kg = float(self.model.body_subtreemass[1])  # with what the forearms carry (a handed-over ball)
         step_s = control_step_s if control_step_s is not None else m.opt.timestep * config.control_every
         self.delay_steps = int(round(config.feedback_delay_s / step_s))
         self.history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=self.delay_steps + 1)
@@ -101,14 +106,21 @@ class SpatialController:
         self.cop_ref_m: np.ndarray | None = None  # the CoP asked for: the feet's centre at the first control step
         self.infeasible = False  # the last plan found none within the stops and limits (clipped after the solve)
 
-    def plan(self, d: mujoco.MjData, loaded: np.ndarray, targets: SpatialTargets = SpatialTargets()) -> SpatialPlan:
+    def plan(self, d: mujoco.MjData, loaded: np.ndarray, targets: SpatialTargets = SpatialTargets(),
+             load_gen: np.ndarray | None = None,
+             held_mass: tuple[float, np.ndarray, tuple[int, ...]] | None = None) -> SpatialPlan:
         """Plan this control step from ``d`` (after mj_forward) with ``loaded`` (n points,) the points touching
-        the floor; raises CmrtError where the QP has no solution (the feet cannot carry the body)."""
-        m, c = self.ch.model, self.config
-        nv, n_pts = m.nv, len(self.points)
+        the floor; raises CmrtError where the QP has no solution (the feet cannot carry the body). ``load_gen``:
+        the generalized force (nv; N, N m) of what the character holds (a caught ball's pull on the hands), known
+        to the plan as the planar kernel knows a held load: the floating base moves under the ground's forces and
+        it, and the torques take it out. ``held_mass``: a mass the hands hold (kg), where (world, m) and the bodies
+        holding it equally - a gripped ball moving with them, its weight and its inertia in the plan's dynamics."""
+        m, c = self.model, self.config
+        nv, n_pts = self.nv, len(self.points)
+        self.mass_kg = float(m.body_subtreemass[1])
         com = d.subtree_com[1].copy()
         A, a = self._momentum(d)
-        self.history.append((com, A[:3] @ d.qvel / self.mass_kg))
+        self.history.append((com, A[:3] @ d.qvel[:nv] / self.mass_kg))
         if self.com_ref_m is None:
             self.com_ref_m = com.copy()
             self.cop_ref_m = d.geom_xpos[list(self.points), :2].mean(axis=0)
@@ -131,9 +143,13 @@ class SpatialController:
         H_qp, f_qp = self._objective(d, A, a, ldot, hdot, n_pts, targets)
         if targets.swing_foot >= 0:
             self._swing_objective(d, targets, H_qp, f_qp)
-        M = np.zeros((nv, nv))  # the joint-space inertia, once a control step: the rows and the torques use it
+        M = np.zeros((m.nv, m.nv))  # the joint-space inertia, once a control step: the rows and the torques use it
         mujoco.mj_fullM(m, d, M)
-        rows, lo, hi, sense = self._constraints(d, M, Jp, loaded)
+        M = M[:nv, :nv]
+        bias = d.qfrc_bias[:nv] - (load_gen if load_gen is not None else 0.0)
+        if held_mass is not None:
+            M, bias = self._holding(d, M, bias, held_mass)
+        rows, lo, hi, sense = self._constraints(d, M, Jp, loaded, bias)
         x, _, flag, _ = daqp.solve(H_qp, f_qp, rows, hi, lo, sense)
         self.infeasible = flag < 1
         if self.infeasible:  # no plan within the stops and the motors' limits (a fall): the plan without those
@@ -143,7 +159,7 @@ class SpatialController:
             if flag < 1:
                 raise CmrtError(f"the 3D balance QP has no solution (daqp exit {flag})")
         qdd, forces = x[:nv], x[nv:].reshape(n_pts, 3)
-        generalized = M @ qdd + d.qfrc_bias - Jp.T @ x[nv:]
+        generalized = M @ qdd + bias - Jp.T @ x[nv:]
         torque = np.clip(generalized[self.act_dofs], -self.ch.torque_limit_nm, self.ch.torque_limit_nm)
         fz = forces[:, 2].sum()
         xy = d.geom_xpos[list(self.points), :2]
@@ -152,23 +168,23 @@ class SpatialController:
 
     def _momentum(self, d: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
         """The centroidal momentum matrix (6, nv) - MuJoCo's own - and its bias, A qdd + a being the rate."""
-        m = self.ch.model
+        m = self.model
         A = np.empty((6, m.nv))
         mujoco.mj_jacSubtreeCom(m, d, A[:3], 1)
         A[:3] *= self.mass_kg
         mujoco.mj_angmomMat(m, d, A[3:], 1)
         _, a = kernel.centroidal_spatial(d.cdof, d.cdof_dot, d.cvel, d.cinert, d.qvel, self.chain)
-        return A, a
+        return A[:, :self.nv], a
 
     def _point_jacobians(self, d: mujoco.MjData) -> np.ndarray:
         """The contact points' translational Jacobians stacked (3 n, nv), at each sphere's lowest point."""
-        m = self.ch.model
+        m = self.model
         rows = []
         for g in self.points:
             jacp = np.empty((3, m.nv))
             point = d.geom_xpos[g] - np.array([0.0, 0.0, m.geom_size[g, 0]])
             mujoco.mj_jac(m, d, jacp, None, point, m.geom_bodyid[g])
-            rows.append(jacp)
+            rows.append(jacp[:, :self.nv])
         return np.vstack(rows)
 
     def _objective(self, d: mujoco.MjData, A: np.ndarray, a: np.ndarray, ldot: np.ndarray, hdot: np.ndarray,
@@ -198,27 +214,54 @@ class SpatialController:
     def _swing_objective(self, d: mujoco.MjData, targets: SpatialTargets, H: np.ndarray, f: np.ndarray) -> None:
         """A lifted foot's frame toward its path (the planar swing objective's weight and gains), level, in place
         into the QP's cost (H, f as ``_objective`` returns them)."""
-        m, c, nv = self.ch.model, self.config, self.ch.model.nv
+        c, nv = self.config, self.nv
         body = self.ch.foot_bodies[targets.swing_foot]
-        jac, jdot = np.empty((6, nv)), np.empty((6, nv))
-        mujoco.mj_jacBody(m, d, jac[:3], jac[3:], body)
-        mujoco.mj_jacDot(m, d, jdot[:3], jdot[3:], d.xpos[body], body)
-        vel = jac @ d.qvel
+        jac, jdot = self._frame_jacobians(d, body)
+        vel = jac @ d.qvel[:nv]
         local, level = np.zeros(3), np.zeros(3)  # the rotation from the foot's frame to level (axis x angle)
         mujoco.mju_subQuat(local, np.array([1.0, 0.0, 0.0, 0.0]), d.xquat[body])  # in the foot's frame ...
         mujoco.mju_rotVecQuat(level, local, d.xquat[body])  # ... and in the world's, as the Jacobian's rows
         want = np.concatenate([
             c.swing_k * (targets.swing_pos_m - d.xpos[body]) + c.swing_d * (targets.swing_vel_m_s - vel[:3]),
-            c.swing_k * level - c.swing_d * vel[3:]]) - jdot @ d.qvel
+            c.swing_k * level - c.swing_d * vel[3:]]) - jdot @ d.qvel[:nv]
         H[:nv, :nv] += 2.0 * c.swing_weight * jac.T @ jac
         f[:nv] -= 2.0 * c.swing_weight * jac.T @ want
 
-    def _constraints(self, d: mujoco.MjData, M: np.ndarray, Jp: np.ndarray, loaded: np.ndarray
+    def _holding(self, d: mujoco.MjData, M: np.ndarray, bias: np.ndarray,
+                 held_mass: tuple[float, np.ndarray, tuple[int, ...]]) -> tuple[np.ndarray, np.ndarray]:
+        """The body's dynamics with a point mass carried by the hands (M qdd + bias): the mass accelerates with
+        its point on the bodies holding it (the mean of their Jacobians there, J, and rates), so its force on them,
+        m (g - J qdd - Jdot qd), adds m J^T J to the inertia and m J^T (Jdot qd - g) to the bias. Planning with a
+        held ball's inertia, not only last step's pull: the pull alone, measured one step late, left the arms'
+        rotation about their own axes - whose inertia the 7 kg ball outweighs fifty times - swinging 0.4 rad."""
+        mass, point, bodies = held_mass
+        m = self.model
+        jac, jdot = np.zeros((3, self.nv)), np.zeros((3, self.nv))
+        one, rate = np.empty((3, m.nv)), np.empty((3, m.nv))
+        for body in bodies:
+            mujoco.mj_jac(m, d, one, None, np.asarray(point, float), int(body))
+            mujoco.mj_jacDot(m, d, rate, None, np.asarray(point, float), int(body))
+            jac += one[:, :self.nv] / len(bodies)
+            jdot += rate[:, :self.nv] / len(bodies)
+        gravity = np.array([0.0, 0.0, -GRAVITY_M_S2])
+        return M + mass * jac.T @ jac, bias + mass * jac.T @ (jdot @ d.qvel[:self.nv] - gravity)
+
+    def _frame_jacobians(self, d: mujoco.MjData, body: int) -> tuple[np.ndarray, np.ndarray]:
+        """A body frame's [linear, angular] Jacobian (6, nv) and its rate, MuJoCo's (``mj_jacBody``,
+        ``mj_jacDot``)."""
+        m = self.model
+        jac, jdot = np.empty((6, m.nv)), np.empty((6, m.nv))
+        mujoco.mj_jacBody(m, d, jac[:3], jac[3:], body)
+        mujoco.mj_jacDot(m, d, jdot[:3], jdot[3:], d.xpos[body], body)
+        return jac[:, :self.nv], jdot[:, :self.nv]
+
+    def _constraints(self, d: mujoco.MjData, M: np.ndarray, Jp: np.ndarray, loaded: np.ndarray, bias: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The QP's rows (A, lo, hi, sense): base dynamics and supporting feet (equalities), each point's friction
-        pyramid and floor (a point off the floor carries nothing), the motors' limits."""
-        m, c = self.ch.model, self.config
-        nv, n_pts = m.nv, len(self.points)
+        pyramid and floor (a point off the floor carries nothing), the motors' limits. ``bias``: the generalized
+        forces the plan does not choose (MuJoCo's bias forces less a held load's)."""
+        c = self.config
+        nv, n_pts = self.nv, len(self.points)
         n = nv + 3 * n_pts
         rows, lo, hi, sense = [], [], [], []
 
@@ -229,15 +272,13 @@ class SpatialController:
             sense.append(kind)
 
         for r in range(N_BASE):  # M_base qdd - J_base^T f = -h_base
-            add(np.concatenate([M[r], -Jp[:, r]]), -d.qfrc_bias[r], -d.qfrc_bias[r], EQUALITY)
+            add(np.concatenate([M[r], -Jp[:, r]]), -bias[r], -bias[r], EQUALITY)
+        qvel = d.qvel[:nv]
         for foot, pair in enumerate(self.ch.foot_points):
             if not loaded[[self.points.index(g) for g in pair]].any():
                 continue
-            body = self.ch.foot_bodies[foot]
-            jac, jdot = np.empty((6, nv)), np.empty((6, nv))
-            mujoco.mj_jacBody(m, d, jac[:3], jac[3:], body)
-            mujoco.mj_jacDot(m, d, jdot[:3], jdot[3:], d.xpos[body], body)
-            rhs = -jdot @ d.qvel - c.support_damping * (jac @ d.qvel)
+            jac, jdot = self._frame_jacobians(d, self.ch.foot_bodies[foot])
+            rhs = -jdot @ qvel - c.support_damping * (jac @ qvel)
             for r in range(6):
                 add(np.concatenate([jac[r], np.zeros(3 * n_pts)]), rhs[r], rhs[r], EQUALITY)
         mu = c.friction_coef
@@ -256,7 +297,7 @@ class SpatialController:
             add(_unit(n, dof), low if np.isfinite(low) else -np.inf, high if np.isfinite(high) else np.inf)
         limit = self.ch.torque_limit_nm
         for i, dof in enumerate(self.act_dofs):  # tau = M_a qdd + h_a - J_a^T f within its limit (the last rows)
-            add(np.concatenate([M[dof], -Jp[:, dof]]), -limit[i] - d.qfrc_bias[dof], limit[i] - d.qfrc_bias[dof])
+            add(np.concatenate([M[dof], -Jp[:, dof]]), -limit[i] - bias[dof], limit[i] - bias[dof])
         return (np.asarray(rows), np.asarray(lo, float), np.asarray(hi, float), np.asarray(sense, dtype=np.int32))
 
 

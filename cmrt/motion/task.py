@@ -16,7 +16,7 @@ import numpy as np
 
 from cmrt import inputs
 from cmrt.body.character import character, feet_flat_qpos, joint_angles_from_pose
-from cmrt.body.props import build_model, model_values, prop_class
+from cmrt.body.props import BALL_RADIUS_M, build_model, model_values, prop_class
 from cmrt.body.stance import feet_heel_x, stance_qpos
 from cmrt.body.surface import BOX_PARAMS, SURFACE_PARAMS, Support
 from cmrt.errors import CmrtError
@@ -60,13 +60,18 @@ DEFAULT_PARAMS: dict[str, float] = {
 STEPPING_PARAMS = ("stepping", "step_time_s", "step_height_m")
 
 
+#: Parameters added after runs and library entries were stored, with the value everything before them had: at it,
+#: they are left out of what hashes and matches compare.
+LATER_PARAMS = {"planned_step_s": 0.0, "ball_radius_m": BALL_RADIUS_M}
+
+
 def active_params(params: dict, planned: bool = False) -> dict:
     """``params`` without those that change nothing - the stepping ones while ``stepping`` is 0 (or absent, as
     in runs and library entries made before stepping existed) and no footstep plan is ``planned``, and the
-    surface's at the still level floor's values: what hashes and matches compare (so tasks, runs and library
-    entries of before keep theirs)."""
+    surface's at the still level floor's values, and those added later at the value everything before them had
+    (``LATER_PARAMS``): what hashes and matches compare (so tasks, runs and library entries of before keep theirs)."""
     out = {k: v for k, v in params.items() if not (k in SURFACE_PARAMS and v == SURFACE_PARAMS[k])
-           and not (k == "planned_step_s" and v == 0.0)}
+           and not (k in LATER_PARAMS and v == LATER_PARAMS[k])}
     if params.get("stepping") or planned:  # a plan is carried out by the stepping supervisor
         return out
     return {k: v for k, v in out.items() if k not in STEPPING_PARAMS}
@@ -81,10 +86,15 @@ DEFAULTS_3D = {"push_force_y_n": 0.0, "stance_side": 0.0, "lift_fraction": 0.35}
 MIN_HOLD_3D_S = 0.5  # s: a leg lift's clip holds the one-leg pose at least this long after T
 
 
-def params_off_3d(params: dict[str, float]) -> list[str]:
-    """The parameters a 3D task sets that the 3D body does not take yet (``PARAMS_3D`` aside, any off its default):
-    a task file's and a ``--set``'s check, one rule."""
-    return sorted(k for k, v in params.items() if k not in PARAMS_3D and v != DEFAULT_PARAMS.get(k))
+#: The props a 3D pose change may hold (``cmrt.body.props``; docs/body3d.md, *The catch in 3D*).
+PROPS_3D = ("ball",)
+
+
+def params_off_3d(params: dict[str, float], prop: str | None = None) -> list[str]:
+    """The parameters a 3D task sets that the 3D body does not take yet (``PARAMS_3D`` and its prop's aside, any
+    off its default): a task file's and a ``--set``'s check, one rule."""
+    own = PARAMS_3D | set(prop_class(prop).PARAMS if prop in PROPS_3D else ())
+    return sorted(k for k, v in params.items() if k not in own and v != DEFAULT_PARAMS.get(k))
 
 
 def check_motion_3d(params: dict[str, float], pose_change: bool) -> None:
@@ -333,11 +343,14 @@ class Task:
         if self.end_pose_deg is not None and p["duration_s"] <= 0:
             raise CmrtError("a pose-change task needs duration_s > 0")
         if self.body != "planar":
-            off = params_off_3d(p)
+            off = params_off_3d(p, self.prop)
             if off:
                 raise CmrtError(f"{', '.join(off)}: not for the {self.body} body yet (it takes "
                                 f"{', '.join(sorted(PARAMS_3D))})")
             check_motion_3d(p, self.end_pose_deg is not None)
+            if self.prop == "ball" and p.get("ball_balanced", 1.0):  # its mass moved into the forearms: untried
+                raise CmrtError("ball_balanced = 1: on the 3D body a caught ball stays a load the plan carries "
+                                "(ball_balanced = 0) for now")
             if self.end_pose_deg is not None and self.reference_mode != DEFAULT_REFERENCE_MODE:
                 raise CmrtError(f"reference {self.reference_mode}: a 3D pose change takes the centre reference for "
                                 "now (docs/body3d.md)")
@@ -379,7 +392,7 @@ class Task:
     # --- model -------------------------------------------------------------------
     def model(self):
         """The character plus this task's prop (compiled once per distinct prop parameters)."""
-        return build_model(self.prop, model_values(self.prop, self.params))
+        return build_model(self.prop, model_values(self.prop, self.params), self.body)
 
     @property
     def has_goal(self) -> bool:

@@ -22,7 +22,15 @@ from cmrt.inputs import POSE_DEG, param_range, shown
 from cmrt.modes import DEFAULT_REFERENCE_MODE
 from cmrt.motion.ensemble import RobustSpec
 from cmrt.motion.footsteps import PlannedStep, parse_steps, steps_from_tables
-from cmrt.motion.task import DEFAULT_PARAMS, DEFAULTS_3D, PARAMS_3D, Task, params_off_3d, reference_mode
+from cmrt.motion.task import (
+    DEFAULT_PARAMS,
+    DEFAULTS_3D,
+    PARAMS_3D,
+    PROPS_3D,
+    Task,
+    params_off_3d,
+    reference_mode,
+)
 
 #: The shipped task files (package data: present in an installed cmrt, not only in a checkout).
 TASKS_DIR = importlib.resources.files("cmrt.motion") / "tasks"
@@ -96,15 +104,17 @@ def _body(raw: dict, where: str) -> str:
 
 def _checked_3d(task: Task, where: str) -> Task:
     """A 3D task validated: it stands, pushed or not, lifts a foot, or changes its pose sagittally (docs/body3d.md) -
-    no via pose, prop, footsteps or timing, no parameter but ``PARAMS_3D`` off its default (a robust ensemble's
+    no via pose, footsteps or timing, no prop but one of ``PROPS_3D`` held in a pose change (a caught ball), no
+    parameter but ``PARAMS_3D`` and that prop's off its default (a robust ensemble's
     table is its own: ``cmrt.sim.clip3d.perturbed_3d`` plays its members), its
     speed (if any) T - in a standing pose the 3D body can take (feet flat, the CoM over them); a pose change's
     poses name the planar body's joints (its reference is the planar one's, ``cmrt.body.sagittal``)."""
     task = replace(task, params={**DEFAULTS_3D, **task.params})
     task = task.with_robust(task.robust.enabled) if task.robust.enabled else task  # a push of its own: refused
-    others = [key for key, value in (("via_pose_deg", task.via_pose_deg), ("prop", task.prop), ("steps", task.steps),
-                                     ("timing", task.timing)) if value]
-    others += params_off_3d(task.params)
+    held = task.prop in PROPS_3D and task.end_pose_deg is not None  # a pose change may hold a 3D prop
+    others = [key for key, value in (("via_pose_deg", task.via_pose_deg), ("prop", None if held else task.prop),
+                                     ("steps", task.steps), ("timing", task.timing)) if value]
+    others += params_off_3d(task.params, task.prop)
     if task.speed_param not in (None, "duration_s"):
         others.append(f"speed_param {task.speed_param}")
     if others:

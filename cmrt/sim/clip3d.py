@@ -1,22 +1,24 @@
 """A 3D task's clip and its score: what ``cmrt simulate``, the evaluators and the driver see of the 3D body.
 
-A 3D task (``Task.body`` "humanoid3d", docs/body3d.md) stands, pushed or not (``cmrt.sim.spatial.stand_3d``),
-lifts a foot (``stance_side`` +-1: ``cmrt.sim.spatial.leg_lift_3d``: the weight shift over ``1 - lift_fraction`` of
-T from P, the lift over the rest, then the one-leg pose held to the clip's end), or changes its pose sagittally (an
-end pose: the planar reference on the 3D body, ``cmrt.sim.spatial.pose_change_3d``). A leg lift's CMRT acts sideways
-(y), across the support's change, where its anticipation is; a pose change's forward (x), as on the planar body;
-the planar CMRT's 8 parameters and the same driver. The verdict is the planar one's (the same rules, bounds and
-order, ``cmrt.sim.objective``): "performed" (a leg lift's foot up within ``FOOT_LIFT_TOLERANCE_M`` of its height at
-the end; a pose change's end pose and tracking bound), "on_time" (the planar timing rule on the driving joints,
-``objective.joint_lags_s``, bound 0.1 T and 0.05 s), the standing rules, and "final_pose" where "performed" does
-not judge the end pose. The objective is the paper's: the CoP error's 2-norm against the controller's own CoP
-reference, plus the planar penalties' shapes (``cmrt.sim.spatial.cop_error_objective``; ``NOT_PERFORMED_PENALTY``
-for a motion not done or late; ``NOT_PLAUSIBLE_PENALTY`` for the end pose).
+A 3D task (``Task.body`` "humanoid3d", docs/body3d.md) stands, pushed or not (``cmrt.sim.spatial.stand_3d``), lifts
+a foot (``stance_side`` +-1: ``cmrt.sim.spatial.leg_lift_3d``: the weight shift over ``1 - lift_fraction`` of T from
+P, the lift over the rest, then the one-leg pose held to the clip's end), or changes its pose sagittally (an end
+pose: the planar reference on the 3D body, ``cmrt.sim.spatial.pose_change_3d``), catching a ball as it does (an
+interaction: the planar prop, ``cmrt.sim.prop3d``). A leg lift's CMRT acts sideways (y), across the support's
+change, where its anticipation is; a pose change's forward (x), as on the planar body; the planar CMRT's 8
+parameters and the same driver. The verdict is the planar one's (the same rules, bounds and order,
+``cmrt.sim.objective``): "performed" (a leg lift's foot up within ``FOOT_LIFT_TOLERANCE_M`` of its height at the
+end; a pose change's end pose and tracking bound; an interaction's prop goal), "on_time" (the planar timing rule on
+the driving joints, ``objective.joint_lags_s``, bound 0.1 T and 0.05 s), the standing rules, and "final_pose" where
+"performed" does not judge the end pose. The objective is the paper's: the CoP error's 2-norm against the
+controller's own CoP reference, plus the planar penalties' shapes (``cmrt.sim.spatial.cop_error_objective``;
+``NOT_PERFORMED_PENALTY`` for a motion not done or late; ``MISSED_GOAL_PENALTY`` for a missed goal;
+``NOT_PLAUSIBLE_PENALTY`` for the end pose).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import mujoco
 import numpy as np
@@ -29,12 +31,15 @@ from cmrt.motion.ensemble import Perturbation
 from cmrt.motion.task import Task
 from cmrt.sim.objective import (
     FINAL_POSE_TOLERANCE_RAD,
+    MISSED_GOAL_PENALTY,
     NOT_PERFORMED_PENALTY,
     NOT_PLAUSIBLE_PENALTY,
     Evaluation,
+    contact_summary,
     joint_lags_s,
     timing_lag_bound_s,
 )
+from cmrt.sim.prop3d import HeldProp
 from cmrt.sim.spatial import (
     LegLiftClip,
     StandResult,
@@ -46,6 +51,7 @@ from cmrt.sim.spatial import (
     stand_pose_qpos,
 )
 
+EVALUATION_FIELDS = frozenset(f.name for f in fields(Evaluation))
 LIFT_HEIGHT_M = 0.10  # the lifted foot's height in the one-leg pose (cmrt.body.one_leg)
 FOOT_LIFT_TOLERANCE_M = 0.01  # performed: the foot ends within this of its height
 
@@ -64,15 +70,26 @@ class Clip3d:
     tracking_bound_rad: float | None = None  # before P, or not a pose change)
     final_pose_error_rad: float = 0.0  # the actuated joints' distance from the reference's last pose at the end
     cop_reference_xy_m: np.ndarray | None = None  # (n, 2) the CoP's reference the objective measured against
-    kind: str = "standing"  # "standing", "leg lift" or "pose change"
+    kind: str = "standing"  # "standing", "leg lift", "pose change" or "interaction" (a pose change with a prop)
 
     @property
     def success(self) -> bool:
         return not self.failed_rules
 
+    def prop_figures(self) -> dict:
+        """A held prop's figures as the planar clip's (``Evaluation``'s names; empty without a prop): its goal
+        (``task_success``), the hands' first contact, peak force and impulse before any fall, the prop's own."""
+        r = self.result
+        if r.prop_force_n is None:
+            return {}
+        times = (np.arange(r.prop_force_n.size) + 1) * character("humanoid3d").model.opt.timestep  # each step's end
+        before = times < r.fall_time_s if r.fall_time_s is not None else np.ones(times.size, bool)
+        return {"task_success": r.prop_goal, **contact_summary(r.prop_force_n, times, before),
+                **{k: (v if np.isfinite(v) else None) for k, v in r.prop_extras}}
+
     def evaluation(self) -> Evaluation:
         """The clip as the planar scoring's record (``cmrt.evaluate``: the fields of ``cmrt simulate --json`` that
-        a 3D clip has; the planar-only ones - props, steps, after-fall figures - empty)."""
+        a 3D clip has; the planar-only ones - steps, after-fall figures - empty)."""
         r = self.result
         err = np.nan_to_num(r.cop_xy_m - self.cop_reference_xy_m, nan=0.3)
         dt = float(r.time_s[1] - r.time_s[0]) if len(r.time_s) > 1 else 0.01
@@ -91,7 +108,8 @@ class Clip3d:
             final_pose_error_rad=self.final_pose_error_rad, final_com_speed_m_s=r.final_com_speed_m_s,
             n_samples=len(r.time_s), max_plan_cop_error_m=r.max_plan_cop_error_m,
             max_foot_slip_m=r.max_foot_slip_m, timing_lag_s=self.timing_lag_s,
-            timing_lag_bound_s=self.timing_lag_bound_s if moving else None, failed_rules=self.failed_rules)
+            timing_lag_bound_s=self.timing_lag_bound_s if moving else None, failed_rules=self.failed_rules,
+            **{k: v for k, v in self.prop_figures().items() if k in EVALUATION_FIELDS})
 
     @property
     def fell(self) -> bool:
@@ -127,7 +145,7 @@ def clip_3d(task: Task, curve: Cmrt, member: Perturbation | None = None) -> Clip
     push = (p["push_force_n"], p["push_force_y_n"], 0.0)
     pushed = (push, p["push_start_s"], p["push_duration_s"]) if any(push) else None
     if task.end_pose_deg is not None:
-        return _pose_change(task, curve, pushed)
+        return _pose_change(task, curve, pushed, 1.0 if member is None else member.prop_mass_scale)
     if p["stance_side"] == 0 and any(curve.values_m):
         raise CmrtError("a standing 3D task takes no CMRT (docs/body3d.md): only the zero one")
     if p["stance_side"] == 0:
@@ -151,10 +169,11 @@ def clip_3d(task: Task, curve: Cmrt, member: Perturbation | None = None) -> Clip
                   cop_reference_xy_m=lift.cop_reference_xy_m, kind="leg lift")
 
 
-def _pose_change(task: Task, curve: Cmrt, push) -> Clip3d:
+def _pose_change(task: Task, curve: Cmrt, push, prop_mass_scale: float = 1.0) -> Clip3d:
     """A planar task's pose change played by the 3D body (``cmrt.body.sagittal``), its CMRT forward: performed
     as the planar rule says - the end pose within 0.1 rad (the actuated joints' distance) and the motion tracked
-    over [P, P + T] within the RMS of its own reference played ``max_tracking_lag`` x T late - and on time."""
+    over [P, P + T] within the RMS of its own reference played ``max_tracking_lag`` x T late - and on time; with a
+    prop, its goal met instead (``prop_mass_scale``: an ensemble member's prop mass, as a multiple of the task's)."""
     if task.reference_mode != "center":
         raise CmrtError(f"a 3D pose change takes the centre reference for now, not {task.reference_mode}")
     start = stand_pose_qpos(task.start_pose_deg)
@@ -162,7 +181,11 @@ def _pose_change(task: Task, curve: Cmrt, push) -> Clip3d:
     def reference(t: np.ndarray):
         return planar_to_3d(*task.reference(t), start)
 
-    r, q_ref = pose_change_3d(reference, start, task.clip_s, curve, push=push)
+    held = None
+    if task.prop is not None:  # a ball to catch (cmrt.sim.prop3d): the planar prop on the 3D body
+        end = stand_pose_qpos(task.end_pose_deg)
+        held = HeldProp(task.prop, dict(task.params), task.model(), end, task.task_window_s(), prop_mass_scale)
+    r, q_ref = pose_change_3d(reference, start, task.clip_s, curve, push=push, held=held)
     m = character(task.body).model
     act = m.jnt_qposadr[m.actuator_trnid[:, 0]]
     final = _final_pose_error(task, r, q_ref[-1])
@@ -179,6 +202,10 @@ def _pose_change(task: Task, curve: Cmrt, push) -> Clip3d:
     lag = _lag(task, r, q_ref)
     centre = np.broadcast_to(feet_centre_xy(start), r.cop_xy_m.shape)
     miss = tracking / bound - 1.0 if tracking is not None and bound > 0 else 1.0
+    if held is not None:  # the planar interaction's rule: performed is the goal met, the end pose a rule of its own
+        failed, value = _judged(task, r, bool(r.prop_goal) and not r.fell, 1.0, lag, centre, final, r.prop_goal)
+        return Clip3d(r, value, failed, None, lag, timing_lag_bound_s(task), tracking, bound, final, centre,
+                      "interaction")
     failed, value = _judged(task, r, done, miss, lag, centre, None)
     return Clip3d(r, value, failed, None, lag, timing_lag_bound_s(task), tracking, bound, final, centre,
                   "pose change")
@@ -193,11 +220,12 @@ def _final_pose_error(task: Task, r: StandResult, target: np.ndarray) -> float:
 
 
 def _judged(task: Task, r: StandResult, done: bool, miss: float, lag: float | None, cop_reference: np.ndarray,
-            final: float | None) -> tuple[tuple[str, ...], float]:
+            final: float | None, goal: bool | None = None) -> tuple[tuple[str, ...], float]:
     """The planar verdict's order (balance, performed, on_time, then the clip's own rules, final_pose last) and
     the paper's objective with the planar penalties: ``miss`` is how far a motion not done was off (its excess over
     the tracking bound; 1 where it is not measured), ``lag`` how late it was, ``final`` the end pose's error where
-    a rule of its own judges it (None where "performed" does: a pose change)."""
+    a rule of its own judges it (None where "performed" does: a pose change), ``goal`` a prop's goal (None: no
+    prop; missed, the planar ``MISSED_GOAL_PENALTY``, fallen or not, in place of the motion's)."""
     bound = timing_lag_bound_s(task)
     failed = list(r.failed_rules)
     at = 1 if "balance" in failed else 0
@@ -208,7 +236,9 @@ def _judged(task: Task, r: StandResult, done: bool, miss: float, lag: float | No
         failed.append("final_pose")
         if not r.failed_rules:  # cop_error_objective added no plausibility penalty for it
             value += NOT_PLAUSIBLE_PENALTY * (1.0 + min(final / FINAL_POSE_TOLERANCE_RAD - 1.0, 1.0))
-    if ("performed" in failed or "on_time" in failed) and not r.fell:
+    if goal is False:
+        value += MISSED_GOAL_PENALTY
+    elif ("performed" in failed or "on_time" in failed) and not r.fell:
         excess = miss if "performed" in failed else 0.0
         if late:
             excess = max(excess, lag / bound - 1.0)

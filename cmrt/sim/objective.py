@@ -572,13 +572,19 @@ def foot_slip_m(traj: Trajectory) -> float | None:
 
 def _contact_summary(traj: Trajectory, before: np.ndarray) -> dict:
     """First hand-prop contact, peak force and impulse before any fall (all None without a prop)."""
-    force = traj.prop_force_n
-    if not np.isfinite(force).any():
+    return contact_summary(traj.prop_force_n, traj.time_s, before)
+
+
+def contact_summary(force_n: np.ndarray, time_s: np.ndarray, before: np.ndarray) -> dict:
+    """First hand-prop contact (s), peak force (N) and impulse (N s) over the steps ``before`` (a fall) of the
+    hands' force on a prop at every physics step (``force_n``, at ``time_s``; all None without a prop): the planar
+    and the 3D clips' figures."""
+    if not np.isfinite(force_n).any() or not before.any():
         return {"first_contact_s": None, "peak_contact_force_n": None, "contact_impulse_n_s": None}
-    f = np.nan_to_num(force[before])  # the same samples whether or not a topple was played out after
-    dt = float(traj.time_s[1] - traj.time_s[0])
+    f = np.nan_to_num(force_n[before])  # the same samples whether or not a topple was played out after
+    dt = float(time_s[1] - time_s[0])
     touching = np.flatnonzero(f > CONTACT_FORCE_N)
-    return {"first_contact_s": float(traj.time_s[before][touching[0]]) if touching.size else None,
+    return {"first_contact_s": float(time_s[before][touching[0]]) if touching.size else None,
             "peak_contact_force_n": float(f.max()), "contact_impulse_n_s": float(f.sum() * dt)}
 
 

@@ -96,6 +96,9 @@ SPATIAL_RULES = {
     "pose change": "pose change (the 3D body): the end pose within 0.1 rad, tracked within its bound and on time "
                    "(the planar rules), no fall, still at the end, planned and executed CoP within 5 mm, the CoP "
                    "inside the feet, ground force within 2.5 body weights",
+    "interaction": "interaction (the 3D body): the prop's goal met (the ball caught and held) and on time (the planar "
+                   "rules), no fall, still at the end, planned and executed CoP within 5 mm outside the impact, the "
+                   "CoP inside the feet, ground force within 2.5 body weights, the end pose within 0.1 rad",
     "leg lift": "leg lift (the 3D body): the foot 10 cm up within 1 cm at the end and on time (the planar timing "
                 "rule), no fall, still at the end, planned and executed CoP within 5 mm, the CoP inside the stance "
                 "foot, ground force within 2.5 body weights, the one-leg pose within 0.1 rad",
@@ -134,10 +137,11 @@ def spatial_dict(task: Task, c: Clip3d, curve: Cmrt, curve_name: str) -> dict:
         out |= {"lift_off_s": c.lift.lift_off_s, "foot_lift_m": c.lift.foot_lift_m,
                 "com_shift_toward_stance_before_lift_off_m": c.lift.com_shift_m,
                 "timing_lag_s": c.timing_lag_s, "timing_lag_bound_s": c.timing_lag_bound_s}
-    if c.kind == "pose change":
+    if c.kind in ("pose change", "interaction"):
         out |= {"tracking_error_rad": c.tracking_error_rad, "tracking_bound_rad": c.tracking_bound_rad,
                 "timing_lag_s": c.timing_lag_s,
                 "timing_lag_bound_s": c.timing_lag_bound_s}
+    out |= c.prop_figures()
     return out | {"verdict_bounds": verdict_bounds()}
 
 

@@ -3,11 +3,15 @@
 MuJoCo steps the physics at the model's 2 ms; the controller plans every ``control_every`` steps (125 Hz, as the
 planar clips) and its torques are held between. A push is a force on the thorax (``push_n``, world frame, N) for
 ``push_duration_s``. The executed CoP is the touch sensors' (every foot point's normal force at its place), the
-planned one the controller's point forces'. The body has fallen when its CoM has come down ``FALL_DROP_M`` from
-fallen by the planar monitor's rules (``cmrt.sim.balance``): its capture point more than 1 cm outside the support
-polygon, or its CoM below 0.55 m; the fall then plays out in the planar protective mode (motors off, the joints
-passive springs about the pose it fell in). The fall's direction is where the capture point left the support, the
-topple's where the CoM went by the end of the clip.
+planned one the controller's point forces'. The controller plans a force on each point on the floor: its lowest
+point within ``CONTACT_HEIGHT_M`` (1 mm) of it, the planar controller's rule. (By the touch sensors - any force at
+all - a heel point that went slack for a physics step under a caught ball's load lost its floor in the plan, whose
+CoP then ran to the toes and rolled the feet onto them: the first 3D catch broke ``plan`` by 15-25 mm and
+``cop_margin``, measured; docs/body3d.md.) The body has fallen by the planar monitor's rules
+(``cmrt.sim.balance``): its capture point more than 1 cm outside the support polygon, or its CoM below 0.55 m; the
+fall then plays out in the planar protective mode (motors off, the joints passive springs about the pose it fell
+in). The fall's direction is where the capture point left the support, the topple's where the CoM went by the end
+of the clip. A task's prop (a ball to catch) runs in the clip through ``cmrt.sim.prop3d``.
 
 The verdict is the planar one's for a clip without a motion to perform (the same bounds, ``cmrt.sim.objective``):
 ``balance`` (no fall), ``settled`` (the CoM still at the end), ``plan`` (planned and executed CoP within 5 mm on
@@ -24,10 +28,17 @@ from dataclasses import dataclass, replace
 import mujoco
 import numpy as np
 
-from cmrt.body.character import GRAVITY_M_S2, character, feet_flat_qpos, joint_angles_from_pose
+from cmrt.body.character import (
+    FOOT_POINT_RADIUS_M,
+    GRAVITY_M_S2,
+    character,
+    feet_flat_qpos,
+    joint_angles_from_pose,
+)
 from cmrt.body.one_leg import one_leg_poses
+from cmrt.body.props import CONTACT_FORCE_N
 from cmrt.control.controller import ControllerConfig
-from cmrt.control.spatial import SpatialController, SpatialTargets
+from cmrt.control.spatial import SpatialController, SpatialPlan, SpatialTargets
 from cmrt.motion.curve import Cmrt
 from cmrt.sim.balance import BalanceLimits
 from cmrt.sim.monitor import PROTECTIVE_DAMPING_PER_RAD_S, PROTECTIVE_STIFFNESS_PER_RAD
@@ -39,7 +50,8 @@ from cmrt.sim.objective import (
     NOT_PLAUSIBLE_PENALTY,
     SETTLED_COM_SPEED_M_S,
 )
-from cmrt.sim.simulate import PLANTED_FORCE_N
+from cmrt.sim.prop3d import HeldProp, PropClip, balancing_held, with_held
+from cmrt.sim.simulate import CONTACT_HEIGHT_M, PLANTED_FORCE_N
 
 BODY = "humanoid3d"
 IMPACT_WINDOW_S = 0.1  # after a push starts, plan and execution may part (the planar verdict's impact window)
@@ -68,6 +80,9 @@ class StandResult:
     airborne_s: float = 0.0
     max_joint_speed_rad_s: float = float("nan")
     max_foot_slip_m: float = 0.0
+    prop_goal: bool | None = None  # a held prop's goal met (a ball caught and held); None: no prop
+    prop_force_n: np.ndarray | None = None  # the hands' force on the prop, every physics step (N)
+    prop_extras: tuple[tuple[str, float], ...] = ()  # the prop's own figures (``Prop.extras``)
 
     @property
     def success(self) -> bool:
@@ -93,17 +108,19 @@ def feet_centre_xy(qpos: np.ndarray) -> np.ndarray:
 
 def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0, 0.0), push_start_s: float = 1.0,
              push_duration_s: float = 0.1, config: ControllerConfig = ControllerConfig(),
-             motion: Callable[[float], SpatialTargets] | None = None, start_qpos: np.ndarray | None = None
-             ) -> StandResult:
+             motion: Callable[[float], SpatialTargets] | None = None, start_qpos: np.ndarray | None = None,
+             held: HeldProp | None = None) -> StandResult:
     """Simulate the 3D body standing for ``clip_s`` (from ``start_qpos``, default the standing pose), pushed at the
     thorax by ``push_n``; ``motion``: the controller's targets at each control step's time (None: hold the start
-    pose). A fall plays out in the planar clips' protective mode."""
+    pose); ``held``: the task's prop (a ball to catch), its load on the hands known to the plan and its held mass
+    counted in what balances and falls. A fall plays out in the planar clips' protective mode."""
     ch = character(BODY)
-    m = copy.deepcopy(ch.model)  # protective mode changes the joints' springs: this clip's own model
+    m = copy.deepcopy(ch.model if held is None else held.model)  # the clip's own: protective mode, a prop change it
     d = mujoco.MjData(m)
-    d.qpos[:] = stand_pose_qpos() if start_qpos is None else start_qpos
+    d.qpos[:ch.model.nq] = stand_pose_qpos() if start_qpos is None else start_qpos
+    prop = PropClip(held, m, d) if held is not None else None  # the prop in its place before the first forward
     mujoco.mj_forward(m, d)
-    ctl = SpatialController(ch, d.qpos.copy(), config)
+    ctl = SpatialController(ch, d.qpos[:ch.model.nq].copy(), config, model=m)
     points = list(ch.foot_point_geoms)
     push = np.asarray(push_n, float)
     rows: list[tuple] = []
@@ -112,8 +129,10 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
     fall: tuple[float, np.ndarray] | None = None  # (time, the capture point's way out of the support)
     held_cop = np.full(2, np.nan)  # the CoP the torques held since the last control step were planned for
     for k in range(int(round(clip_s / m.opt.timestep))):
-        t = k * m.opt.timestep
-        if k % config.control_every == 0:
+        t, control = k * m.opt.timestep, k % config.control_every == 0
+        if prop is not None and fall is None:
+            prop.step(t, control)
+        if control:
             touch = d.sensordata[:len(points)].copy()
             xy = d.geom_xpos[points, :2]
             cop = touch @ xy / touch.sum() if touch.sum() > 0 else np.full(2, np.nan)
@@ -121,11 +140,14 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
                          np.where(touch >= PLANTED_FORCE_N, 1.0, np.nan)[:, None] * xy,
                          float(np.abs(d.qvel[list(ch.actuated_dofs)]).max())))
             if fall is None:
-                fall = _fallen(m, d, t, touch)
+                fall = _fallen(m, d, t, touch, prop)
                 if fall is not None:
                     _protective(m, ch, d)
+                    if prop is not None:
+                        prop.judge(m.opt.timestep)  # a fall freezes the prop's verdict
             if fall is None:
-                plan = ctl.plan(d, touch > 0.0, SpatialTargets() if motion is None else motion(t))
+                on_floor = d.geom_xpos[points, 2] - FOOT_POINT_RADIUS_M < CONTACT_HEIGHT_M  # the planar rule
+                plan = _planned(ctl, d, on_floor, SpatialTargets() if motion is None else motion(t), prop)
                 infeasible += ctl.infeasible
                 d.ctrl[:] = plan.torque_nm
                 held_cop = plan.cop_xy_m
@@ -134,27 +156,70 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
         d.xfrc_applied[ch.thorax_body, :3] = push if push_start_s <= t < push_start_s + push_duration_s else 0.0
         mujoco.mj_step(m, d)
         ground.append(float(d.sensordata[:len(points)].sum()))
+        if prop is not None:
+            prop.record()
+    return _finished(m, d, ctl, rows, (fall, infeasible, ground), push_start_s, prop)
+
+
+def _planned(ctl: SpatialController, d: mujoco.MjData, loaded: np.ndarray, targets: SpatialTargets,
+             prop: PropClip | None) -> SpatialPlan:
+    """The control step's plan, a held prop's load on the hands known to it and the CoM target moved by the share
+    of a held mass the controller balances (``prop3d.balancing_held``)."""
+    if prop is None:
+        return ctl.plan(d, loaded, targets)
+    held = prop.held()
+    if held is not None and targets.com_xy_m is not None:
+        x = balancing_held(float(targets.com_xy_m[0]), ctl.mass_kg, held)
+        targets = replace(targets, com_xy_m=np.array([x, targets.com_xy_m[1]]))
+    if held is not None:  # a gripped ball: carried in the plan, its inertia known
+        return ctl.plan(d, loaded, targets, held_mass=prop.carried())
+    return ctl.plan(d, loaded, targets, prop.load(ctl.nv))
+
+
+def _finished(m: mujoco.MjModel, d: mujoco.MjData, ctl: SpatialController, rows: list[tuple],
+              outcome: tuple[tuple[float, np.ndarray] | None, int, list[float]], push_start_s: float,
+              prop: PropClip | None) -> StandResult:
+    """The clip's result from its control-step samples (``rows``) and its outcome (the fall, the infeasible
+    steps, the ground force every physics step), the prop's verdict and figures with it."""
+    fall, infeasible, ground = outcome
     time_s = np.array([r[0] for r in rows])
     com = np.array([r[1] for r in rows])
     cop, plan_cop = np.array([r[2] for r in rows]), np.array([r[3] for r in rows])
     margin, qpos = np.array([r[4] for r in rows]), np.array([r[5] for r in rows])
     mujoco.mj_subtreeVel(m, d)
-    result = _result((time_s, qpos, com), (cop, plan_cop, margin), fall, push_start_s, infeasible,
+    impacts = (push_start_s,)
+    if prop is not None:
+        prop.judge(m.opt.timestep)
+        touched = np.flatnonzero(np.array(prop.force_n) > CONTACT_FORCE_N)
+        impacts += ((touched[0] + 1) * m.opt.timestep,) if touched.size else ()
+    result = _result((time_s, qpos, com), (cop, plan_cop, margin), fall, impacts, infeasible,
                      float(np.linalg.norm(d.subtree_linvel[1])))
+    if prop is not None:
+        result = replace(result, prop_goal=prop.goal, prop_force_n=np.array(prop.force_n),
+                         prop_extras=tuple(prop.extras.items()))
     step_t = np.arange(len(ground)) * m.opt.timestep + m.opt.timestep  # each total is after its step
     return _with_body_figures(result, (step_t, np.array(ground) / (ctl.mass_kg * GRAVITY_M_S2)),
-                              np.array([r[6] for r in rows]), np.array([r[7] for r in rows]), push_start_s)
+                              np.array([r[6] for r in rows]), np.array([r[7] for r in rows]), impacts)
+
+
+def _outside_impacts(t: np.ndarray, impacts: tuple[float, ...]) -> np.ndarray:
+    """The samples judged: after the first contacts settle and outside ``IMPACT_WINDOW_S`` from each impact's start
+    (a push, the hands' first contact with a prop)."""
+    keep = t >= SETTLE_S
+    for start in impacts:
+        keep &= (t < start) | (t >= start + IMPACT_WINDOW_S)
+    return keep
 
 
 def _with_body_figures(r: StandResult, ground: tuple[np.ndarray, np.ndarray], planted_xy: np.ndarray,
-                       joint_speed: np.ndarray, push_start_s: float) -> StandResult:
-    """``r`` with the planar clips' physical figures (outside the first 0.1 s and the push's window, before a
+                       joint_speed: np.ndarray, impacts: tuple[float, ...]) -> StandResult:
+    """``r`` with the planar clips' physical figures (outside the first 0.1 s and the impacts' windows, before a
     fall): peak ground force (body weights, every physics step), time with no foot on the floor, the fastest
     joint, and how far a planted point slid (a point carrying ``PLANTED_FORCE_N`` or more, from where it was first
     planted until it lets go; ``planted_xy``: (n, points, 2), NaN where unplanted); the ``ground_force`` and
     ``airborne`` rules join the verdict."""
     def judged(t: np.ndarray) -> np.ndarray:
-        keep = (t >= SETTLE_S) & ((t < push_start_s) | (t >= push_start_s + IMPACT_WINDOW_S))
+        keep = _outside_impacts(t, impacts)
         return keep & (t < r.fall_time_s) if r.fall_time_s is not None else keep
 
     step_t, bw = ground
@@ -181,21 +246,26 @@ def _with_body_figures(r: StandResult, ground: tuple[np.ndarray, np.ndarray], pl
                    max_foot_slip_m=slide, failed_rules=tuple(failed))
 
 
-def _fallen(m: mujoco.MjModel, d: mujoco.MjData, t: float, touch: np.ndarray) -> tuple[float, np.ndarray] | None:
+def _fallen(m: mujoco.MjModel, d: mujoco.MjData, t: float, touch: np.ndarray, prop: PropClip | None = None
+            ) -> tuple[float, np.ndarray] | None:
     """The planar monitor's rules in 3D (``cmrt.sim.balance``): a foot rolled more than ``roll_rad`` off level, the
     capture point more than ``capture_margin_m`` outside the support - the whole sole of every foot that touches,
     as the planar support spans heel to toe (a foot on its toe comes back down flat while the capture point is
     over its sole) - or the CoM below ``com_height_m``. Returns (now, the capture point's offset from the support's
-    centre) on a fall, else None."""
+    centre) on a fall, else None. A held mass the body does not carry counts in the CoM (``prop3d.with_held``); hands
+    on a prop that holds the body up (a slab) suspend the capture point's rule, as on the planar body."""
     limits, ch = BalanceLimits(), character(BODY)
     mujoco.mj_subtreeVel(m, d)
     com, vel = d.subtree_com[1], d.subtree_linvel[1]
+    if prop is not None:
+        com, vel = with_held(com, vel, float(m.body_subtreemass[1]), prop.held())
     capture = com[:2] + vel[:2] / np.sqrt(GRAVITY_M_S2 / max(float(com[2]), 1e-3))
     soles = [list(pair) for pair, n in zip(ch.foot_points, np.split(touch, 2), strict=True) if (n > 0.0).any()]
     sole_xy = d.geom_xpos[[g for pair in soles for g in pair], :2]
     centre = sole_xy.mean(axis=0) if len(sole_xy) else com[:2]
     rolled = any(d.xmat[body, 8] < np.cos(limits.roll_rad) for body in ch.foot_bodies)  # the sole's normal's z
     out = len(sole_xy) == 0 or _margin(capture, sole_xy) < -limits.capture_margin_m
+    out = out and not (prop is not None and prop.leaning())
     if rolled or out or com[2] < limits.com_height_m:
         return t, capture - centre
     return None
@@ -234,13 +304,13 @@ def _margin(cop: np.ndarray, touching_xy: np.ndarray) -> float:
 
 
 def _result(motion: tuple[np.ndarray, np.ndarray, np.ndarray], cops: tuple[np.ndarray, np.ndarray, np.ndarray],
-            fall: tuple[float, np.ndarray] | None, push_start_s: float, infeasible: int, final_speed: float
+            fall: tuple[float, np.ndarray] | None, impacts: tuple[float, ...], infeasible: int, final_speed: float
             ) -> StandResult:
     """The clip's figures and verdict from its samples (``motion``: times, poses, CoM; ``cops``: executed,
     planned, the executed one's margin; ``fall``: when, and where the capture point left)."""
     time_s, qpos, com = motion
     cop, plan_cop, margin = cops
-    judged = (time_s >= SETTLE_S) & ((time_s < push_start_s) | (time_s >= push_start_s + IMPACT_WINDOW_S))
+    judged = _outside_impacts(time_s, impacts)
     fall_time = None if fall is None else fall[0]
     if fall_time is not None:
         judged &= time_s < fall_time
@@ -352,12 +422,12 @@ def leg_lift_3d(shift_s: float = 1.5, lift_s: float = 0.8, clip_s: float = 5.0, 
 
 def pose_change_3d(reference: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]],
                    start_qpos: np.ndarray, clip_s: float, cmrt_x: Cmrt, config: ControllerConfig = ControllerConfig(),
-                   push: tuple[tuple[float, float, float], float, float] | None = None
+                   push: tuple[tuple[float, float, float], float, float] | None = None, held: HeldProp | None = None
                    ) -> tuple[StandResult, np.ndarray]:
     """The 3D body moving through ``reference`` (times (n,) -> q (n, nq), qd and qdd (n, nv): its pose, tracked
     with the rates fed forward) from ``start_qpos``, both feet down, in the paper's centre mode: the CoM's and
     CoP's reference the feet's centre, the CoM's displaced forward by the CMRT ``cmrt_x``. Returns the clip and the
-    reference pose at its samples. ``push`` as ``leg_lift_3d``'s."""
+    reference pose at its samples. ``push`` as ``leg_lift_3d``'s, ``held`` as ``stand_3d``'s."""
     centre = feet_centre_xy(start_qpos)
     forward = np.array([1.0, 0.0])
 
@@ -369,7 +439,7 @@ def pose_change_3d(reference: Callable[[np.ndarray], tuple[np.ndarray, np.ndarra
 
     force, push_start_s, push_duration_s = push if push is not None else ((0.0, 0.0, 0.0), clip_s, 0.1)
     result = stand_3d(clip_s=clip_s, push_n=force, push_start_s=push_start_s, push_duration_s=push_duration_s,
-                      config=config, motion=motion, start_qpos=start_qpos)
+                      config=config, motion=motion, start_qpos=start_qpos, held=held)
     return result, reference(result.time_s)[0]
 
 

@@ -56,10 +56,11 @@ def render_3d(task: Task, curve: Cmrt, out: str | Path, compare: Cmrt | None = N
     captions = [f"{label}: {verdict(c.evaluation())}" for c, label in scored]
     with inputs.atomic_output(out, "--out", OUT_SUFFIXES) as tmp:
         if video:
-            write_video(tmp, _video_frames([c.result for c, _ in scored], captions, times, height, width), fps)
+            write_video(tmp, _video_frames([c.result for c, _ in scored], captions, times, height, width,
+                                           task.model()), fps)
         else:
             rows = [row for (c, _), caption in zip(scored, captions, strict=True)
-                    for row in _view_rows(c.result, times, height, width, caption)]
+                    for row in _view_rows(c.result, times, height, width, caption, task.model())]
             overlay.save_png(np.concatenate(rows, axis=0), tmp)
     return {"out": str(out), "frames": len(times), "times_s": None if video else [round(float(t), 3) for t in times],
             "views": [v for v, _ in VIEWS], "clips": [
@@ -68,27 +69,30 @@ def render_3d(task: Task, curve: Cmrt, out: str | Path, compare: Cmrt | None = N
                  "fall_time_s": c.result.fall_time_s, "objective": c.objective} for c, label in scored]}
 
 
-def _video_frames(results: list[StandResult], captions: list[str], times_s: np.ndarray, height: int, width: int):
+def _video_frames(results: list[StandResult], captions: list[str], times_s: np.ndarray, height: int, width: int,
+                  model: mujoco.MjModel):
     """The video's frames, ``VIDEO_CHUNK`` times at a time: each clip's front view over its side view, side by
     side."""
     for start in range(0, len(times_s), VIDEO_CHUNK):
         chunk = times_s[start:start + VIDEO_CHUNK]
-        views = [_view_frames(r, chunk, height, width, caption) for r, caption in zip(results, captions, strict=True)]
+        views = [_view_frames(r, chunk, height, width, caption, model)
+                 for r, caption in zip(results, captions, strict=True)]
         for i in range(len(chunk)):
             yield np.concatenate([np.concatenate([v[i] for v in clip], axis=0) for clip in views], axis=1)
 
 
-def _view_rows(result: StandResult, times_s: np.ndarray, height: int, width: int, label: str = ""
-               ) -> list[np.ndarray]:
+def _view_rows(result: StandResult, times_s: np.ndarray, height: int, width: int, label: str = "",
+               model: mujoco.MjModel | None = None) -> list[np.ndarray]:
     """One row of frames per view (``VIEWS``) of ``result`` at ``times_s`` (``_view_frames`` side by side)."""
-    return [np.concatenate(view, axis=1) for view in _view_frames(result, times_s, height, width, label)]
+    return [np.concatenate(view, axis=1) for view in _view_frames(result, times_s, height, width, label, model)]
 
 
-def _view_frames(result: StandResult, times_s: np.ndarray, height: int, width: int, label: str = ""
-                 ) -> list[list[np.ndarray]]:
+def _view_frames(result: StandResult, times_s: np.ndarray, height: int, width: int, label: str = "",
+                 model: mujoco.MjModel | None = None) -> list[list[np.ndarray]]:
     """Per view (``VIEWS``), the frames of ``result`` at ``times_s``, each captioned with the view, the time,
-    ``label`` and whether the body has fallen."""
-    m = character(BODY).model
+    ``label`` and whether the body has fallen; ``model``: the clip's (a task's prop drawn with the body; default
+    the body alone)."""
+    m = character(BODY).model if model is None else model
     d = mujoco.MjData(m)
     renderer = _renderer(m, height, width)
     camera = mujoco.MjvCamera()

@@ -345,3 +345,36 @@ def test_the_controller_plans_with_the_held_balls_pull(caught, monkeypatch):
     monkeypatch.setattr(prop_class("ball"), "hand_load", lambda self, b, rows: None)
     blind = evaluate(task, simulate(task, CATCH_CMRT))
     assert blind.max_plan_cop_error_m > 0.005
+
+
+def test_on_the_3d_body_the_ball_is_free_and_rests_on_both_hands():
+    """catch3d's ball: a free joint (in space, not on the planar ball's joints), wide enough (``ball_radius_m``) that
+    at its catch point over the end pose it touches both hands, 0.4 m apart, where it is gripped (``_hand_gap`` in
+    space on the 3D body)."""
+    from cmrt.sim.spatial import stand_pose_qpos
+
+    task = load_task("catch3d")
+    m = task.model()
+    ball = prop_class("ball")(m, task.params)
+    assert ball.spatial and m.jnt_type[m.joint("ball").id] == mujoco.mjtJoint.mjJNT_FREE
+    assert m.geom("ball").size[0] == task.params["ball_radius_m"] == 0.178
+    d = mujoco.MjData(m)
+    d.qpos[:m.nq - 7] = stand_pose_qpos(task.end_pose_deg)
+    d.qpos[m.nq - 7:] = [task.params["ball_reach_m"], 0.0, task.params["ball_height_m"], 1.0, 0.0, 0.0, 0.0]
+    mujoco.mj_kinematics(m, d)
+    b = {"xpos": d.xpos[None], "xmat": d.xmat[None]}
+    assert abs(ball._hand_gap(b, np.zeros(1, np.int64))[0]) < 0.002  # on the right hand
+    left, right = (d.xpos[m.body(f"forearm_{s}").id] for s in "lr")
+    assert left[1] == pytest.approx(-right[1]) and right[1] == pytest.approx(-0.2)  # ... and, mirrored, the left
+
+
+def test_a_ball_radius_at_its_default_leaves_a_tasks_hash():
+    """``ball_radius_m`` came after runs and library entries were stored: at 0.12 m (what every ball was) a task's
+    hash is what it was without the key; another radius is another task."""
+    from dataclasses import replace
+
+    task = load_task("catch")
+    assert task.params["ball_radius_m"] == BALL_RADIUS_M
+    without = replace(task, params={k: v for k, v in task.params.items() if k != "ball_radius_m"})
+    assert without.content_hash() == task.content_hash()
+    assert task.with_params(ball_radius_m=0.15).content_hash() != task.content_hash()

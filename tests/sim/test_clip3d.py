@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cmrt.body.character import character
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.library import library_curve
@@ -139,3 +140,34 @@ def test_a_robust_3d_candidate_is_scored_on_every_member():
     clips = [clip_3d(task, curve, m) for m in training_members(task, task.robust, False)]
     assert len(clips) > 1 and record.objective == combine([c.objective for c in clips], task.robust)
     assert record.success == all(c.success for c in clips)
+
+
+def test_the_3d_catch_falls_forward_without_a_cmrt_and_holds_the_ball_with_the_librarys():
+    """catch3d: the planar 7 kg catch on the 3D body (``cmrt.sim.prop3d``: the same ball, grip and verdict; its pull
+    on the hands known to the 3D plan). The reactive controller grips the ball and falls forward with it; the
+    library's CMRT moves the CoM back before the ball arrives and holds it, the plan what happens."""
+    task = load_task("catch3d")
+    zero = clip_3d(task, Cmrt.zero(task.clip_s))
+    caught = zero.prop_figures()
+    assert zero.fell and zero.failed_rules[0] == "balance" and caught["task_success"] is False
+    assert 1.4 < caught["grip_s"] < 1.5 < zero.result.fall_time_s  # gripped on time, then fell with it
+    assert zero.result.fall_direction_xy[0] > 0.9  # forward, toward the ball
+    found = clip_3d(task, library_curve(task))
+    assert found.success, found.failed_rules
+    held = found.prop_figures()
+    assert held["task_success"] and held["ball_held_s"] >= task.params["ball_hold_s"]
+    assert found.result.max_plan_cop_error_m <= MAX_PLAN_COP_ERROR_M and found.objective < 5.0 < zero.objective
+    before = np.searchsorted(found.result.time_s, held["grip_s"]) - 1
+    assert found.result.com_m[before, 0] < zero.result.com_m[before, 0] - 0.015  # the anticipation: back first
+    # the ball carried in the plan (its inertia known): the arms do not keep turning about their own axes
+    yaw = character("humanoid3d").model.joint("shoulder_yaw_r").qposadr[0]
+    settled = found.result.time_s >= held["grip_s"] + 0.5
+    assert np.abs(found.result.qpos[settled, yaw]).max() < 0.05
+
+
+def test_same_catch_same_result():
+    task = load_task("catch3d").with_params(clip_s=2.0)
+    curve = Cmrt.from_params(np.full(8, 0.2), task.clip_s)
+    a, b = clip_3d(task, curve), clip_3d(task, curve)
+    assert a.objective == b.objective and np.array_equal(a.result.qpos, b.result.qpos)
+    assert np.array_equal(a.result.prop_force_n, b.result.prop_force_n) and a.prop_figures() == b.prop_figures()
