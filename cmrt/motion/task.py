@@ -86,14 +86,15 @@ DEFAULTS_3D = {"push_force_y_n": 0.0, "stance_side": 0.0, "lift_fraction": 0.35}
 MIN_HOLD_3D_S = 0.5  # s: a leg lift's clip holds the one-leg pose at least this long after T
 
 
-#: The props a 3D pose change may hold (``cmrt.body.props``; docs/body3d.md, *The catch in 3D*).
-PROPS_3D = ("ball",)
+#: The props a 3D pose change may hold or push (``cmrt.body.props``; docs/body3d.md, *The catch in 3D*, *The push in
+#: 3D*).
+PROPS_3D = ("ball", "slab")
 
 
 def params_off_3d(params: dict[str, float], prop: str | None = None) -> list[str]:
     """The parameters a 3D task sets that the 3D body does not take yet (``PARAMS_3D`` and its prop's aside, any
     off its default): a task file's and a ``--set``'s check, one rule."""
-    own = PARAMS_3D | set(prop_class(prop).PARAMS if prop in PROPS_3D else ())
+    own = PARAMS_3D | {"via_fraction"} | set(prop_class(prop).PARAMS if prop in PROPS_3D else ())
     return sorted(k for k, v in params.items() if k not in own and v != DEFAULT_PARAMS.get(k))
 
 

@@ -104,15 +104,16 @@ def _body(raw: dict, where: str) -> str:
 
 def _checked_3d(task: Task, where: str) -> Task:
     """A 3D task validated: it stands, pushed or not, lifts a foot, or changes its pose sagittally (docs/body3d.md) -
-    no via pose, footsteps or timing, no prop but one of ``PROPS_3D`` held in a pose change (a caught ball), no
-    parameter but ``PARAMS_3D`` and that prop's off its default (a robust ensemble's
+    no footsteps or timing, no via pose or prop but in a pose change (one of ``PROPS_3D``: a ball to catch, a slab
+    to push), no parameter but ``PARAMS_3D``, ``via_fraction`` and that prop's off its default (a robust ensemble's
     table is its own: ``cmrt.sim.clip3d.perturbed_3d`` plays its members), its
     speed (if any) T - in a standing pose the 3D body can take (feet flat, the CoM over them); a pose change's
     poses name the planar body's joints (its reference is the planar one's, ``cmrt.body.sagittal``)."""
     task = replace(task, params={**DEFAULTS_3D, **task.params})
     task = task.with_robust(task.robust.enabled) if task.robust.enabled else task  # a push of its own: refused
     held = task.prop in PROPS_3D and task.end_pose_deg is not None  # a pose change may hold a 3D prop
-    others = [key for key, value in (("via_pose_deg", task.via_pose_deg), ("prop", None if held else task.prop),
+    via = None if task.end_pose_deg is not None else task.via_pose_deg  # a pose change may pass through one
+    others = [key for key, value in (("via_pose_deg", via), ("prop", None if held else task.prop),
                                      ("steps", task.steps), ("timing", task.timing)) if value]
     others += params_off_3d(task.params, task.prop)
     if task.speed_param not in (None, "duration_s"):

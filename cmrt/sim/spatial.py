@@ -139,8 +139,8 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
             rows.append((t, d.subtree_com[1].copy(), cop, held_cop, _margin(cop, xy[touch > 0.0]), d.qpos.copy(),
                          np.where(touch >= PLANTED_FORCE_N, 1.0, np.nan)[:, None] * xy,
                          float(np.abs(d.qvel[list(ch.actuated_dofs)]).max())))
-            if fall is None:
-                fall = _fallen(m, d, t, touch, prop)
+            if fall is None and t >= SETTLE_S - 1e-12:  # judged once the first contacts have settled: a pose
+                fall = _fallen(m, d, t, touch, prop)  # placed just on the floor touches with no force at first
                 if fall is not None:
                     _protective(m, ch, d)
                     if prop is not None:

@@ -29,7 +29,7 @@ def test_a_3d_task_round_trips_and_a_planar_one_has_no_body_key():
      "not both"),
     ({"steps": [{"foot": "R", "x_m": 0.2, "duration_s": 0.6}]}, "not steps"),
     ({"params": {"stepping": 1.0}}, "not stepping"),
-    ({"prop": {"kind": "slab"}, "end_pose_deg": {"hip": -30.0}, "params": {"clip_s": 3.0, "duration_s": 0.5}},
+    ({"prop": {"kind": "bag"}, "end_pose_deg": {"hip": -30.0}, "params": {"clip_s": 3.0, "duration_s": 0.5}},
      "not prop"),
     ({"prop": {"kind": "ball"}}, "not prop"),  # a ball is caught by a pose change, not by standing
     ({"prop": {"kind": "ball"}, "end_pose_deg": {"shoulder": -90.0}, "params": {"clip_s": 3.0, "duration_s": 0.5}},

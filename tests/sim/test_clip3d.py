@@ -165,6 +165,21 @@ def test_the_3d_catch_falls_forward_without_a_cmrt_and_holds_the_ball_with_the_l
     assert np.abs(found.result.qpos[settled, yaw]).max() < 0.05
 
 
+def test_the_3d_push_is_pushed_back_without_a_cmrt_and_topples_the_slab_with_the_librarys():
+    """push3d: the planar push on the 3D body, the 140 kg slab. The reactive controller's hands meet the slab and it
+    pushes them back: the body falls backward, the slab stands; the library's CMRT leans into the push and the slab
+    goes over, pushed (under ``max_push_force_n``), the body standing."""
+    task = load_task("push3d")
+    zero = clip_3d(task, Cmrt.zero(task.clip_s))
+    assert zero.fell and zero.prop_figures()["task_success"] is False
+    assert zero.result.fall_direction_xy[0] < -0.9  # backward, away from the slab
+    found = clip_3d(task, library_curve(task))
+    assert found.success, found.failed_rules
+    pushed = found.prop_figures()
+    assert pushed["task_success"] and pushed["peak_contact_force_n"] <= task.params["max_push_force_n"]
+    assert found.objective < 5.0 < zero.objective
+
+
 def test_same_catch_same_result():
     task = load_task("catch3d").with_params(clip_s=2.0)
     curve = Cmrt.from_params(np.full(8, 0.2), task.clip_s)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cmrt.sim.objective import SETTLED_COM_SPEED_M_S
-from cmrt.sim.spatial import _margin, stand_3d
+from cmrt.sim.spatial import _margin, stand_3d, stand_pose_qpos
 
 PLAN_GAP_M = 0.005  # planned vs executed CoP, each axis (the planar verdict's bound)
 
@@ -20,6 +20,14 @@ def test_stands_still_for_ten_seconds():
     assert r.max_plan_cop_error_m <= PLAN_GAP_M
     assert r.final_com_speed_m_s < SETTLED_COM_SPEED_M_S
     assert abs(r.peak_normal_force_bw - 1.0) < 0.01 and r.max_foot_slip_m < 1e-4  # the feet carry the weight
+
+
+def test_a_pose_placed_just_on_the_floor_is_not_a_fall_before_its_contacts_settle():
+    """A standing pose put exactly on the floor touches it with no force at first (this one: every touch sensor 0
+    at t = 0); the fall monitor judges from 0.1 s on, as the verdict's other rules do (it was a fall at t = 0)."""
+    start = stand_pose_qpos({"shoulder": -15.0, "elbow": -95.0})
+    r = stand_3d(clip_s=1.0, start_qpos=start)
+    assert not r.fell and r.success, r.failed_rules
 
 
 @pytest.mark.parametrize("push_n", [(100.0, 0.0, 0.0), (-100.0, 0.0, 0.0), (0.0, 100.0, 0.0), (0.0, -100.0, 0.0)])
