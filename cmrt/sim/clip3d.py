@@ -270,7 +270,7 @@ def sideways_trace(task: Task, c: Clip3d) -> dict[str, np.ndarray]:
     foot's after), up to a fall: what a 3D run's CoP plot shows (m)."""
     r = c.result
     ch = character(task.body)
-    both = r.qpos[0]
+    both = r.qpos[0, :ch.model.nq]  # the body's coordinates (a prop's follow them)
     d = mujoco.MjData(ch.model)
     d.qpos[:] = both
     mujoco.mj_kinematics(ch.model, d)
