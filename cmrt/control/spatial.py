@@ -75,7 +75,8 @@ class SpatialController:
     ``q_ref`` (nq) is the pose it holds, kept ``stop_margin_rad`` inside every joint's stops. ``model``: the clip's
     own (default the body's): a task's prop comes after the humanoid in it (``cmrt.body.props``), so the humanoid's
     bodies and dofs lead and the plan is over them - a prop is a separate tree, its dofs no part of the humanoid's
-    inertia or Jacobians - and what the prop does to the hands reaches the plan as a load (``plan``'s ``load``)."""
+    inertia or Jacobians - and what the prop does to the hands reaches the plan as ``plan``'s ``load_gen`` (a
+    generalized force) or ``held_mass`` (a mass the hands carry)."""
 
     def __init__(self, ch: Character, q_ref: np.ndarray, config: ControllerConfig = ControllerConfig(),
                  control_step_s: float | None = None, model: mujoco.MjModel | None = None):
