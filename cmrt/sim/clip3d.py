@@ -39,7 +39,7 @@ from cmrt.sim.objective import (
     joint_lags_s,
     timing_lag_bound_s,
 )
-from cmrt.sim.prop3d import HeldProp
+from cmrt.sim.prop3d import HeldProp, force_times_s
 from cmrt.sim.spatial import (
     LegLiftClip,
     StandResult,
@@ -82,7 +82,7 @@ class Clip3d:
         r = self.result
         if r.prop_force_n is None:
             return {}
-        times = (np.arange(r.prop_force_n.size) + 1) * character("humanoid3d").model.opt.timestep  # each step's end
+        times = force_times_s(r.prop_force_n.size, character("humanoid3d").model.opt.timestep)
         before = times < r.fall_time_s if r.fall_time_s is not None else np.ones(times.size, bool)
         return {"task_success": r.prop_goal, **contact_summary(r.prop_force_n, times, before),
                 **{k: (v if np.isfinite(v) else None) for k, v in r.prop_extras}}

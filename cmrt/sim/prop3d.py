@@ -97,12 +97,11 @@ class PropClip:
         mujoco.mj_mulJacTVec(m, d, gen, np.where(rows, d.efc_force, 0.0))
         return gen[:nv]
 
-    def carried(self) -> tuple[float, np.ndarray, tuple[int, ...]]:
-        """The held mass as the plan carries it: kg, where it is (world, m) and the bodies holding it equally
-        (``Prop.hand_load``'s)."""
-        mass = self.prop.held_mass(self.b, self.ids)[0][0]
+    def carried(self, mass_kg: float) -> tuple[float, np.ndarray, tuple[int, ...]]:
+        """A held mass (``held``'s kg) as the plan carries it: kg, where it is (world, m) and the bodies holding it
+        equally (``Prop.hand_load``'s)."""
         _, point, bodies = self.prop.hand_load(self.b, self.ids)
-        return float(mass), np.asarray(point[0], float), tuple(int(b) for b in bodies)
+        return mass_kg, np.asarray(point[0], float), tuple(int(b) for b in bodies)
 
     def held(self) -> tuple[float, np.ndarray, float, float] | None:
         """A mass the hands hold that the body does not carry (kg), its (x, z), its x velocity and the share of it
@@ -117,10 +116,15 @@ class PropClip:
         """The prop's goal and figures now (once: the first call, at a fall or at the clip's end)."""
         if self.goal is not None:
             return
-        times = (np.arange(len(self.force_n)) + 1) * dt_s  # each force is the step's that ends then
+        times = force_times_s(len(self.force_n), dt_s)
         verdict = self.prop.success(self.b, self.ids, np.array(self.force_n)[None], times, self.window_s)
         self.goal = bool(verdict[0]) if verdict is not None else True
         self.extras = {k: float(v[0]) for k, v in self.prop.extras(self.b, self.ids).items()}
+
+
+def force_times_s(n: int, step_s: float) -> np.ndarray:
+    """When each of ``n`` recorded hand-prop forces was measured (s): each is the physics step's that ends then."""
+    return (np.arange(n) + 1) * step_s
 
 
 def with_held(com: np.ndarray, vel: np.ndarray, body_kg: float,

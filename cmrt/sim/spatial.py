@@ -36,7 +36,6 @@ from cmrt.body.character import (
     joint_angles_from_pose,
 )
 from cmrt.body.one_leg import one_leg_poses
-from cmrt.body.props import CONTACT_FORCE_N
 from cmrt.control.controller import ControllerConfig
 from cmrt.control.spatial import SpatialController, SpatialPlan, SpatialTargets
 from cmrt.motion.curve import Cmrt
@@ -49,8 +48,9 @@ from cmrt.sim.objective import (
     MIN_COP_MARGIN_M,
     NOT_PLAUSIBLE_PENALTY,
     SETTLED_COM_SPEED_M_S,
+    contact_summary,
 )
-from cmrt.sim.prop3d import HeldProp, PropClip, balancing_held, with_held
+from cmrt.sim.prop3d import HeldProp, PropClip, balancing_held, force_times_s, with_held
 from cmrt.sim.simulate import CONTACT_HEIGHT_M, PLANTED_FORCE_N
 
 BODY = "humanoid3d"
@@ -172,7 +172,7 @@ def _planned(ctl: SpatialController, d: mujoco.MjData, loaded: np.ndarray, targe
         x = balancing_held(float(targets.com_xy_m[0]), ctl.mass_kg, held)
         targets = replace(targets, com_xy_m=np.array([x, targets.com_xy_m[1]]))
     if held is not None:  # a gripped ball: carried in the plan, its inertia known
-        return ctl.plan(d, loaded, targets, held_mass=prop.carried())
+        return ctl.plan(d, loaded, targets, held_mass=prop.carried(held[0]))
     return ctl.plan(d, loaded, targets, prop.load(ctl.nv))
 
 
@@ -190,8 +190,9 @@ def _finished(m: mujoco.MjModel, d: mujoco.MjData, ctl: SpatialController, rows:
     impacts = (push_start_s,)
     if prop is not None:
         prop.judge(m.opt.timestep)
-        touched = np.flatnonzero(np.array(prop.force_n) > CONTACT_FORCE_N)
-        impacts += ((touched[0] + 1) * m.opt.timestep,) if touched.size else ()
+        force = np.array(prop.force_n)
+        first = contact_summary(force, force_times_s(force.size, m.opt.timestep), np.ones(force.size, bool))
+        impacts += (first["first_contact_s"],) if first["first_contact_s"] is not None else ()
     result = _result((time_s, qpos, com), (cop, plan_cop, margin), fall, impacts, infeasible,
                      float(np.linalg.norm(d.subtree_linvel[1])))
     if prop is not None:
