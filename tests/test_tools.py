@@ -310,6 +310,11 @@ def test_bit_identity_tool(tmp_path):
     b.write_text(json.dumps(doc))
     r = run_tool_here("bit_identity.py", "--compare", str(a), str(b))
     assert r.returncode == 1 and json.loads(r.stdout)["differences"] == ["catch/scored[0].cop_x_m"]
+    _ok(run_tool("bit_identity.py", "--body3d", "--out", str(b)))  # the 3D body's set: every shipped 3D task
+    body3d = json.loads(b.read_text())
+    assert {"leg-lift", "bend3d", "catch3d", "push3d", "stand3d/side-100"} <= set(body3d)
+    assert body3d["leg-lift"][0]["failed_rules"][0] == "balance" and body3d["leg-lift"][1]["failed_rules"] == []
+    assert body3d["catch3d"][1]["result.ctrl_nm"].startswith("<f8[")  # the torques, hashed
 
 
 def test_bench_memory_tool():

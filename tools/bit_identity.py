@@ -4,14 +4,16 @@
     python tools/bit_identity.py [--quick] --out after.json         # on the new code
     python tools/bit_identity.py --compare before.json after.json   # exit 1 and the differing arrays
 
-The set: every shipped task (bend at 0.4 and 1.2 s, rise, punch, catch, push, push-recovery with its
+The set: every shipped planar task (bend at 0.4 and 1.2 s, rise, punch, catch, push, push-recovery with its
 stepping) with the zero and the library CMRT, recorded (``simulate(..., record=True)``: every array at
 every step, falls played out in protective mode) and scored (``record=False``, the optimizer's path), the
 robust ensemble of the fast bend and the catch as one batch, Yu's reference mode on the fast bend, and one
 sequence (``four-poses``). Each array is hashed with its dtype and shape (SHA-256 of its bytes), each
 scalar written out, so "identical" means bit for bit on this machine. ``--quick``: the fast bend and the
-catch only. A refactor that changes no physics must leave the file unchanged; compare on one machine
-(another machine's libm or BLAS may round differently).
+catch only. ``--body3d``: the 3D body's set instead - every shipped 3D task with the zero and the library CMRT,
+and the standing body pushed from the side (each clip's samples, torques, figures, verdict and objective). A
+refactor that changes no physics must leave the file unchanged; compare on one machine (another machine's libm
+or BLAS may round differently).
 """
 
 from __future__ import annotations
@@ -71,6 +73,24 @@ def clips(quick: bool):
         yield "sequence/four-poses", [simulate(seq, superpose(seq), record=True)]
 
 
+def clips_3d():
+    """(name, list of 3D clips' records) for the 3D set."""
+    from cmrt import available_tasks, library_curve, load_task, simulate
+
+    names = [n for n in available_tasks() if getattr(load_task(n), "body", "planar") != "planar"]
+    for name in sorted(names):
+        task = load_task(name)
+        yield name, [_clip_3d(simulate(task, curve)) for curve in (None, library_curve(task))]
+    stand = load_task("docs/examples/stand3d.toml")
+    yield "stand3d/side-100", [_clip_3d(simulate(stand.with_params(push_force_y_n=100.0)))]
+
+
+def _clip_3d(clip) -> dict:
+    """A 3D clip's record: its samples and figures (``StandResult``) and its score."""
+    record = {f"result.{k}": v for k, v in fingerprint(clip.result).items() if k != "inputs"}  # objects, no values
+    return {**record, "objective": clip.objective, "failed_rules": list(clip.failed_rules)}
+
+
 def _flat(doc: dict) -> dict:
     return {f"{clip}[{i}].{k}": v for clip, trajs in doc.items() for i, t in enumerate(trajs) for k, v in t.items()}
 
@@ -79,6 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", help="write the fingerprint here (default: stdout)")
     ap.add_argument("--quick", action="store_true", help="the fast bend and the catch only")
+    ap.add_argument("--body3d", action="store_true", help="the 3D body's clips instead")
     ap.add_argument("--compare", nargs=2, metavar=("BEFORE", "AFTER"))
     a = ap.parse_args(argv)
     if a.compare:
@@ -86,7 +107,10 @@ def main(argv: list[str] | None = None) -> int:
         diff = sorted(k for k in set(before) | set(after) if before.get(k, "<absent>") != after.get(k, "<absent>"))
         print(json.dumps({"identical": not diff, "values": len(before), "differences": diff[:200]}, indent=1))
         return 0 if not diff else 1
-    out = {name: [fingerprint(t) for t in trajs] for name, trajs in clips(a.quick)}
+    if a.body3d:
+        out = dict(clips_3d())
+    else:
+        out = {name: [fingerprint(t) for t in trajs] for name, trajs in clips(a.quick)}
     text = json.dumps(out, indent=1, sort_keys=True)
     if a.out:
         with open(a.out, "w") as fh:

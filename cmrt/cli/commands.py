@@ -354,18 +354,12 @@ def _progress(total_evals: int, label: str, enabled: bool, stream=None):
 
 # --- inputs ------------------------------------------------------------------------
 def resolve_task(name: str, speed: float | None, sets: list[str] | None, reference: str | None = None,
-                 steps: str | None = None, any_body: bool = False) -> Task:
+                 steps: str | None = None) -> Task:
     """The task arguments (name or path, ``--speed``, ``--set``, ``--reference``, ``--steps``) -> a validated
-    Task; a 3D task only where ``any_body`` (simulate, optimize, submit, best, interpolate, render, check: the rest
-    of the service is planar for now)."""
+    Task, of either body (a sequence's motions are planar: ``cmrt.motion.sequence``)."""
     from cmrt.motion.taskfile import resolve_task as task_variant
 
-    task = task_variant(name, speed, inputs.parse_sets(sets), reference, steps)
-    if task.body != "planar" and not any_body:
-        raise CmrtError(f"task {shown(task.name)} is done with the {task.body} body, which only `cmrt simulate`, "
-                        "`optimize`, `submit`, `best`, `interpolate`, `render` and `check` take for now "
-                        "(docs/body3d.md)")
-    return task
+    return task_variant(name, speed, inputs.parse_sets(sets), reference, steps)
 
 
 def _warn_if_not_feasible(name: str, task: Task) -> None:
@@ -513,7 +507,7 @@ def _submit_kwargs(args) -> dict:
 def _opt_task(args, speed: float | None) -> Task:
     """The task an optimization runs: with ``--robust``, scored on its ensemble. A run id as ``--init`` must
     exist before a store is created or written."""
-    task = resolve_task(args.task, speed, args.set, args.reference, args.steps, any_body=True)
+    task = resolve_task(args.task, speed, args.set, args.reference, args.steps)
     if task.body != "planar" and not task.params["stance_side"] and task.end_pose_deg is None:
         raise CmrtError(f"task {shown(task.name)}: a standing 3D task has no CMRT to optimize (a leg lift or a pose "
                         "change has; docs/body3d.md)")
@@ -575,8 +569,7 @@ class Simulate(Command):
 
         if args.trace is not None:
             _check_out(args, args.trace, "--trace", (".npz",))
-        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None),
-                            any_body=True)
+        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None))
         wrote = "" if args.trace is None else f"\nwrote {escape(args.trace)}"
         curve, name = _curve(args, args.curve, task)
         if task.body != "planar":  # the 3D body: no feasibility check yet
@@ -595,7 +588,7 @@ class Check(Command):
     def run(self, args):
         from cmrt.motion.feasibility import check_reference
 
-        task = resolve_task(args.task, args.speed, args.set, args.reference, args.steps, any_body=True)
+        task = resolve_task(args.task, args.speed, args.set, args.reference, args.steps)
         out = {}
         if task.body != "planar":  # its planar twin: the same sagittal motion, the same centroidal dynamics
             out = {"body": task.body, "checked_as": "its planar twin (docs/body3d.md)"}
@@ -855,8 +848,7 @@ class Best(Command):
     def run(self, args):
         from cmrt.service import query
 
-        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None),
-                            any_body=True)
+        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None))
         with _store(args.store, readonly=True) as store:
             return Output(_result(query.best_run(store, task)), _result_text)
 
@@ -902,8 +894,7 @@ class Interpolate(Command):
             inputs.param_name(args.param, "--param")
         if args.out is not None:
             _check_out(args, args.out, "--out", (".json",))
-        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None),
-                            any_body=True)
+        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None))
         store = _store(args.store, readonly=True) if args.source == "store" else None
         try:
             r = interpolate(task, args.param, args.source, store)
@@ -1021,8 +1012,7 @@ class Render(Command):
         from cmrt.viz.render import OUT_SUFFIXES, render  # OpenGL: only this verb pays for it
 
         _check_out(args, args.out, "--out", OUT_SUFFIXES)  # before anything is simulated
-        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None),
-                            any_body=True)
+        task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None))
         curve, name = _curve(args, args.curve, task)
         compare, cname = _curve(args, args.compare, task, "--compare") if args.compare else (None, "")
         if task.body != "planar":
@@ -1045,7 +1035,8 @@ class Bench(Command):
 
     def add_arguments(self, p):
         p.add_argument("--task", default="bend", help="the task whose clips are timed")
-        p.add_argument("--speed", type=inputs.arg(inputs.SPEED), default=0.4, help="the task's speed parameter")
+        p.add_argument("--speed", type=inputs.arg(inputs.SPEED),
+                       help="the task's speed parameter (default: the task's own; the bend's is 0.4 s)")
         p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a task parameter")
         _reference_arg(p)
         p.add_argument("--population", type=inputs.arg(inputs.POPULATION), default=16,
@@ -1065,7 +1056,6 @@ class Bench(Command):
         if unknown:
             raise CmrtError(f"--backends must be a comma-separated subset of {', '.join(BACKENDS)}, got "
                             f"{shown(args.backends)}")
-        resolve_task(args.task, None, None)  # a 3D task is refused by its body, not by the planar default speed
         task = resolve_task(args.task, args.speed, args.set, args.reference, getattr(args, "steps", None))
         return Output(run_bench(task, args.population, args.repeat, backends, args.workers,
                                 None if args.no_optimize else _timed_optimization), self._text)
@@ -1075,7 +1065,8 @@ class Bench(Command):
         floor = r["physics_only_s_per_clip"]
         rows = [
             ("physics only (floor: replay)", floor),
-            ("zero-torque collapse (old floor)", r["zero_torque_s_per_clip"]),
+            *([("zero-torque collapse (old floor)", r["zero_torque_s_per_clip"])]
+              if r["zero_torque_s_per_clip"] is not None else []),
             ("batched evaluator", r["batched_s_per_clip"]),
             ("serial, one clip at a time", r["serial_s_per_clip"]),
             (f"robust, per member ({r['robust_members']}/cand.)", r["robust_s_per_member"]),
@@ -1085,7 +1076,7 @@ class Bench(Command):
             [f"{r['task']} speed {r['speed']}, population {r['population']}, {r['steps_per_clip']} steps/clip, "
              f"control {r['control_hz']:.0f} Hz ({r['machine']}, median of {r['repeat']} alternating rounds)"]
             + [f"  {name:32s} {1e3 * v:8.2f} ms/clip   x{v / floor:5.2f}" for name, v in rows]
-            + [f"  floor: the clips' recorded torques replayed open loop, {r['steps_replayed']} steps replayed, "
+            + [f"  floor: {r['floor']}; {r['steps_replayed']} steps replayed, "
                f"{r['steps_evaluated']} evaluated; replayed CoM off the closed loop's by at most "
                f"{r['replay_max_divergence_m']:.2g} m",
                f"  batched / floor within each round: median {r['ratio_batched_to_physics']:.2f} "

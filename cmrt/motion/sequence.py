@@ -141,6 +141,9 @@ def load_sequence(name_or_path: str) -> SequenceTask:
             task = load_task(item["task"]).with_speed(speed)
         except CmrtError as exc:
             raise CmrtError(f"{at}: {exc}") from None
+        if task.body != "planar":  # superposed CMRTs on the 3D body wait for a 3D rise (docs/body3d.md)
+            raise CmrtError(f"{at}: task {shown(task.name)} is done with the {task.body} body; a sequence takes "
+                            "planar motions only for now (docs/body3d.md)")
         motions.append(Motion(task, start_s))
     tail_s = inputs.number(raw.get("tail_s", 1.0), f"{where}: tail_s", TAIL_S, text=False)
     motions.sort(key=lambda m: m.start_s)

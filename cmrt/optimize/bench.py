@@ -49,8 +49,10 @@ from cmrt.motion.curve import Cmrt
 from cmrt.motion.ensemble import training_members
 from cmrt.motion.library import library_curve
 from cmrt.motion.task import Task
-from cmrt.optimize.parallel import Evaluator, evaluate_candidate
+from cmrt.optimize.parallel import Evaluator, evaluate_batch, evaluate_candidate
+from cmrt.sim.clip3d import clip_3d
 from cmrt.sim.simulate import direct_step, settled_state, simulate_batch, thread_count
+from cmrt.sim.spatial import replay_3d
 
 # (evaluations, wall seconds) of one full optimization of a task: supplied by the caller (the CLI runs
 # ``jobs.optimize_now``; this module sits below the store and the service)
@@ -172,44 +174,21 @@ def run_bench(task: Task, population: int = 16, repeat: int = 5, backends=BACKEN
               optimize: OptimizeFn | None = None) -> dict:
     """Time the physics floor, the batched and serial evaluators and a generation on each backend, in
     alternating rounds (ratios within a round: this VM's speed drifts); what ``cmrt bench`` prints.
-    ``optimize``: also time one full optimization of ``task`` against its evaluations x floor."""
+    ``optimize``: also time one full optimization of ``task`` against its evaluations x floor. A 3D task's
+    clips are timed by ``_clips_3d``'s rules."""
     m = task.model()  # the humanoid and the task's prop
-    n_steps = int(round((task.clip_s + task.tail_s) / m.opt.timestep))  # what an evaluation simulates
-    threads = os.cpu_count() or 1
+    tail_s = task.tail_s if task.body == "planar" else 0.0  # a 3D clip has no tail: it ends with its clip
+    n_steps = int(round((task.clip_s + tail_s) / m.opt.timestep))  # what an evaluation simulates
     xs = bench_candidates(task, population)
-    curves = [Cmrt.from_params(x, task.clip_s) for x in xs]
-    state = settled_state(task, ControllerConfig())
-    replay = record_replay(task, curves)  # also the warm-up: settled state, compiled controller
-    replayed_com = np.full_like(replay.com_m, np.nan)
-    steps_replayed = replay_physics(task, replay, com_out=replayed_com)
-    with np.errstate(invalid="ignore"):
-        divergence = np.hypot(*(replayed_com - replay.com_m).transpose(2, 0, 1))
-
-    def physics() -> None:
-        replay_physics(task, replay)
-
-    def zero_torque() -> None:
-        batch = mujoco.batch.Batch(m, nsim=population, nthread=threads, persistent=True)
-        for k, v in state.items():
-            batch.bind(k)[:] = v
-        batch.forward()
-        for _ in range(n_steps):
-            batch.step()
-
     robust = task.with_robust()
     members = training_members(robust, robust.robust, prop_class(task.prop).mass_body is not None)
-    ensemble_curves = [c for c in curves for _ in members]
-    rounds: dict[str, list[float]] = {"physics": [], "zero_torque": [], "batched": [], "serial": [], "robust": []}
+    clips = _clips_3d(task, xs, robust) if task.body != "planar" else _clips_planar(task, xs, robust, members,
+                                                                                    n_steps)
+    rounds: dict[str, list[float]] = {k: [] for k in clips.timed}
     generations: dict[str, list[float]] = {}
-
-    fells = [tr.fell for tr in simulate_batch(task, curves)]
     for _ in range(repeat):  # alternate so machine noise hits each figure alike
-        rounds["physics"].append(_timed(physics))
-        rounds["zero_torque"].append(_timed(zero_torque))
-        rounds["batched"].append(_timed(lambda: simulate_batch(task, curves)))
-        rounds["serial"].append(_timed(lambda: [evaluate_candidate(task, x) for x in xs]))
-        rounds["robust"].append(_timed(lambda: simulate_batch(robust, ensemble_curves,
-                                                             perturbations=members * population)))
+        for name, fn in clips.timed.items():
+            rounds[name].append(_timed(fn))
     for b in backends:  # one backend alive at a time: idle workers/clusters would steal CPU
         with Evaluator(b, workers=workers) as ev:
             ev(task, xs[:2])  # warm-up: worker processes, clusters, per-process caches
@@ -220,12 +199,12 @@ def run_bench(task: Task, population: int = 16, repeat: int = 5, backends=BACKEN
     out = {
         "task": task.name, "speed": task.speed, "population": population, "steps_per_clip": n_steps,
         "control_hz": 1.0 / (m.opt.timestep * ControllerConfig().control_every),
-        "candidates_that_fell": int(sum(fells)),
+        "candidates_that_fell": clips.fell,
         "physics_only_s_per_clip": per["physics"],  # the floor: the clips' own torques replayed (a)
-        "floor": "the evaluated clips' recorded torques replayed open loop, as many steps as each ran",
-        "steps_evaluated": int(replay.steps.sum()), "steps_replayed": int(steps_replayed.sum()),
-        "replay_max_divergence_m": float(np.nanmax(divergence)),
-        "zero_torque_s_per_clip": per["zero_torque"],  # the old floor: a zero-torque collapse, all steps
+        "floor": clips.floor,
+        "steps_evaluated": clips.steps_evaluated, "steps_replayed": clips.steps_replayed,
+        "replay_max_divergence_m": clips.divergence_m,
+        "zero_torque_s_per_clip": per.get("zero_torque"),  # the old floor: a zero-torque collapse, all steps
         "batched_s_per_clip": per["batched"],
         "serial_s_per_clip": per["serial"],
         "ratio_batched_to_physics": float(np.median(ratios)),
@@ -238,12 +217,76 @@ def run_bench(task: Task, population: int = 16, repeat: int = 5, backends=BACKEN
         "ratio_robust_member_to_plain": float(np.median(np.array(rounds["robust"]) / len(members)
                                                         / np.array(rounds["batched"]))),
         "generation_s_per_clip": {b: float(np.median(v)) / population for b, v in generations.items()},
-        "machine": f"{platform.machine()}, {threads} cores, mujoco {mujoco.__version__}",
+        "machine": f"{platform.machine()}, {os.cpu_count() or 1} cores, mujoco {mujoco.__version__}",
         "repeat": repeat,
     }
     if optimize is not None:
         out.update(_time_optimize(task, optimize, out["physics_only_s_per_clip"]))
     return out
+
+
+@dataclass(frozen=True)
+class _Clips:
+    """What ``run_bench`` times for a task's candidates (each a callable, timed in alternating rounds: "physics"
+    the floor, "batched" and "serial" the evaluators, "robust" the ensemble, optionally "zero_torque") and what it
+    says of them."""
+
+    timed: dict[str, Callable[[], object]]
+    floor: str
+    fell: int
+    steps_evaluated: int
+    steps_replayed: int
+    divergence_m: float
+
+
+def _clips_planar(task: Task, xs: list[np.ndarray], robust: Task, members: list, n_steps: int) -> _Clips:
+    """The planar body's: the lockstep batch on every core, its floor the same clips replayed on
+    ``mujoco.batch`` the same way (``replay_physics``)."""
+    m, threads = task.model(), os.cpu_count() or 1
+    population = len(xs)
+    curves = [Cmrt.from_params(x, task.clip_s) for x in xs]
+    state = settled_state(task, ControllerConfig())
+    replay = record_replay(task, curves)  # also the warm-up: settled state, compiled controller
+    replayed_com = np.full_like(replay.com_m, np.nan)
+    steps_replayed = replay_physics(task, replay, com_out=replayed_com)
+    with np.errstate(invalid="ignore"):
+        divergence = np.hypot(*(replayed_com - replay.com_m).transpose(2, 0, 1))
+
+    def zero_torque() -> None:
+        batch = mujoco.batch.Batch(m, nsim=population, nthread=threads, persistent=True)
+        for k, v in state.items():
+            batch.bind(k)[:] = v
+        batch.forward()
+        for _ in range(n_steps):
+            batch.step()
+
+    ensemble_curves = [c for c in curves for _ in members]
+    timed = {"physics": lambda: replay_physics(task, replay), "zero_torque": zero_torque,
+             "batched": lambda: simulate_batch(task, curves),
+             "serial": lambda: [evaluate_candidate(task, x) for x in xs],
+             "robust": lambda: simulate_batch(robust, ensemble_curves, perturbations=members * population)}
+    return _Clips(timed, "the evaluated clips' recorded torques replayed open loop, as many steps as each ran",
+                  int(sum(tr.fell for tr in simulate_batch(task, curves))), int(replay.steps.sum()),
+                  int(steps_replayed.sum()), float(np.nanmax(divergence)))
+
+
+def _clips_3d(task: Task, xs: list[np.ndarray], robust: Task) -> _Clips:
+    """The 3D body's: its clips run one after another in one thread (``cmrt.sim.clip3d``; no lockstep batch yet),
+    so "batched" is the in-process evaluator a generation's chunk runs on (``evaluate_batch``), "serial" one
+    candidate at a time, and the floor each clip's recorded torques, push and prop replayed open loop on its own
+    model in the same thread (``replay_3d``) - per CPU, like for like."""
+    clips = [clip_3d(task, Cmrt.from_params(x, task.clip_s)) for x in xs]  # also the warm-up
+    results = [c.result for c in clips]
+    divergence, steps = 0.0, 0
+    for r in results:
+        com = np.full_like(r.com_m, np.nan)
+        steps += replay_3d(r, com_out=com)
+        divergence = max(divergence, float(np.linalg.norm(com - r.com_m, axis=1).max()))
+    evaluated = sum(int(round(r.inputs.clip_s / task.model().opt.timestep)) for r in results)
+    timed = {"physics": lambda: [replay_3d(r) for r in results], "batched": lambda: evaluate_batch(task, xs),
+             "serial": lambda: [evaluate_candidate(task, x) for x in xs], "robust": lambda: evaluate_batch(robust, xs)}
+    return _Clips(timed, "the evaluated 3D clips' recorded torques, push and prop replayed open loop, one after "
+                  "another in one thread", sum(c.fell for c in clips), evaluated, steps, divergence)
 
 
 def _time_optimize(task: Task, optimize: OptimizeFn, floor_s_per_clip: float) -> dict:

@@ -27,6 +27,7 @@ from dataclasses import dataclass, replace
 
 import mujoco
 import numpy as np
+from numba import njit
 
 from cmrt.body.character import (
     FOOT_POINT_RADIUS_M,
@@ -59,6 +60,22 @@ SETTLE_S = 0.1  # the first contacts settle from the initial pose: not judged
 
 
 @dataclass(frozen=True)
+class ClipInputs:
+    """What a 3D clip's physics is given besides its motors' torques: where it starts, the push on the thorax
+    (world frame, N; from ``push_start_s`` for ``push_duration_s``), the held prop, its length and control period
+    (physics steps per control step) - with ``StandResult.ctrl_nm``, enough to step the same clip again open loop
+    (``replay_3d``: the physics floor ``cmrt bench`` measures)."""
+
+    start_qpos: np.ndarray
+    push_n: tuple[float, float, float]
+    push_start_s: float
+    push_duration_s: float
+    held: HeldProp | None
+    clip_s: float
+    control_every: int
+
+
+@dataclass(frozen=True)
 class StandResult:
     """A 3D standing clip, sampled at every control step."""
 
@@ -83,6 +100,8 @@ class StandResult:
     prop_goal: bool | None = None  # a held prop's goal met (a ball caught and held); None: no prop
     prop_force_n: np.ndarray | None = None  # the hands' force on the prop, every physics step (N)
     prop_extras: tuple[tuple[str, float], ...] = ()  # the prop's own figures (``Prop.extras``)
+    ctrl_nm: np.ndarray | None = None  # (n, nu) the motors' commands held from each sample on (0 after a fall)
+    inputs: ClipInputs | None = None  # the rest of what the physics was given (``replay_3d``)
 
     @property
     def success(self) -> bool:
@@ -115,15 +134,15 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
     pose); ``held``: the task's prop (a ball to catch), its load on the hands known to the plan and its held mass
     counted in what balances and falls. A fall plays out in the planar clips' protective mode."""
     ch = character(BODY)
-    m = copy.deepcopy(ch.model if held is None else held.model)  # the clip's own: protective mode, a prop change it
-    d = mujoco.MjData(m)
-    d.qpos[:ch.model.nq] = stand_pose_qpos() if start_qpos is None else start_qpos
-    prop = PropClip(held, m, d) if held is not None else None  # the prop in its place before the first forward
-    mujoco.mj_forward(m, d)
+    inputs = ClipInputs(stand_pose_qpos() if start_qpos is None else np.asarray(start_qpos, float),
+                        tuple(float(f) for f in push_n), push_start_s, push_duration_s, held, clip_s,
+                        config.control_every)
+    m, d, prop = _clip_start(inputs)
     ctl = SpatialController(ch, d.qpos[:ch.model.nq].copy(), config, model=m)
     points = list(ch.foot_point_geoms)
     push = np.asarray(push_n, float)
     rows: list[tuple] = []
+    ctrl: list[np.ndarray] = []  # the motors' commands from each control step on
     ground: list[float] = []  # the touch sensors' total at every physics step (N)
     infeasible = 0
     fall: tuple[float, np.ndarray] | None = None  # (time, the capture point's way out of the support)
@@ -153,12 +172,53 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
                 held_cop = plan.cop_xy_m
             else:
                 held_cop = np.full(2, np.nan)
+            ctrl.append(d.ctrl.copy())
         d.xfrc_applied[ch.thorax_body, :3] = push if push_start_s <= t < push_start_s + push_duration_s else 0.0
         mujoco.mj_step(m, d)
         ground.append(float(d.sensordata[:len(points)].sum()))
         if prop is not None:
             prop.record()
-    return _finished(m, d, ctl, rows, (fall, infeasible, ground), push_start_s, prop)
+    result = _finished(m, d, ctl, rows, (fall, infeasible, ground), push_start_s, prop)
+    return replace(result, ctrl_nm=np.array(ctrl), inputs=inputs)
+
+
+def _clip_start(inputs: ClipInputs) -> tuple[mujoco.MjModel, mujoco.MjData, PropClip | None]:
+    """A clip's own model (protective mode and a prop change it) and data at its start pose, its prop in place
+    before the first forward."""
+    ch, held = character(BODY), inputs.held
+    m = copy.deepcopy(ch.model if held is None else held.model)
+    d = mujoco.MjData(m)
+    d.qpos[:ch.model.nq] = inputs.start_qpos
+    prop = PropClip(held, m, d) if held is not None else None
+    mujoco.mj_forward(m, d)
+    return m, d, prop
+
+
+def replay_3d(r: StandResult, com_out: np.ndarray | None = None) -> int:
+    """Step ``r``'s clip again open loop: its recorded torques at each control step (held in between), its push,
+    its prop's own per-step behaviour and, from its fall, the protective mode - the clip's physics alone, what
+    ``cmrt bench`` times as the floor. ``com_out`` (n, 3): filled with the CoM at each of ``r``'s samples (not
+    while timing; it equals ``r.com_m`` when the replay is the clip). Returns the physics steps taken."""
+    inputs, ch = r.inputs, character(BODY)
+    m, d, prop = _clip_start(inputs)
+    push = np.asarray(inputs.push_n, float)
+    fall_sample = -1 if r.fall_time_s is None else int(np.searchsorted(r.time_s, r.fall_time_s - 1e-12))
+    steps, every, dt = int(round(inputs.clip_s / m.opt.timestep)), inputs.control_every, m.opt.timestep
+    window = (inputs.push_start_s, inputs.push_start_s + inputs.push_duration_s)
+    for k in range(steps):
+        t, control = k * dt, k % every == 0
+        sample = k // every
+        if prop is not None and (fall_sample < 0 or k <= fall_sample * every):  # a fall stops the prop's logic
+            prop.step(t, control)
+        if control:
+            if com_out is not None:
+                com_out[sample] = d.subtree_com[1]
+            if sample == fall_sample:
+                _protective(m, ch, d)
+            d.ctrl[:] = r.ctrl_nm[sample]
+        d.xfrc_applied[ch.thorax_body, :3] = push if window[0] <= t < window[1] else 0.0
+        mujoco.mj_step(m, d)
+    return steps
 
 
 def _planned(ctl: SpatialController, d: mujoco.MjData, loaded: np.ndarray, targets: SpatialTargets,
@@ -261,7 +321,9 @@ def _fallen(m: mujoco.MjModel, d: mujoco.MjData, t: float, touch: np.ndarray, pr
     if prop is not None:
         com, vel = with_held(com, vel, float(m.body_subtreemass[1]), prop.held())
     capture = com[:2] + vel[:2] / np.sqrt(GRAVITY_M_S2 / max(float(com[2]), 1e-3))
-    soles = [list(pair) for pair, n in zip(ch.foot_points, np.split(touch, 2), strict=True) if (n > 0.0).any()]
+    half = len(touch) // 2  # each foot's points: the right's, then the left's
+    soles = [list(pair) for pair, n in zip(ch.foot_points, (touch[:half], touch[half:]), strict=True)
+             if (n > 0.0).any()]
     sole_xy = d.geom_xpos[[g for pair in soles for g in pair], :2]
     centre = sole_xy.mean(axis=0) if len(sole_xy) else com[:2]
     rolled = any(d.xmat[body, 8] < np.cos(limits.roll_rad) for body in ch.foot_bodies)  # the sole's normal's z
@@ -285,23 +347,47 @@ def _protective(m: mujoco.MjModel, ch, d: mujoco.MjData) -> None:
 def _margin(cop: np.ndarray, touching_xy: np.ndarray) -> float:
     """How far ``cop`` is inside the convex hull of the touching points (m; negative outside, 0 on a line or with
     fewer than three points). The hull's edges are the point pairs with every point on one side; for the eight
-    foot points this is ten times quicker than qhull (``scipy.spatial.ConvexHull``, 0.45 ms a call: two calls a
-    control step made it 40 % of a leg lift's clip), and the same to rounding (a test)."""
-    pts = np.asarray(touching_xy, float)
+    foot points this is quicker than qhull (``scipy.spatial.ConvexHull``, 0.45 ms a call: two calls a control
+    step made it 40 % of a leg lift's clip) and the same to rounding (a test); compiled, as numpy's 15 calls cost
+    60 us a call - a fifth of a clip's time before its QP was written in blocks."""
+    cop, pts = np.asarray(cop, float), np.ascontiguousarray(touching_xy, dtype=float)
     if not np.isfinite(cop).all() or len(pts) < 3:
         return 0.0
-    span = pts[None, :, :] - pts[:, None, :]  # (i, j): p_j - p_i
-    normal = np.stack([span[..., 1], -span[..., 0]], axis=-1)  # the edge i -> j turned clockwise
-    length = np.linalg.norm(normal, axis=-1)
-    scale = max(float(np.abs(span).max()), 1e-12)
-    edge = length > 1e-9 * scale
-    unit = np.where(edge[..., None], normal / np.where(edge, length, 1.0)[..., None], 0.0)
-    side = np.einsum("ijc,ikc->ijk", unit, span)  # every point's offset along each edge's normal
-    if np.abs(side).max() <= 1e-9 * scale:  # all on one line: no area
+    return _hull_margin(cop[0], cop[1], pts)
+
+
+@njit(cache=True, nogil=True)
+def _hull_margin(x: float, y: float, pts: np.ndarray) -> float:  # pragma: no cover - compiled
+    """``_margin`` for a finite point (x, y) and three or more points: each ordered pair (i, j) is an edge of
+    the hull when every point lies on or behind the line i -> j turned clockwise (tolerance 1e-9 of the points'
+    span); the margin is the smallest distance to an edge's line, negative outside."""
+    n = pts.shape[0]
+    scale = 1e-12
+    for i in range(n):
+        for j in range(n):
+            scale = max(scale, abs(pts[j, 0] - pts[i, 0]), abs(pts[j, 1] - pts[i, 1]))
+    tol = 1e-9 * scale
+    flat = True  # every point on every edge's line: no area
+    best = -np.inf  # the largest signed distance outside a hull edge
+    for i in range(n):
+        for j in range(n):
+            nx, ny = pts[j, 1] - pts[i, 1], -(pts[j, 0] - pts[i, 0])
+            length = np.sqrt(nx * nx + ny * ny)
+            if not length > tol:
+                continue
+            ux, uy = nx / length, ny / length
+            behind = True
+            for k in range(n):
+                side = ux * (pts[k, 0] - pts[i, 0]) + uy * (pts[k, 1] - pts[i, 1])
+                if abs(side) > tol:
+                    flat = False
+                if side > tol:
+                    behind = False
+            if behind:
+                best = max(best, ux * (x - pts[i, 0]) + uy * (y - pts[i, 1]))
+    if flat or best == -np.inf:
         return 0.0
-    hull = edge & (side <= 1e-9 * scale).all(axis=-1)  # every point behind the edge: an edge of the hull
-    outside = np.einsum("ec,ec->e", unit[hull], cop[None, :] - pts[np.nonzero(hull)[0]])
-    return float(-outside.max())
+    return -best
 
 
 def _result(motion: tuple[np.ndarray, np.ndarray, np.ndarray], cops: tuple[np.ndarray, np.ndarray, np.ndarray],
@@ -377,9 +463,10 @@ def leg_lift_3d(shift_s: float = 1.5, lift_s: float = 0.8, clip_s: float = 5.0, 
     def eased(t: float, t0: float, span: float, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, ...]:
         return _eased(m, (t - t0) / span, span, a, b)
 
+    shift = _sampled(curve, clip_s, config.control_every)
     def plan(t: float) -> tuple[np.ndarray, SpatialTargets]:
         """The reference pose at ``t`` and the controller's targets."""
-        d_m, v_m_s = float(curve.displacement_m(t)), float(curve.velocity_m_s(t))
+        d_m, v_m_s = shift(t)
         if t < lift_at_s:
             q, qd, qdd = eased(t, start_s, shift_s, poses.standing, poses.shifted)
             u = (t - start_s) / shift_s
@@ -431,17 +518,35 @@ def pose_change_3d(reference: Callable[[np.ndarray], tuple[np.ndarray, np.ndarra
     reference pose at its samples. ``push`` as ``leg_lift_3d``'s, ``held`` as ``stand_3d``'s."""
     centre = feet_centre_xy(start_qpos)
     forward = np.array([1.0, 0.0])
+    times = control_times_s(clip_s, config.control_every)  # the reference and the CMRT at every control step at
+    planned = (*reference(times), cmrt_x.displacement_m(times), cmrt_x.velocity_m_s(times))  # once: one at a
+    at = {float(t): k for k, t in enumerate(times)}  # time, the reference was 40 % of a clip's time
 
     def motion(t: float) -> SpatialTargets:
-        q, qd, qdd = reference(np.array([t]))
-        return SpatialTargets(com_xy_m=centre + float(cmrt_x.displacement_m(t)) * forward,
-                              com_vel_xy_m_s=float(cmrt_x.velocity_m_s(t)) * forward, cop_xy_m=centre, q_ref=q[0],
-                              qd_ref=qd[0], qdd_ref=qdd[0])
+        k = at[t]
+        q, qd, qdd, shift_m, shift_m_s = (values[k] for values in planned)
+        return SpatialTargets(com_xy_m=centre + float(shift_m) * forward, com_vel_xy_m_s=float(shift_m_s) * forward,
+                              cop_xy_m=centre, q_ref=q, qd_ref=qd, qdd_ref=qdd)
 
     force, push_start_s, push_duration_s = push if push is not None else ((0.0, 0.0, 0.0), clip_s, 0.1)
     result = stand_3d(clip_s=clip_s, push_n=force, push_start_s=push_start_s, push_duration_s=push_duration_s,
                       config=config, motion=motion, start_qpos=start_qpos, held=held)
     return result, reference(result.time_s)[0]
+
+
+def _sampled(curve: Cmrt, clip_s: float, control_every: int) -> Callable[[float], tuple[float, float]]:
+    """The CMRT's displacement (m) and rate (m/s) at a time: at the control steps' times evaluated once for all
+    (one spline call a control step was a tenth of a leg lift's clip), elsewhere when asked."""
+    times = control_times_s(clip_s, control_every)
+    table = dict(zip(times.tolist(), zip(curve.displacement_m(times).tolist(), curve.velocity_m_s(times).tolist(),
+                                         strict=True), strict=True))
+    return lambda t: table[t] if t in table else (float(curve.displacement_m(t)), float(curve.velocity_m_s(t)))
+
+
+def control_times_s(clip_s: float, control_every: int) -> np.ndarray:
+    """The times of a clip's control steps (s), as ``stand_3d`` computes them (step index x the model's step)."""
+    dt = character(BODY).model.opt.timestep
+    return np.arange(0, int(round(clip_s / dt)), control_every) * dt
 
 
 def _eased(m: mujoco.MjModel, u: float, span_s: float, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, ...]:

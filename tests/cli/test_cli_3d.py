@@ -38,13 +38,15 @@ def test_a_sideways_push_taken_and_one_that_topples_toward_it(tmp_path):
 @pytest.mark.slow  # cmrt processes
 def test_what_the_3d_body_cannot_do_yet_is_one_line_and_exit_2(tmp_path):
     store = tmp_path / "s.sqlite"
+    seq = tmp_path / "seq.toml"  # superposition on the 3D body waits for a 3D rise
+    seq.write_text('name = "s"\nsummary = "a 3D bend"\n[[motion]]\ntask = "bend3d"\nspeed = 0.4\nstart_s = 1.0\n')
     for args, says in ((("optimize", TASK, "--store", str(store)), "a standing 3D task has no CMRT to optimize"),
                        (("simulate", TASK, "--curve", "library"), "no library CMRT"),
                        (("simulate", TASK, "--set", "stepping=1"), "stepping: not for the humanoid3d body"),
                        (("optimize", "leg-lift", "--robust", "--set", "push_force_y_n=50", "--store", str(store)),
                         "pushes of its own"),
                        (("check", "leg-lift"), "judges a pose change's reference"),
-                       (("bench", "--task", "leg-lift"), "only `cmrt simulate`"),
+                       (("sequence", str(seq)), "a sequence takes planar motions only"),
                        (("simulate", "bend3d", "--reference", "yu"), "takes the centre reference"),
                        (("check", TASK), "judges a pose change's reference")):
         out = run(*args)
@@ -126,3 +128,13 @@ def test_check_judges_the_3d_bend_on_its_planar_twin():
     planar = json.loads(run("check", "bend", "--speed", "0.4", "--json").stdout)
     assert out["feasible"] and out["body"] == "humanoid3d" and "planar twin" in out["checked_as"]
     assert out["keyed"] == planar["keyed"] and out["best"] == planar["best"]
+
+
+@pytest.mark.slow  # a cmrt process timing 3D clips
+def test_bench_takes_a_3d_task_at_its_own_speed():
+    r = run("bench", "--task", "leg-lift", "--population", "2", "--repeat", "1", "--backends", "batch",
+            "--no-optimize", "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["task"] == "leg-lift" and out["speed"] == 2.3 and out["replay_max_divergence_m"] == 0.0
+    assert out["ratio_batched_to_physics"] > 1.0

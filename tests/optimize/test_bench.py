@@ -3,10 +3,10 @@ import json
 import numpy as np
 import pytest
 
-from cmrt.cli.commands import main
+from cmrt.cli.commands import Bench, main
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.taskfile import load_task
-from cmrt.optimize.bench import record_replay, replay_physics
+from cmrt.optimize.bench import record_replay, replay_physics, run_bench
 from cmrt.sim.simulate import simulate_batch
 from tests.service_helpers import cmrt
 
@@ -74,3 +74,15 @@ def test_replayed_torques_reproduce_the_closed_loop_trajectory(name):
     assert np.allclose(com[:first], replay.com_m[:first], rtol=0, atol=1e-9, equal_nan=True)
     ran = np.isfinite(replay.com_m)
     assert np.array_equal(np.isfinite(com), ran) and np.array_equal(com[ran], replay.com_m[ran])
+
+
+def test_bench_times_a_3d_task_against_its_own_replayed_physics():
+    """``cmrt bench`` on the 3D body: its clips one after another in one thread (no lockstep batch), the floor
+    those clips' recorded torques, push and prop stepped again open loop - the same physics, bit for bit."""
+    out = run_bench(load_task("leg-lift"), population=2, repeat=1, backends=("batch",))
+    assert out["steps_per_clip"] == round(4.5 / 0.002) and out["steps_replayed"] == out["steps_evaluated"] == 2 * 2250
+    assert out["replay_max_divergence_m"] == 0.0 and out["zero_torque_s_per_clip"] is None
+    assert 0 < out["physics_only_s_per_clip"] < out["batched_s_per_clip"]  # the controller costs something
+    assert out["robust_members"] == 7 and "3D clips" in out["floor"] and set(out["generation_s_per_clip"]) == {"batch"}
+    text = Bench._text(out)  # what `cmrt bench --task leg-lift` prints: no zero-torque row on the 3D body
+    assert "floor: the evaluated 3D clips'" in text and "zero-torque" not in text and "batched / floor" in text

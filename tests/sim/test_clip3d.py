@@ -3,6 +3,7 @@ without a CMRT, the library's CMRT shifts the CoM over the stance foot before li
 on time; Yu's reference (the reference motion's own weight shift) lifts slowly without a CMRT and falls fast. Each
 clip judged by the planar verdict's rules, the timing rule included."""
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,7 @@ from cmrt.motion.library import library_curve
 from cmrt.motion.taskfile import load_task
 from cmrt.sim.clip3d import clip_3d, sideways_trace
 from cmrt.sim.objective import MAX_PLAN_COP_ERROR_M, joint_lags_s
+from cmrt.sim.spatial import replay_3d
 
 FAST_S = 2.3  # T of the shipped leg lift (and its library CMRT)
 
@@ -188,3 +190,19 @@ def test_same_catch_same_result():
     a, b = clip_3d(task, curve), clip_3d(task, curve)
     assert a.objective == b.objective and np.array_equal(a.result.qpos, b.result.qpos)
     assert np.array_equal(a.result.prop_force_n, b.result.prop_force_n) and a.prop_figures() == b.prop_figures()
+
+
+@pytest.mark.parametrize("name", ["catch3d", "push3d"])  # each falls without a CMRT, a prop's logic replayed
+def test_a_3d_clips_torques_replayed_open_loop_are_the_clip(name):
+    """``replay_3d``, the floor ``cmrt bench`` times: the clip's recorded torques, push, prop and protective mode
+    stepped again with no controller give the closed-loop CoM at every sample, bit for bit - fall and all."""
+    task = load_task(name)
+    r = clip_3d(task, Cmrt.zero(task.clip_s)).result
+    assert r.fell and r.ctrl_nm.shape == (r.time_s.size, character("humanoid3d").model.nu)
+    assert not r.ctrl_nm[r.time_s > r.fall_time_s].any()  # the motors off in protective mode
+    com = np.full_like(r.com_m, np.nan)
+    assert replay_3d(r, com_out=com) == round(task.clip_s / task.model().opt.timestep)
+    assert np.array_equal(com, r.com_m)
+    weaker = replace(r, ctrl_nm=r.ctrl_nm * 0.9)  # other torques: another clip (the replay is open loop)
+    replay_3d(weaker, com_out=com)
+    assert np.abs(com - r.com_m).max() > 0.01

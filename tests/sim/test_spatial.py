@@ -68,6 +68,9 @@ def test_the_cop_margin_is_the_distance_inside_the_touching_points():
     assert _margin(np.array([0.19, 0.05]), square) == pytest.approx(0.01)
     assert _margin(np.array([0.25, 0.05]), square) == pytest.approx(-0.05)
     assert _margin(np.array([0.1, 0.0]), square[:2]) == 0.0  # fewer than three points: no area
+    line = np.array([[0.0, 0.0], [0.1, 0.0], [0.2, 0.0]])
+    assert _margin(np.array([0.1, 0.0]), line) == 0.0  # three on one line: no area either
+    assert _margin(np.array([np.nan, 0.05]), square) == 0.0  # no CoP (nothing on the floor): no margin
 
 
 def test_the_cop_margin_is_qhulls_to_rounding():
