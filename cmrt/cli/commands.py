@@ -486,12 +486,27 @@ def _opt_args(p: argparse.ArgumentParser) -> None:
 
 
 def _backend_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--backend", choices=BACKENDS, default="batch",
+    p.add_argument("--backend", choices=(AUTO_BACKEND, *BACKENDS), default=AUTO_BACKEND,
                    help="where candidates are simulated: batch (one process, many clips at once on mujoco.batch), "
-                   "serial, loky or dask processes (+batch: each scoring a chunk as a batch)")
+                   "serial, loky or dask processes (+batch: each scoring a chunk as a batch); auto (default): "
+                   "batch for a planar task, loky+batch for a 3D one (no lockstep batch: a process per core)")
     p.add_argument("--workers", type=inputs.arg(inputs.WORKERS),
                    help="processes (loky, LocalCluster; default: one per CPU)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="dask scheduler (default: a LocalCluster)")
+
+
+AUTO_BACKEND = "auto"
+
+
+def _backend(args, task: Task | None) -> str:
+    """``--backend`` for ``task`` (None: jobs of any task, as a worker takes them): "auto" is the batched evaluator,
+    but on a 3D task with more than one CPU ``loky+batch`` - its clips run one after another in a process (no
+    lockstep batch yet), so a process per core: 21 s against 32 s for ``cmrt optimize leg-lift --seed 1 --init none``
+    on 2 cores, the same run (docs/performance.md, *The 3D body*)."""
+    if args.backend != AUTO_BACKEND:
+        return args.backend
+    spread = task is not None and task.body != "planar" and (os.cpu_count() or 1) > 1
+    return "loky+batch" if spread else "batch"
 
 
 def _submit_kwargs(args) -> dict:
@@ -673,7 +688,7 @@ class Optimize(Command):
 
         task = _opt_task(args, args.speed)
         kwargs = _submit_kwargs(args)
-        evaluator = Evaluator(args.backend, args.workers, args.scheduler)  # fails before the store is touched
+        evaluator = Evaluator(_backend(args, task), args.workers, args.scheduler)  # fails before the store is touched
         try:
             with _store(args.store) as store:
                 progress = _progress(args.max_evals, task.name, enabled=not args.no_progress)
@@ -706,7 +721,7 @@ class Optimize(Command):
             if not args.json:
                 print(_result_text(_result(run)), flush=True)
 
-        evaluator = Evaluator(args.backend, args.workers, args.scheduler)
+        evaluator = Evaluator(_backend(args, tasks[0]), args.workers, args.scheduler)
         try:
             with _store(args.store) as store:
                 progress = _progress(args.max_evals, tasks[0].name, enabled=not args.no_progress)
@@ -765,7 +780,7 @@ class Worker(Command):
 
         if not (math.isfinite(args.stale_after) and args.stale_after > 0):
             raise CmrtError(f"--stale-after must be a finite number of seconds > 0, got '{args.stale_after}'")
-        evaluator = Evaluator(args.backend, args.workers, args.scheduler)
+        evaluator = Evaluator(_backend(args, None), args.workers, args.scheduler)
         try:
             with _store(args.store, create=False) as store:
                 done = jobs.work(store, evaluator, until_idle=args.until_idle, once=args.once,
@@ -1123,7 +1138,7 @@ class Demo(Command):
         print(_report_text(simulate_report(task, Cmrt.zero(task.clip_s), "zero")))
         store_path = resolve_path(args.store)
         print(f"\nOptimizing its CMRT with CMA-ES (seed 1) into {store_path} ...", flush=True)
-        evaluator = Evaluator(args.backend, args.workers, args.scheduler)
+        evaluator = Evaluator(_backend(args, task), args.workers, args.scheduler)
         try:
             with _store(args.store) as store:
                 progress = _progress(_SETTINGS.max_evals, task.name, enabled=sys.stderr.isatty())

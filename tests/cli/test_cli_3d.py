@@ -1,8 +1,11 @@
 """The CLI on 3D tasks: `cmrt simulate` on a 3D task file (docs/examples/stand3d.toml) and on the shipped leg lift
-(`leg-lift`) with their verdicts; `cmrt optimize` and `cmrt best` on the leg lift through a store; the rest of the
-CLI refuses a 3D task in one line (exit 2) before it touches a store."""
+(`leg-lift`) with their verdicts; `cmrt optimize` and `cmrt best` on the leg lift through a store, on a process per
+core unless told otherwise; `cmrt bench` on it; what the 3D body cannot do yet is refused in one line (exit 2)
+before a store is touched."""
 
+import argparse
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -10,6 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cmrt.cli.commands import _backend
+from cmrt.motion.taskfile import load_task
 from cmrt.viz.overlay import CAPTION_PX
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -138,3 +143,13 @@ def test_bench_takes_a_3d_task_at_its_own_speed():
     out = json.loads(r.stdout)
     assert out["task"] == "leg-lift" and out["speed"] == 2.3 and out["replay_max_divergence_m"] == 0.0
     assert out["ratio_batched_to_physics"] > 1.0
+
+
+def test_the_default_backend_spreads_a_3d_tasks_clips_over_processes():
+    """``--backend auto`` (the default): the lockstep batch for a planar task; for a 3D one, whose clips run one
+    after another in a process, a process per core (``loky+batch``) where there is more than one core; a worker,
+    which takes any task's jobs, batch; a backend named is the one used."""
+    auto, named = argparse.Namespace(backend="auto"), argparse.Namespace(backend="serial")
+    assert _backend(auto, load_task("bend")) == "batch" and _backend(auto, None) == "batch"
+    assert _backend(auto, load_task("leg-lift")) == ("loky+batch" if (os.cpu_count() or 1) > 1 else "batch")
+    assert _backend(named, load_task("leg-lift")) == "serial"
