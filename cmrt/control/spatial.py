@@ -9,7 +9,7 @@ and it solves, every control step, the small QP
          + eps (|qdd|^2 + |f|^2)
     s.t. M_base qdd + h_base = J_base^T f           (the floating base moves only as the forces say: 6 rows)
          J_foot qdd + Jdot_foot qd = -k_s J_foot qd  (a supporting foot stays where it is: 6 rows per foot)
-         f_z >= f_min,  |f_x|, |f_y| <= mu f_z       (a friction pyramid per point)
+         f_z >= f_min,  |f_x| + |f_y| <= mu f_z      (a friction pyramid per point: MuJoCo's, below)
          |M_act qdd + h_act - J_act^T f| <= tau_max  (the motors' limits, as in the planar plan)
          qdd >= -k_j (q - lo) - d_j qd, qdd <= -k_j (q - hi) - d_j qd  (each joint's stops, less a margin)
 
@@ -18,6 +18,13 @@ and its velocity sensed ``feedback_delay_s`` ago (a person's reaction), and Hdot
 - the angular momentum rate that puts the CoP at its reference p_r, the support's centre (the planar rule
 ``hdot = -c_z ldot_x - (p_x - c_x) m g`` is its y row). The CoP is inside the feet's polygon by construction: every
 point's force is a cone's. Gains and weights are the planar ``ControllerConfig``'s (docs/controller.md).
+
+The friction pyramid is the one MuJoCo's contacts have, scaled by ``friction_coef`` (0.8 of the floor's 1.0, the
+planar plan's margin): MuJoCo's default (pyramidal) cone is spanned by the edges n +- mu t1 and n +- mu t2, so its
+tangential force obeys |f_t1| + |f_t2| <= mu f_n - a diamond, whose tangents on the floor are the world's y and
+-x. A box |f_x|, |f_y| <= mu f_z (this controller's first) reaches 1.6 mu f_z at its corners: where a plan asked
+for a turn of the feet (a one-arm punch's return), its points were given forces MuJoCo cannot hold, and the feet
+twisted and the CoP ran 63 mm off the plan (measured; tests/control/test_spatial.py checks the cone itself).
 
 The torques follow from the plan by inverse dynamics (the actuated rows of M qdd + h - J^T f), so the plan is what
 the motors are asked for; MuJoCo's own M, bias forces, Jacobians and their rates are used throughout, and the
@@ -298,7 +305,8 @@ class SpatialController:
 
     def _static_rows(self) -> None:
         """The rows that do not change between control steps: per point its floor (f_z) and the friction
-        pyramid's four faces (f_x -+ mu f_z, f_y -+ mu f_z), then a unit row per actuated joint for its stops."""
+        pyramid's four faces (+-f_x +-f_y <= mu f_z: MuJoCo's pyramid, scaled), then a unit row per actuated joint
+        for its stops."""
         nv, n_pts, mu = self.nv, len(self.points), self.config.friction_coef
         n = nv + 3 * n_pts
         ground = np.zeros((5 * n_pts, n))
@@ -306,10 +314,9 @@ class SpatialController:
         for p in range(n_pts):
             fx, fy, fz = nv + 3 * p, nv + 3 * p + 1, nv + 3 * p + 2
             ground[5 * p, fz] = 1.0
-            for r, k in enumerate((fx, fx, fy, fy)):
-                ground[5 * p + 1 + r, k] = 1.0
-                ground[5 * p + 1 + r, fz] = -mu if r % 2 == 0 else mu
-                lo[5 * p + 1 + r], hi[5 * p + 1 + r] = (-np.inf, 0.0) if r % 2 == 0 else (0.0, np.inf)
+            for r, (sx, sy) in enumerate(((1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0))):
+                ground[5 * p + 1 + r, [fx, fy, fz]] = sx, sy, -mu
+                lo[5 * p + 1 + r], hi[5 * p + 1 + r] = -np.inf, 0.0
         self._ground_rows, self._ground_lo, self._ground_hi = ground, lo, hi
         self._stop_rows = np.zeros((len(self.act_dofs), n))
         self._stop_rows[np.arange(len(self.act_dofs)), self.act_dofs] = 1.0

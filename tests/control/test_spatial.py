@@ -9,7 +9,7 @@ from cmrt.body.character import character
 from cmrt.control.controller import ControllerConfig
 from cmrt.control.spatial import SpatialController
 from cmrt.errors import CmrtError
-from cmrt.sim.spatial import BODY, stand_pose_qpos
+from cmrt.sim.spatial import BODY, stand_3d, stand_pose_qpos
 
 
 def _standing():
@@ -30,13 +30,58 @@ def test_the_plan_keeps_every_point_in_its_cone_and_carries_the_body():
     f = plan.point_force_n
     assert not ctl.infeasible
     assert (f[:, 2] >= ctl.point_floor_n - 1e-6).all()
-    assert (np.abs(f[:, :2]) <= config.friction_coef * f[:, 2:3] + 1e-6).all()
+    assert (np.abs(f[:, :2]).sum(axis=1) <= config.friction_coef * f[:, 2] + 1e-6).all()  # MuJoCo's pyramid
     assert np.abs(plan.torque_nm * ch.model.actuator_gear[:, 0]).max() <= ch.torque_limit_nm.max() + 1e-6
     weight_n = ctl.mass_kg * 9.81
     assert abs(f[:, 2].sum() - weight_n) < 0.1 * weight_n  # the momentum objectives ask for little vertical motion
     xy = d.geom_xpos[list(ch.foot_point_geoms), :2]
     assert xy[:, 0].min() < plan.cop_xy_m[0] < xy[:, 0].max()
     assert xy[:, 1].min() < plan.cop_xy_m[1] < xy[:, 1].max()
+
+
+def test_mujocos_friction_on_the_floor_is_a_diamond_in_the_worlds_axes():
+    """What the plan's friction rows must match: MuJoCo's default (pyramidal) cone spans n +- mu t1, n +- mu t2, so
+    |f_t1| + |f_t2| <= mu f_n. A 1 kg ball on three slide joints (it cannot roll), mu 1, pushed for 1 s: along an
+    axis 0.9 of its weight only creeps (soft contact), along the diagonal 0.75 - past 1/sqrt(2) - it slides; and
+    the 3D body's foot points touch the floor with the world's y and -x as their tangents."""
+    xml = """<mujoco><worldbody><geom type="plane" size="5 5 .1"/><body pos="0 0 0.1">
+      <joint type="slide" axis="1 0 0"/><joint type="slide" axis="0 1 0"/><joint type="slide" axis="0 0 1"/>
+      <geom type="sphere" size="0.1" mass="1"/></body></worldbody></mujoco>"""
+    m = mujoco.MjModel.from_xml_string(xml)
+
+    def moved_m(share: float, angle_deg: float) -> float:
+        d = mujoco.MjData(m)
+        force = share * 9.81 * np.array([np.cos(np.radians(angle_deg)), np.sin(np.radians(angle_deg)), 0.0])
+        for _ in range(500):
+            d.xfrc_applied[1, :3] = force
+            mujoco.mj_step(m, d)
+        return float(np.hypot(*d.qpos[:2]))
+
+    assert moved_m(0.9, 0.0) < 0.05 and moved_m(0.9, 90.0) < 0.05 and moved_m(0.75, 45.0) > 0.1
+    ch, d = _standing()
+    frames = np.array([c.frame.reshape(3, 3) for c in d.contact[:d.ncon]])
+    assert d.ncon >= 8 and np.allclose(frames[:, 1:], [[0, 1, 0], [-1, 0, 0]])
+
+
+def test_a_diagonal_push_keeps_every_planned_force_in_mujocos_cone(monkeypatch):
+    """Pushed at 45 deg the plan asks the points for sideways and fore-aft friction at once: every planned force
+    stays in MuJoCo's pyramid scaled by ``friction_coef`` (|f_x| + |f_y| <= 0.8 f_z) - at its edge in many steps,
+    where the first plan's box (|f_x|, |f_y| <= 0.8 f_z) went past it."""
+    forces = []
+    plan = SpatialController.plan
+
+    def recorded(self, *args, **kwargs):
+        out = plan(self, *args, **kwargs)
+        forces.append(out.point_force_n)
+        return out
+
+    monkeypatch.setattr(SpatialController, "plan", recorded)
+    stand_3d(clip_s=1.5, push_n=(120.0, 120.0, 0.0), push_start_s=0.5, push_duration_s=0.1)
+    f = np.concatenate(forces)
+    loaded = f[:, 2] > 1.0
+    ratio = np.abs(f[loaded, :2]).sum(axis=1) / f[loaded, 2]
+    mu = ControllerConfig().friction_coef
+    assert ratio.max() <= mu + 1e-6 and (ratio > mu - 1e-3).sum() > 50
 
 
 def test_unloaded_points_carry_nothing():
