@@ -43,6 +43,7 @@ from cmrt.motion.curve import Cmrt
 from cmrt.sim.balance import BalanceLimits
 from cmrt.sim.monitor import PROTECTIVE_DAMPING_PER_RAD_S, PROTECTIVE_STIFFNESS_PER_RAD
 from cmrt.sim.objective import (
+    FALL_PENALTY,
     MAX_AIRBORNE_S,
     MAX_GROUND_FORCE_BW,
     MAX_PLAN_COP_ERROR_M,
@@ -571,15 +572,19 @@ def _smoothstep_rate(u: float) -> float:
 
 def cop_error_objective(result: StandResult, reference_xy: np.ndarray, sample_s: float = 0.01) -> float:
     """The paper's objective on a 3D clip: the 2-norm of the executed CoP's error from ``reference_xy`` ((n, 2),
-    at the clip's samples), as if sampled every ``sample_s``, plus 5 for a fall and up to 5 more the earlier it
-    came (a slope for the optimizer), or, standing but not a success, the planar objective's penalty for a motion
-    a researcher would not accept (``NOT_PLAUSIBLE_PENALTY`` x (1 + the plan gap's excess over its bound, up to
-    1)). A sample with no CoP counts 0.3 m per axis."""
+    at the clip's samples), as if sampled every ``sample_s``, plus the planar objective's penalties: for a fall
+    ``FALL_PENALTY`` (10) and up to 10 more the earlier it came (a slope for the optimizer), or, standing but not a
+    success, its penalty for a motion a researcher would not accept (``NOT_PLAUSIBLE_PENALTY`` x (1 + the plan
+    gap's excess over its bound, up to 1): 5-10). So a fall always scores worse than a stand; with 5 and up to 5
+    more (this objective's first fall penalty) a fall at the clip's end outscored a stand 1 mm past the plan's
+    bound, and searches settled there (leg-lift seeds 4 and 5 in 1,000 evaluations each, the 3D punch). A sample
+    with no CoP counts 0.3 m per axis."""
     err = np.nan_to_num(result.cop_xy_m - reference_xy, nan=0.3)
     dt = float(result.time_s[1] - result.time_s[0]) if len(result.time_s) > 1 else sample_s
     value = float(np.linalg.norm(err)) * np.sqrt(dt / sample_s)
     if result.fell:
-        value += 5.0 + 5.0 * (1.0 - result.fall_time_s / float(result.time_s[-1] + dt))
+        span_s = float(result.time_s[-1] + dt)
+        value += FALL_PENALTY + 10.0 * max(span_s - result.fall_time_s, 0.0) / span_s
     elif result.failed_rules:
         excess = (result.max_plan_cop_error_m - MAX_PLAN_COP_ERROR_M) / MAX_PLAN_COP_ERROR_M
         value += NOT_PLAUSIBLE_PENALTY * (1.0 + min(max(excess, 0.0), 1.0))

@@ -2,6 +2,8 @@
 from four directions taken, 300 N from the side a fall toward the push, the plan what happens - each judged by the
 planar verdict's rules."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -111,4 +113,12 @@ def test_the_cop_error_objective_is_the_papers_2_norm_plus_a_fall_penalty():
     err = np.nan_to_num(r.cop_xy_m - ref, nan=0.3)
     assert value == pytest.approx(np.linalg.norm(err) * np.sqrt(0.008 / 0.01))
     fallen = stand_3d(clip_s=2.0, push_n=(0.0, 300.0, 0.0))
-    assert cop_error_objective(fallen, np.zeros((len(fallen.time_s), 2))) > 5.0
+    zero = np.zeros((len(fallen.time_s), 2))
+    norm = np.linalg.norm(np.nan_to_num(fallen.cop_xy_m, nan=0.3)) * np.sqrt(0.008 / 0.01)
+    span_s = fallen.time_s[-1] + 0.008  # the planar fall penalty: 10, and up to 10 more the earlier the fall
+    assert cop_error_objective(fallen, zero) == pytest.approx(norm + 10.0 + 10.0 * (span_s - fallen.fall_time_s)
+                                                              / span_s)
+    # a fall scores worse than any stand that is not a success (5-10 over the norm): even one at the clip's end
+    late = replace(fallen, fall_time_s=float(fallen.time_s[-1]))
+    standing = replace(fallen, fell=False, fall_time_s=None, failed_rules=("plan",), max_plan_cop_error_m=0.1)
+    assert cop_error_objective(late, zero) > cop_error_objective(standing, zero) == pytest.approx(norm + 10.0)
