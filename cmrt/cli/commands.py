@@ -501,7 +501,7 @@ AUTO_BACKEND = "auto"
 def _backend(args, task: Task | None) -> str:
     """``--backend`` for ``task`` (None: jobs of any task, as a worker takes them): "auto" is the batched evaluator,
     but on a 3D task with more than one CPU ``loky+batch`` - its clips run one after another in a process (no
-    lockstep batch yet), so a process per core: 21 s against 32 s for ``cmrt optimize leg-lift --seed 1 --init none``
+    lockstep batch yet), so a process per core: 28 s against 50 s for ``cmrt optimize leg-lift --seed 1 --init none``
     on 2 cores, the same run (docs/performance.md, *The 3D body*)."""
     if args.backend != AUTO_BACKEND:
         return args.backend
