@@ -113,7 +113,7 @@ class SpatialController:
         self.com_ref_m: np.ndarray | None = None  # the CoM held: where it was at the first control step
         self.cop_ref_m: np.ndarray | None = None  # the CoP asked for: the feet's centre at the first control step
         self.infeasible = False  # the last plan found none within the stops and limits (clipped after the solve)
-        self._static_rows()
+        self._constant_parts()
 
     def plan(self, d: mujoco.MjData, loaded: np.ndarray, targets: SpatialTargets = SpatialTargets(),
              load_gen: np.ndarray | None = None,
@@ -268,7 +268,7 @@ class SpatialController:
         """The QP's rows (A, lo, hi, sense), in this order: base dynamics and supporting feet (equalities), each
         point's floor and friction pyramid (a point off the floor carries nothing), each joint's stops, the motors'
         limits. ``bias``: the generalized forces the plan does not choose (MuJoCo's bias forces less a held
-        load's). Written as whole blocks (the rows that never change made once, ``_static_rows``): row by row in
+        load's). Written as whole blocks (the rows that never change made once, ``_constant_parts``): row by row in
         Python this was a third of a 3D clip's time."""
         c, nv, act = self.config, self.nv, self.act_dofs
         ground, stops = self._ground_rows, self._stop_rows
@@ -303,10 +303,11 @@ class SpatialController:
         sense[:n_eq] = EQUALITY
         return rows, lo, hi, sense
 
-    def _static_rows(self) -> None:
-        """The rows that do not change between control steps: per point its floor (f_z) and the friction
-        pyramid's four faces (+-f_x +-f_y <= mu f_z: MuJoCo's pyramid, scaled), then a unit row per actuated joint
-        for its stops."""
+    def _constant_parts(self) -> None:
+        """What does not change between control steps, made once: the QP's ground rows - per point its floor (f_z)
+        and the friction pyramid's four faces (+-f_x +-f_y <= mu f_z: MuJoCo's pyramid, scaled) -, a unit row per
+        actuated joint for its stops, and the foot points' geoms, bodies, drop to their lowest point and Jacobian
+        buffer."""
         nv, n_pts, mu = self.nv, len(self.points), self.config.friction_coef
         n = nv + 3 * n_pts
         ground = np.zeros((5 * n_pts, n))
