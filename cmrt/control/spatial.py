@@ -146,7 +146,7 @@ class SpatialController:
         p_ref = np.array([cop_ref[0], cop_ref[1], 0.0])
         if targets.swing_foot >= 0:
             loaded = loaded.copy()
-            loaded[[self.points.index(g) for g in self.ch.foot_points[targets.swing_foot]]] = False
+            loaded[self._foot_point_index[targets.swing_foot]] = False
         r = p_ref - com
         hdot = np.array([r[1] * force[2] - r[2] * force[1], r[2] * force[0] - r[0] * force[2],
                          r[0] * force[1] - r[1] * force[0]])  # r x force (np.cross: 40 us a call)

@@ -519,14 +519,15 @@ def pose_change_3d(reference: Callable[[np.ndarray], tuple[np.ndarray, np.ndarra
     reference pose at its samples. ``push`` as ``leg_lift_3d``'s, ``held`` as ``stand_3d``'s."""
     centre = feet_centre_xy(start_qpos)
     forward = np.array([1.0, 0.0])
-    times = control_times_s(clip_s, config.control_every)  # the reference and the CMRT at every control step at
-    planned = (*reference(times), cmrt_x.displacement_m(times), cmrt_x.velocity_m_s(times))  # once: one at a
-    at = {float(t): k for k, t in enumerate(times)}  # time, the reference was 40 % of a clip's time
+    times = control_times_s(clip_s, config.control_every)  # the reference at every control step at once: one at a
+    poses = reference(times)  # time, it was 40 % of a clip's time
+    at = {float(t): k for k, t in enumerate(times)}
+    shift = _sampled(cmrt_x, clip_s, config.control_every)
 
     def motion(t: float) -> SpatialTargets:
-        k = at[t]
-        q, qd, qdd, shift_m, shift_m_s = (values[k] for values in planned)
-        return SpatialTargets(com_xy_m=centre + float(shift_m) * forward, com_vel_xy_m_s=float(shift_m_s) * forward,
+        q, qd, qdd = (values[at[t]] for values in poses)
+        shift_m, shift_m_s = shift(t)
+        return SpatialTargets(com_xy_m=centre + shift_m * forward, com_vel_xy_m_s=shift_m_s * forward,
                               cop_xy_m=centre, q_ref=q, qd_ref=qd, qdd_ref=qdd)
 
     force, push_start_s, push_duration_s = push if push is not None else ((0.0, 0.0, 0.0), clip_s, 0.1)
