@@ -49,16 +49,17 @@ class StartDistribution:
     cov_chol: np.ndarray
 
     @classmethod
-    def cold(cls) -> StartDistribution:
+    def cold(cls, n_params: int = 8) -> StartDistribution:
         """The distribution of ``cmrt optimize --init none``, read off the optimizer's own fresh CMA-ES (so
-        a change of x0, sigma0 or pycma's initial covariance - not exactly I - is followed here)."""
-        es = new_state(OptimizeSettings()).es
+        a change of x0, sigma0 or pycma's initial covariance - not exactly I - is followed here); ``n_params``:
+        the task's CMRT's (12 in two axes)."""
+        es = new_state(OptimizeSettings(n_params=n_params)).es
         return cls(mean=np.array(es.mean, dtype=float), sigma=float(es.sigma),
                    scaling=np.broadcast_to(np.asarray(es.sigma_vec.scaling, dtype=float), es.mean.shape).copy(),
                    cov_chol=np.linalg.cholesky(np.asarray(es.sm.C, dtype=float)))
 
     def draw(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        """(n, 8) parameter vectors."""
+        """(n, 8) parameter vectors ((n, 12) in two axes)."""
         z = rng.standard_normal((n, self.mean.size))
         return self.mean + self.sigma * self.scaling * (z @ self.cov_chol.T)
 
@@ -100,7 +101,7 @@ def _scores(task: Task, curves: list[Cmrt]) -> list[Score]:
 def measure(task: Task, samples: int, seed: int) -> dict:
     """Score ``samples`` random CMRTs of ``task`` drawn with generator seed ``seed``."""
     t0 = time.perf_counter()
-    dist = StartDistribution.cold()
+    dist = StartDistribution.cold(task.n_cmrt_params)
     xs = dist.draw(np.random.default_rng(seed), samples)
     scores = []
     for a in range(0, samples, CHUNK):

@@ -928,6 +928,8 @@ class Interpolate(Command):
             f"from {src} (weight {r.weight:.3f})\n"
             f"  knots {', '.join(f'{t:.3f}' for t in r.curve.knot_times_s)} s; values "
             f"{', '.join(f'{100 * v:+.2f}' for v in r.curve.values_m)} cm"
+            + (f"; across {', '.join(f'{100 * v:+.2f}' for v in r.curve.cross_values_m)} cm"
+               if r.curve.cross_values_m is not None else "")
             + (f"\nwrote {escape(args.out)}" if args.out is not None else "")
         )
         return Output(json.loads(text), human)
@@ -1135,7 +1137,7 @@ class Demo(Command):
         task = load_task("bend").with_speed(0.4)
         print("Fast bend (T = 0.4 s: a rotation at the hips into a crouched bend, both feet planted). The reactive "
               "controller alone:")
-        print(_report_text(simulate_report(task, Cmrt.zero(task.clip_s), "zero")))
+        print(_report_text(simulate_report(task, Cmrt.zero(task.clip_s, task.cmrt_axes), "zero")))
         store_path = resolve_path(args.store)
         print(f"\nOptimizing its CMRT with CMA-ES (seed 1) into {store_path} ...", flush=True)
         evaluator = Evaluator(_backend(args, task), args.workers, args.scheduler)

@@ -166,10 +166,15 @@ def _convergence(run: Run, evaluations: list[StoredEvaluation]) -> dict:
 
 
 def curve_points(curve: Cmrt) -> dict:
-    """A CMRT sampled over its clip (cm, as the figures plot it) and its knots."""
+    """A CMRT sampled over its clip (cm, as the figures plot it) and its knots; a CMRT in x and y's displacement
+    across the task's axis too (``cross_displacement_cm``, ``cross_knot_values_cm``)."""
     t = np.linspace(0.0, curve.clip_s, CURVE_SAMPLES)
-    return {"time_s": t.tolist(), "displacement_cm": (100 * curve.displacement_m(t)).tolist(),
-            "knot_times_s": list(curve.knot_times_s), "knot_values_cm": [100 * v for v in curve.values_m]}
+    out = {"time_s": t.tolist(), "displacement_cm": (100 * curve.displacement_m(t)).tolist(),
+           "knot_times_s": list(curve.knot_times_s), "knot_values_cm": [100 * v for v in curve.values_m]}
+    if curve.axes == 2:
+        out["cross_displacement_cm"] = (100 * curve.cross.displacement_m(t)).tolist()
+        out["cross_knot_values_cm"] = [100 * v for v in curve.cross.values_m]
+    return out
 
 
 def _task_info(task: Task) -> dict:
@@ -189,7 +194,7 @@ def run_page(store: Store, run_id: int) -> dict:
         "store": str(store.path), "run": run_row(run), "details": details, "task": _task_info(task),
         "task_definition": run.task_definition,
         "convergence": _convergence(run, evaluations), "best_cmrt": best,
-        "zero_cmrt": curve_points(Cmrt.zero(task.clip_s)),
+        "zero_cmrt": curve_points(Cmrt.zero(task.clip_s, task.cmrt_axes)),
     })
 
 
@@ -243,7 +248,8 @@ def run_traces(store: Store, run_id: int, cache: SimCache) -> dict:
     def make() -> dict:
         task = task_of(run)
         best = stored_curve(run)
-        clips = [_trace(task, Cmrt.zero(task.clip_s), "zero CMRT"), _trace(task, best, f"run {run_id} best CMRT")]
+        clips = [_trace(task, Cmrt.zero(task.clip_s, task.cmrt_axes), "zero CMRT"),
+                 _trace(task, best, f"run {run_id} best CMRT")]
         return {"run_id": run_id, "task": _task_info(task), "clips": clips,
                 "plausibility_fields": [{"key": k, "label": lab, "limit": _either(c["limits"][k] for c in clips)}
                                         for k, lab, _ in PLAUSIBILITY]}
@@ -318,7 +324,7 @@ def clip(store: Store, run_id: int, fps: int, cache_dir: Path) -> bytes:
     draw = render if task.body == "planar" else render_3d  # a 3D clip: each clip's front over its side view
 
     def make(out: Path) -> None:
-        draw(task, best, out, Cmrt.zero(task.clip_s), (f"run {run_id} best CMRT", "zero CMRT"), fps=fps)
+        draw(task, best, out, Cmrt.zero(task.clip_s, task.cmrt_axes), (f"run {run_id} best CMRT", "zero CMRT"), fps=fps)
 
     with _render_lock:
         return clipcache.cached(cache_dir, clip_name(run, fps), make)

@@ -34,7 +34,7 @@ class KnownCmrt:
     reference: str  # the controller's reference mode it belongs to ("center" or "yu")
     robust: bool  # optimized on the task's ensemble of perturbed clips
     curve: Cmrt
-    cma_params: tuple[float, ...]  # the optimizer's 8 parameters of ``curve`` (a warm start's x0)
+    cma_params: tuple[float, ...]  # the optimizer's 8 (or 12) parameters of ``curve`` (a warm start's x0)
     objective: float
     success: bool
     source: str  # "library" or "run 12"

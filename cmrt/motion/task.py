@@ -86,9 +86,9 @@ DEFAULTS_3D = {"push_force_y_n": 0.0, "stance_side": 0.0, "lift_fraction": 0.35}
 MIN_HOLD_3D_S = 0.5  # s: a leg lift's clip holds the one-leg pose at least this long after T
 
 
-#: The props a 3D pose change may hold or push (``cmrt.body.props``; docs/body3d.md, *The catch in 3D*, *The push in
-#: 3D*).
-PROPS_3D = ("ball", "slab")
+#: The props a 3D pose change may hold, push or strike (``cmrt.body.props``; docs/body3d.md, *The catch in 3D*,
+#: *The push in 3D*, *The punch in 3D*).
+PROPS_3D = ("ball", "slab", "bag")
 
 
 def params_off_3d(params: dict[str, float], prop: str | None = None) -> list[str]:
@@ -146,6 +146,15 @@ class Task:
     # the body that does it (cmrt.body.character.BODIES): "planar", the paper's, or "humanoid3d" (docs/body3d.md:
     # standing and pushed, simulated by `cmrt simulate` alone for now)
     body: str = "planar"
+    # the horizontal axes its CMRT acts in (docs/body3d.md, *CMRTs in x and y*): 1, the task's own (forward for a
+    # pose change, sideways for a leg lift), or 2 on the 3D body - that and across it, at shared knot times
+    cmrt_axes: int = 1
+
+    @property
+    def n_cmrt_params(self) -> int:
+        """The optimizer's parameters of this task's CMRT (``cmrt.motion.curve.n_params``): 8, or 12 in two
+        axes."""
+        return 8 if self.cmrt_axes == 1 else 12
 
     # --- parameters -------------------------------------------------------------
     # Those every task has (DEFAULT_PARAMS) as typed properties; any other (a prop's, via_fraction) is read
@@ -502,6 +511,8 @@ class Task:
             out["steps"] = [step.to_table() for step in self.steps]
         if self.body != "planar":  # absent for the planar body, likewise
             out["body"] = self.body
+        if self.cmrt_axes != 1:  # absent for one axis, likewise
+            out["cmrt_axes"] = self.cmrt_axes
         return out
 
     def content_hash(self) -> str:

@@ -60,7 +60,7 @@ def load_task(name_or_path: str) -> Task:
 #: The keys of a task file (docs/reference/task-files.md).
 TASK_KEYS = frozenset({"name", "summary", "speed_param", "balance_joint", "params", "param_ranges", "start_pose_deg",
                        "end_pose_deg", "via_pose_deg", "timing", "prop", "robust", "reference", "steps",
-                       "body"})
+                       "body", "cmrt_axes"})
 MAX_TEXT = 1000  # characters of a task's name or summary
 
 
@@ -113,7 +113,9 @@ def _checked_3d(task: Task, where: str) -> Task:
     task = task.with_robust(task.robust.enabled) if task.robust.enabled else task  # a push of its own: refused
     held = task.prop in PROPS_3D and task.end_pose_deg is not None  # a pose change may hold a 3D prop
     via = None if task.end_pose_deg is not None else task.via_pose_deg  # a pose change may pass through one
+    standing = task.end_pose_deg is None and not task.params.get("stance_side")
     others = [key for key, value in (("via_pose_deg", via), ("prop", None if held else task.prop),
+                                     ("cmrt_axes 2", standing and task.cmrt_axes == 2),
                                      ("steps", task.steps), ("timing", task.timing)) if value]
     others += params_off_3d(task.params, task.prop)
     if task.speed_param not in (None, "duration_s"):
@@ -233,8 +235,19 @@ def task_from_dict(raw: dict, source: str = "<dict>", default_name: str = "task"
         reference_mode=reference_mode(raw.get("reference", DEFAULT_REFERENCE_MODE), f"{where}: reference"),
         steps=steps_from_tables(raw["steps"], where) if "steps" in raw else (),
         body=body,
+        cmrt_axes=_cmrt_axes(raw, body, where),
     )
     return _checked_3d(task, where) if body != "planar" else _checked_planar(task, where)
+
+
+def _cmrt_axes(raw: dict, body: str, where: str) -> int:
+    """The task's ``cmrt_axes``: 1 (default), or 2 on the 3D body (a CMRT in x and y, docs/body3d.md)."""
+    axes = raw.get("cmrt_axes", 1)
+    if type(axes) is not int or axes not in (1, 2):
+        raise CmrtError(f"{where}: cmrt_axes must be 1 or 2, got {shown(axes)}")
+    if axes == 2 and body == "planar":
+        raise CmrtError(f"{where}: cmrt_axes = 2 is for the 3D body (the planar body has one horizontal axis)")
+    return axes
 
 
 def _checked_planar(task: Task, where: str) -> Task:

@@ -64,7 +64,7 @@ def bench_candidates(task: Task, n: int) -> list[np.ndarray]:
     try:
         base = library_curve(task).to_params()
     except CmrtError:
-        base = np.zeros(8)
+        base = np.zeros(task.n_cmrt_params)
     rng = np.random.default_rng(0)
     return [base + rng.normal(0.0, 0.02, base.size) for _ in range(n)]
 

@@ -1,4 +1,5 @@
-"""CMA-ES driver (pycma ask/tell) over the 8 CMRT parameters. Knows nothing of SQLite.
+"""CMA-ES driver (pycma ask/tell) over the 8 CMRT parameters (12 in x and y: ``OptimizeSettings.n_params``).
+Knows nothing of SQLite.
 
 Stopping rules, checked between generations:
 
@@ -59,13 +60,14 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from cmrt.motion.curve import N_KNOTS, Cmrt
+from cmrt.motion.curve import N_KNOTS, N_PARAMS_TWO_AXES, Cmrt
 from cmrt.optimize import checkpoint
 from cmrt.optimize.checkpoint import InvalidCheckpoint, cma  # pycma, imported without matplotlib (import_cma)
 from cmrt.optimize.settings import STALL_RULES, OptimizeSettings  # noqa: F401 (re-exported: the driver's settings)
 from cmrt.sim.objective import EvalRecord
 
 N_PARAMS = 2 * N_KNOTS
+DIMENSIONS = (N_PARAMS, N_PARAMS_TWO_AXES)  # a CMRT's parameters in one axis or two (cmrt.motion.curve)
 _log = logging.getLogger(__name__)
 
 
@@ -177,7 +179,7 @@ def _cma_options(randn: _Randn, popsize: int) -> dict:
 
 def _new_es(settings: OptimizeSettings, randn: _Randn, popsize: int,
             sigma: float | None = None) -> cma.CMAEvolutionStrategy:
-    x0 = np.zeros(N_PARAMS) if settings.x0 is None else np.asarray(settings.x0, dtype=float)
+    x0 = np.zeros(settings.n_params) if settings.x0 is None else np.asarray(settings.x0, dtype=float)
     es = cma.CMAEvolutionStrategy(x0, settings.sigma0 if sigma is None else sigma, _cma_options(randn, popsize))
     if settings.x0 is not None:
         es.inject([x0], force=True)  # the warm start itself is the first candidate
@@ -185,14 +187,15 @@ def _new_es(settings: OptimizeSettings, randn: _Randn, popsize: int,
 
 
 @functools.lru_cache(maxsize=16)
-def _fresh_es(popsize: int) -> cma.CMAEvolutionStrategy:
-    """A CMA-ES of ``popsize`` as cmrt builds it (never stepped): what a loaded one's constants must equal."""
-    return cma.CMAEvolutionStrategy(np.zeros(N_PARAMS), 1.0, _cma_options(_Randn(0), popsize))
+def _fresh_es(popsize: int, n_params: int = N_PARAMS) -> cma.CMAEvolutionStrategy:
+    """A CMA-ES of ``popsize`` in ``n_params`` dimensions as cmrt builds it (never stepped): what a loaded one's
+    constants must equal."""
+    return cma.CMAEvolutionStrategy(np.zeros(n_params), 1.0, _cma_options(_Randn(0), popsize))
 
 
-def _expected_options(popsize: int) -> tuple[dict, dict]:
+def _expected_options(popsize: int, n_params: int = N_PARAMS) -> tuple[dict, dict]:
     """(items, attributes) of the CMAOptions a CMA-ES of ``popsize`` has after construction."""
-    opts = _fresh_es(popsize).opts
+    opts = _fresh_es(popsize, n_params).opts
     return dict(opts), dict(vars(opts))
 
 
@@ -228,7 +231,8 @@ def _bounds_broken(state: CmaState, popsize: int) -> str | None:
     pycma's capped histories) - 6,000 references in ``pop_injection_solutions`` would ask for 6,000 clips
     in one batch, 300,000 archive entries make every ``tell`` quadratic; and its iteration and evaluation
     counters against the run's own."""
-    es, fresh = state.es, _fresh_es(popsize)
+    es = state.es
+    fresh = _fresh_es(popsize, es.N)
     for dotted in _CONSTANT_PARTS:
         have, want = _scalars(_part(es, dotted)), _scalars(_part(fresh, dotted))
         skip = _STATE_SCALARS.get(dotted, set())
@@ -239,7 +243,7 @@ def _bounds_broken(state: CmaState, popsize: int) -> str | None:
         return f"CMA-ES recombination weights are not a population-{popsize} CMA-ES's"
     if not (es.countiter <= state.generation and es.countevals <= state.evaluations):
         return "CMA-ES counters exceed the run's generations or evaluations"
-    limit = N_PARAMS * max(popsize, N_PARAMS) + 256
+    limit = es.N * max(popsize, es.N) + 256
     seen: set[int] = set()
     todo: list[tuple[object, str]] = [(es, "es")]
     while todo:
@@ -303,7 +307,9 @@ def _check_state(state, instances: dict, settings: OptimizeSettings | None) -> N
     need(es.sm.randn is randn, "the CMA-ES samples from another generator")
     for name in ("generation", "evaluations", "restarts"):
         need(type(getattr(state, name)) is int and getattr(state, name) >= 0, f"bad {name}")
-    need(state.best_x is None or (type(state.best_x) is np.ndarray and state.best_x.shape == (N_PARAMS,)),
+    need(type(es.N) is int and es.N in DIMENSIONS, "the CMA-ES's dimension is not a CMRT's")
+    need(settings is None or es.N == settings.n_params, "the CMA-ES's dimension is not the run's CMRT's")
+    need(state.best_x is None or (type(state.best_x) is np.ndarray and state.best_x.shape == (es.N,)),
          "bad best_x")
     popsize = es.opts.get("popsize")
     need(type(popsize) is int and 2 <= popsize <= MAX_POPSIZE, f"bad population size {popsize!r}"[:80])
@@ -320,7 +326,7 @@ def _check_state(state, instances: dict, settings: OptimizeSettings | None) -> N
              f"the run's settings give {large}")
     broken = _bounds_broken(state, popsize)
     need(broken is None, broken or "")
-    items, attrs = _expected_options(popsize)
+    items, attrs = _expected_options(popsize, es.N)
     bad = _options_differ(dict(es.opts), items, randn) + _options_differ(vars(es.opts), attrs, randn)
     need(not bad, "CMA-ES options differ from the run's: " + ", ".join(map(str, bad))[:120])
     need(es.inputargs["inopts"] is es.inopts and not _options_differ(es.inopts, _cma_options(randn, popsize), randn),
@@ -369,7 +375,7 @@ def know_zero(state: CmaState, record: EvalRecord) -> None:
     the search knows: the run's best is never worse than no CMRT, and a threshold stop needs a success better
     than it. Not counted as an evaluation (the budget and every generation are as without it)."""
     if record.objective < state.best_objective:
-        state.best_x, state.best_objective = ZERO_X.copy(), record.objective
+        state.best_x, state.best_objective = np.zeros(state.es.N), record.objective
         state.best_fell, state.best_success = record.fell, record.success
     if record.success:
         state.best_success_objective = min(state.best_success_objective, record.objective)

@@ -33,7 +33,12 @@ class OptimizeSettings:
     # "hybrid": the median test (below) only until the run's first success, the best alone after it;
     # "median": the median test throughout (v0.4); "best": the best alone throughout (v0.3)
     stall_rule: str = "hybrid"
+    n_params: int = 8  # the CMRT's parameters (``Task.n_cmrt_params``): 8, or 12 for a CMRT in x and y
 
     def __post_init__(self) -> None:
         if self.stall_rule not in STALL_RULES:
             raise CmrtError(f"stall_rule must be one of {', '.join(STALL_RULES)}, got {self.stall_rule!r}"[:200])
+        if self.n_params not in (8, 12):
+            raise CmrtError(f"n_params must be 8 or 12 (a CMRT in one axis or two), got {self.n_params!r}"[:200])
+        if self.x0 is not None and len(self.x0) != self.n_params:
+            raise CmrtError(f"a start point of {len(self.x0)} parameters for a CMRT of {self.n_params}")

@@ -41,12 +41,16 @@ class Interpolated:
 
 
 def blend(a: Cmrt, b: Cmrt, w: float) -> Cmrt:
-    """(1 - w) a + w b in knot times and values; exact at w = 0 and w = 1."""
+    """(1 - w) a + w b in knot times and values (a CMRT in two axes: its cross values too, a one-axis CMRT's
+    being 0 across); exact at w = 0 and w = 1."""
     if abs(a.clip_s - b.clip_s) > 1e-12:
         raise CmrtError(f"cannot interpolate CMRTs of {a.clip_s:g} s and {b.clip_s:g} s clips")
     t = (1.0 - w) * np.asarray(a.knot_times_s) + w * np.asarray(b.knot_times_s)
     v = (1.0 - w) * np.asarray(a.values_m) + w * np.asarray(b.values_m)
-    return Cmrt(a.clip_s, tuple(map(float, _valid_knots(t, a.clip_s))), tuple(map(float, v)))
+    cross = None
+    if a.axes == 2 or b.axes == 2:
+        cross = tuple(map(float, (1.0 - w) * np.asarray(a.cross.values_m) + w * np.asarray(b.cross.values_m)))
+    return Cmrt(a.clip_s, tuple(map(float, _valid_knots(t, a.clip_s))), tuple(map(float, v)), cross)
 
 
 def _valid_knots(t: np.ndarray, clip_s: float) -> np.ndarray:

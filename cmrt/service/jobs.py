@@ -20,12 +20,13 @@ import socket
 import time
 from collections.abc import Callable, Iterator, Sequence
 
+import numpy as np
+
 from cmrt import inputs
 from cmrt.errors import CmrtError, DiskFull, TransientFault, pending_termination
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.task import Task
 from cmrt.optimize.driver import (
-    ZERO_X,
     CmaState,
     best_cmrt,
     know_zero,
@@ -144,7 +145,7 @@ def claim(store: Store, worker: str, stale_after_s: float = STALE_AFTER_S, run_i
     return store.claim(worker, stale_after_s, run_id, on_failure)
 
 
-def settings_for(run: Run, x0: tuple[float, ...] | None = None) -> OptimizeSettings:
+def settings_for(run: Run, x0: tuple[float, ...] | None = None, n_params: int = 8) -> OptimizeSettings:
     """The optimizer settings a stored run was queued with; a row outside the ranges ``submit`` accepts (a
     store edited by someone else: a popsize of 20000) is refused with one line (the worker fails that run)."""
     for value, where, allowed in ((run.seed, "seed", inputs.SEED), (run.max_evals, "max_evals", inputs.MAX_EVALS),
@@ -160,7 +161,7 @@ def settings_for(run: Run, x0: tuple[float, ...] | None = None) -> OptimizeSetti
     return OptimizeSettings(
         seed=run.seed, max_evals=run.max_evals, min_evals=run.min_evals, popsize=run.popsize,
         sigma0=run.sigma0, stop_threshold=run.stop_threshold or 0.0, x0=x0,
-        stall_generations=run.stall_generations or _DEFAULTS.stall_generations,
+        stall_generations=run.stall_generations or _DEFAULTS.stall_generations, n_params=n_params,
     )
 
 
@@ -188,18 +189,18 @@ def _run_claimed(store: Store, claim: Claim, evaluator: Evaluator, on_generation
     if x0 is None and run.init_run is not None:  # queued by a cmrt before schema 3
         x0 = store.run(run.init_run).best_params
     if x0 is not None:  # a start copied from the store: checked like user input
-        x0 = start_point(x0, task.clip_s, f"run {run.id}'s start point")
-    settings = settings_for(run, x0)
+        x0 = start_point(x0, task.clip_s, f"run {run.id}'s start point", task.n_cmrt_params)
+    settings = settings_for(run, x0, task.n_cmrt_params)
     checkpoint = store.last_checkpoint(claim.run_id)
     state = CmaState.loads(checkpoint[1], settings, run_id=run.id) if checkpoint else new_state(settings)
     zero = None
     if not checkpoint:  # the zero CMRT is a candidate the search knows (a resumed run knows it already)
-        zero = evaluator(task, [ZERO_X])[0]
+        zero = evaluator(task, [np.zeros(task.n_cmrt_params)])[0]
         know_zero(state, zero)
 
     if run.baseline_objective is None:
         if task.body != "planar":  # the 3D clip's score is the evaluator's (cmrt.sim.clip3d)
-            base = zero if zero is not None else evaluator(task, [ZERO_X])[0]
+            base = zero if zero is not None else evaluator(task, [np.zeros(task.n_cmrt_params)])[0]
         else:
             base = evaluate(task, simulate(task, Cmrt.zero(task.clip_s), record=False))  # the score only
         store.record_baseline(claim, base.objective, base.fell, base.success)

@@ -17,7 +17,7 @@ import numpy as np
 from cmrt import inputs
 from cmrt.errors import CmrtError
 from cmrt.inputs import shown
-from cmrt.motion.curve import N_KNOTS, VALUE_M, Cmrt
+from cmrt.motion.curve import N_PARAMS, N_PARAMS_TWO_AXES, VALUE_M, Cmrt
 from cmrt.motion.footsteps import steps_from_tables
 from cmrt.motion.library import KnownCmrt, library_cmrts, library_curve
 from cmrt.motion.task import Task
@@ -33,14 +33,20 @@ SOURCES = ("store", "library")
 START_PARAM = inputs.Range(-100.0, 100.0)
 
 
-def start_point(params: tuple[float, ...], clip_s: float, where: str) -> tuple[float, ...]:
+def start_point(params: tuple[float, ...], clip_s: float, where: str, n_params: int | None = None
+                ) -> tuple[float, ...]:
     """Stored CMA-ES parameters to start a search from (a run's best copied into a new run, or a queued run's own
-    start), held to what a user may give: 8 numbers in ``START_PARAM`` whose CMRT a curve file may hold
-    (``VALUE_M``). CmrtError naming ``where`` otherwise."""
-    if len(params) != 2 * N_KNOTS:
-        raise CmrtError(f"{where}: expected {2 * N_KNOTS} CMRT parameters, got {len(params)}")
+    start), held to what a user may give: 8 numbers (12 for a CMRT in two axes) in ``START_PARAM`` whose CMRT a
+    curve file may hold (``VALUE_M``). ``n_params``: the searched CMRT's (``Task.n_cmrt_params``; None: as
+    stored) - a one-axis CMRT starts a two-axis search with nothing across (its cross values 0). CmrtError naming
+    ``where`` otherwise."""
+    if len(params) not in (N_PARAMS, N_PARAMS_TWO_AXES) or (n_params == N_PARAMS and len(params) != N_PARAMS):
+        want = N_PARAMS if n_params == N_PARAMS else f"{N_PARAMS} or {N_PARAMS_TWO_AXES}"
+        raise CmrtError(f"{where}: expected {want} CMRT parameters, got {len(params)}")
     checked = tuple(inputs.number(p, where, START_PARAM, text=False) for p in params)
     Cmrt.from_dict(Cmrt.from_params(np.asarray(checked), clip_s).to_dict(), where, VALUE_M)
+    if n_params is not None and len(checked) < n_params:
+        checked += (0.0,) * (n_params - len(checked))
     return checked
 
 
@@ -92,7 +98,7 @@ def resolve_curve(spec: str, task: Task, store_path: str | os.PathLike | None = 
     bend's CMRT has the punch's clip length but means nothing for it. ``flag`` names the argument in errors."""
     made_for = None  # the task the CMRT was made for, where that is known
     if spec == "zero":
-        return Cmrt.zero(task.clip_s), "zero"
+        return Cmrt.zero(task.clip_s, task.cmrt_axes), "zero"
     if spec in ("library", "library-robust"):
         curve, what = library_curve(task, robust=spec == "library-robust"), f"the {spec} CMRT of '{task.name}'"
         name = spec

@@ -115,7 +115,8 @@ def run_curve(store: Store, run_id: int) -> Cmrt:
 
 def export_run(store: Store, run_id: int, fmt: str) -> str:
     """json: run, generations and evaluations (non-finite numbers as null: valid JSON); csv: one row per
-    evaluation, its CMRT as knots (times in s, CoM displacements in m) and then CMA-ES's raw 8-vector."""
+    evaluation, its CMRT as knots (times in s, CoM displacements in m) and then CMA-ES's raw 8-vector (a CMRT in x
+    and y: its values across too, and 12 numbers)."""
     if fmt not in ("json", "csv"):
         raise CmrtError(f"--format must be json or csv, got '{fmt}'")
     with store.snapshot():  # one consistent state even while a worker commits generations
@@ -133,13 +134,16 @@ def export_run(store: Store, run_id: int, fmt: str) -> str:
     buf = io.StringIO()
     w = csv.writer(buf)
     knots = range(1, N_KNOTS + 1)
+    two_axes = any(len(e.params) > 2 * N_KNOTS for e in evaluations)  # a run's CMRTs all have one dimension
+    cross = [f"knot{i}_cross_displacement_m" for i in knots] if two_axes else []  # a CMRT in x and y's
     w.writerow(["run_id", "gen", "idx", "objective", "fell", "success", "seconds"]
-               + [f"knot{i}_time_s" for i in knots] + [f"knot{i}_displacement_m" for i in knots]
-               + [f"p{i}" for i in range(2 * N_KNOTS)])
+               + [f"knot{i}_time_s" for i in knots] + [f"knot{i}_displacement_m" for i in knots] + cross
+               + [f"p{i}" for i in range((3 if two_axes else 2) * N_KNOTS)])
     for e in evaluations:
         success = "" if e.success is None else int(e.success)
         curve = Cmrt.from_params(e.params, clip_s)  # the knots a person plots; the raw CMA-ES vector after them
         row = [run_id, e.gen, e.idx, repr(e.objective), int(e.fell), success, e.seconds]
-        w.writerow(row + [repr(t) for t in curve.knot_times_s] + [repr(v) for v in curve.values_m]
+        across = [repr(v) for v in curve.cross.values_m] if two_axes else []
+        w.writerow(row + [repr(t) for t in curve.knot_times_s] + [repr(v) for v in curve.values_m] + across
                    + [repr(p) for p in e.params])
     return buf.getvalue()

@@ -28,8 +28,9 @@ from cmrt.modes import BACKENDS, REFERENCE_MODES
 
 RUN_STATUSES = ("queued", "running", "done", "failed")
 INT64_MAX = 2**63 - 1
-#: the 8 numbers CMA-ES searches (cmrt.motion.curve: 2 x N_KNOTS; a test keeps them equal)
-CMRT_PARAMS = 8
+#: the numbers CMA-ES searches: 8, or 12 for a CMRT in two axes (cmrt.motion.curve.N_PARAMS, N_PARAMS_TWO_AXES;
+#: a test keeps them equal)
+CMRT_PARAMS = (8, 12)
 
 ID = Range(1, INT64_MAX, integer=True)  # SQLite rowids of runs
 COUNT = Range(0, 2**31 - 1, integer=True)  # attempts, retries, evaluations, generations, indices
@@ -65,8 +66,10 @@ def _numbers(value: object, where: str, length: int | None = None) -> tuple[floa
 
 
 def cmrt_params(value: object, where: str) -> tuple[float, ...]:
-    """CMA-ES's 8 parameters (a best point, a start point, a candidate, a generation's mean)."""
-    return _numbers(value, where, CMRT_PARAMS)
+    """CMA-ES's 8 or 12 parameters (a best point, a start point, a candidate, a generation's mean)."""
+    if not isinstance(value, list) or len(value) not in CMRT_PARAMS:
+        raise CmrtError(f"{where} is not a list of {' or '.join(map(str, CMRT_PARAMS))} numbers")
+    return _numbers(value, where)
 
 
 def _table(value: object, where: str) -> dict:

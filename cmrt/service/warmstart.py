@@ -22,7 +22,7 @@ IGNORED_PARAMS = frozenset({"stop_threshold"})  # optimizer settings, not physic
 
 @dataclass(frozen=True)
 class Start:
-    """A start point for CMA-ES: 8 CMRT parameters and where they came from."""
+    """A start point for CMA-ES: 8 CMRT parameters (12 in x and y) and where they came from."""
 
     params: tuple[float, ...] | None  # None: the zero CMRT (cold start)
     source: str  # "none", "run 12", "library (duration_s 0.4)"
@@ -49,6 +49,8 @@ def _candidates(store: Store | None, task: Task) -> list[tuple[float, int, bool,
     """(distance, other kind (robust vs plain) than the run, 0 store / 1 library, objective, start)."""
     found = []
     for known in known_cmrts(task, store):
+        if len(known.cma_params) > task.n_cmrt_params:  # a CMRT in two axes does not start a one-axis search
+            continue
         d = task_distance(task, known.params)
         if known.source == "library":
             label = f"library{' robust' if known.robust else ''}"
@@ -84,5 +86,5 @@ def resolve_init(store: Store | None, task: Task, init: str | int | None) -> Sta
         raise CmrtError(f"run {init} has no result to start from")
     if abs(src.params["clip_s"] - task.clip_s) > CLIP_TOLERANCE_S:
         raise CmrtError(f"run {init} is for a {src.params['clip_s']:g} s clip, not {task.clip_s:g} s")
-    params = start_point(src.best_params, task.clip_s, f"run {init}'s best CMRT")  # checked like user input
+    params = start_point(src.best_params, task.clip_s, f"run {init}'s best CMRT", task.n_cmrt_params)  # checked
     return Start(params, f"run {init}", task_distance(task, src.params))

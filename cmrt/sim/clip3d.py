@@ -24,6 +24,7 @@ import mujoco
 import numpy as np
 
 from cmrt.body.character import character
+from cmrt.body.props import CONTACT_FORCE_N, prop_class
 from cmrt.body.sagittal import planar_to_3d
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
@@ -137,8 +138,9 @@ def perturbed_3d(task: Task, member: Perturbation) -> Task:
 
 
 def clip_3d(task: Task, curve: Cmrt, member: Perturbation | None = None) -> Clip3d:
-    """Simulate and score a 3D task with ``curve`` (a leg lift's CMRT in y, a pose change's in x; a standing task
-    takes only the zero one); ``member``: as that ensemble member plays it (``perturbed_3d``)."""
+    """Simulate and score a 3D task with ``curve`` (a leg lift's CMRT in y, a pose change's in x, and a two-axis
+    CMRT's cross values in the other; a standing task takes only the zero one); ``member``: as that ensemble
+    member plays it (``perturbed_3d``)."""
     if member is not None:
         task = perturbed_3d(task, member)
     p = task.params
@@ -146,7 +148,7 @@ def clip_3d(task: Task, curve: Cmrt, member: Perturbation | None = None) -> Clip
     pushed = (push, p["push_start_s"], p["push_duration_s"]) if any(push) else None
     if task.end_pose_deg is not None:
         return _pose_change(task, curve, pushed, 1.0 if member is None else member.prop_mass_scale)
-    if p["stance_side"] == 0 and any(curve.values_m):
+    if p["stance_side"] == 0 and (any(curve.values_m) or any(curve.cross_values_m or ())):
         raise CmrtError("a standing 3D task takes no CMRT (docs/body3d.md): only the zero one")
     if p["stance_side"] == 0:
         start = stand_pose_qpos()
@@ -158,8 +160,8 @@ def clip_3d(task: Task, curve: Cmrt, member: Perturbation | None = None) -> Clip
         return Clip3d(r, value, failed, final_pose_error_rad=final, cop_reference_xy_m=centre)
     lift_s = p["lift_fraction"] * p["duration_s"]
     lift = leg_lift_3d(shift_s=p["duration_s"] - lift_s, lift_s=lift_s, clip_s=p["clip_s"],
-                       stance=stance_index(task), cmrt_y=curve, start_s=p["preparation_s"],
-                       reference=task.reference_mode, push=pushed)
+                       stance=stance_index(task), cmrt_y=curve.along(), start_s=p["preparation_s"],
+                       reference=task.reference_mode, push=pushed, cmrt_x=_cross(curve))
     r = lift.result
     lag = _lag(task, r, lift.q_reference)
     done = abs(lift.foot_lift_m - LIFT_HEIGHT_M) <= FOOT_LIFT_TOLERANCE_M and not r.fell
@@ -185,7 +187,8 @@ def _pose_change(task: Task, curve: Cmrt, push, prop_mass_scale: float = 1.0) ->
     if task.prop is not None:  # a ball to catch (cmrt.sim.prop3d): the planar prop on the 3D body
         end = stand_pose_qpos(task.end_pose_deg)
         held = HeldProp(task.prop, dict(task.params), task.model(), end, task.task_window_s(), prop_mass_scale)
-    r, q_ref = pose_change_3d(reference, start, task.clip_s, curve, push=push, held=held)
+    r, q_ref = pose_change_3d(reference, start, task.clip_s, curve.along(), push=push, held=held,
+                              cmrt_y=_cross(curve))
     m = character(task.body).model
     act = m.jnt_qposadr[m.actuator_trnid[:, 0]]
     final = _final_pose_error(task, r, q_ref[-1])
@@ -209,6 +212,11 @@ def _pose_change(task: Task, curve: Cmrt, push, prop_mass_scale: float = 1.0) ->
     failed, value = _judged(task, r, done, miss, lag, centre, None)
     return Clip3d(r, value, failed, None, lag, timing_lag_bound_s(task), tracking, bound, final, centre,
                   "pose change")
+
+
+def _cross(curve: Cmrt) -> Cmrt | None:
+    """A two-axis CMRT's displacement across the task's axis (None for a one-axis CMRT: its clip as before)."""
+    return curve.cross if curve.axes == 2 else None
 
 
 def _final_pose_error(task: Task, r: StandResult, target: np.ndarray) -> float:
@@ -248,7 +256,8 @@ def _judged(task: Task, r: StandResult, done: bool, miss: float, lag: float | No
 
 def _lag(task: Task, r: StandResult, q_reference: np.ndarray) -> float | None:
     """The planar timing rule on the 3D body's actuated joints over [P, P + T], the task's balance joint (its
-    pitch and roll) excepted as on the planar body (None: it fell first)."""
+    pitch and roll) excepted as on the planar body (None: it fell first); a struck prop's first touch inside the
+    window stops the limb that hits it, as on the planar body (``objective.joint_lags_s``'s ``strike_s``)."""
     start = task.preparation_s
     m = character(task.body).model
     keep = r.time_s >= start - 1e-9
@@ -260,8 +269,19 @@ def _lag(task: Task, r: StandResult, q_reference: np.ndarray) -> float | None:
     skip = task.balance_joint if task.end_pose_deg is not None else None
     joints = [int(m.jnt_qposadr[j]) for j in m.actuator_trnid[:, 0]
               if not (skip and m.joint(int(j)).name.split("_")[0] == skip)]
-    lags = joint_lags_s(t, r.qpos[keep], q_reference[keep], joints, t <= start + task.duration_s + 1e-9, start)
+    window = t <= start + task.duration_s + 1e-9
+    lags = joint_lags_s(t, r.qpos[keep], q_reference[keep], joints, window, start, _strike_s(task, r))
     return max(0.0, float(max(lags))) if lags else None
+
+
+def _strike_s(task: Task, r: StandResult) -> float | None:
+    """The hands' first touch of a struck prop (a bag) inside the task window (None: not a strike)."""
+    if r.prop_force_n is None or not prop_class(task.prop).struck:
+        return None
+    times = force_times_s(r.prop_force_n.size, character(task.body).model.opt.timestep)
+    start, stop = task.task_window_s()
+    hit = np.flatnonzero((r.prop_force_n > CONTACT_FORCE_N) & (times >= start - 1e-9) & (times <= stop + 1e-9))
+    return float(times[hit[0]]) if hit.size else None
 
 
 def sideways_trace(task: Task, c: Clip3d) -> dict[str, np.ndarray]:

@@ -48,7 +48,7 @@ def simulate(task: Task, curve: Cmrt | None = None, config: ControllerConfig | N
     (``cmrt.sim.simulate.simulate``), a 3D task's clip (``cmrt.sim.clip3d.clip_3d``, the default controller's);
     ``evaluate`` scores either. What ``cmrt.simulate`` is (``config``: the planar controller's, None its default)."""
     if getattr(task, "body", "planar") != "planar":
-        return clip_3d(task, curve if curve is not None else Cmrt.zero(task.clip_s))
+        return clip_3d(task, curve if curve is not None else Cmrt.zero(task.clip_s, task.cmrt_axes))
     if config is None:
         return planar.simulate(task, curve, record=record)
     return planar.simulate(task, curve, config, record)

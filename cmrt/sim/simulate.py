@@ -729,6 +729,9 @@ def simulate_batch(
         raise CmrtError(f"task {task.name!r} is done with the {task.body} body: its clip is cmrt.sim.spatial's "
                         "(`cmrt simulate` runs it); optimizing, batches and the service are planar for now "
                         "(docs/body3d.md)")
+    if any(getattr(curve, "axes", 1) != 1 for curve in curves):  # a superposed CMRT (planar) has no axes
+        raise CmrtError(f"task {task.name!r}: a CMRT in two axes is for the 3D body (the planar body has one "
+                        "horizontal axis)")
     n = len(curves)
     members = list(perturbations) if perturbations is not None else [NOMINAL] * n
     if len(members) != n:

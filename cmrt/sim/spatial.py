@@ -430,8 +430,8 @@ class LegLiftClip:
 
 def leg_lift_3d(shift_s: float = 1.5, lift_s: float = 0.8, clip_s: float = 5.0, stance: int = 1,
                 config: ControllerConfig = ControllerConfig(), cmrt_y: Cmrt | None = None, start_s: float = 0.5,
-                reference: str = "yu", push: tuple[tuple[float, float, float], float, float] | None = None
-                ) -> LegLiftClip:
+                reference: str = "yu", push: tuple[tuple[float, float, float], float, float] | None = None,
+                cmrt_x: Cmrt | None = None) -> LegLiftClip:
     """The 3D body shifting its weight onto the ``stance`` foot over ``shift_s`` (from ``start_s``; both feet
     down), then lifting the other foot 10 cm over ``lift_s`` and standing on one leg to ``clip_s`` - the reference
     pose moving through ``cmrt.body.one_leg``'s poses. The CoM's and CoP's references (``reference``):
@@ -442,7 +442,8 @@ def leg_lift_3d(shift_s: float = 1.5, lift_s: float = 0.8, clip_s: float = 5.0, 
     * "yu", the reference motion's own weight shift (Yu's references are the reference's loaded feet): the CoM's
       the reference poses' (plus the CMRT), the CoP's moving from both feet onto the stance foot with the shift.
 
-    ``push``: (force on the thorax, N; its start, s; its duration, s), as ``stand_3d``'s."""
+    ``push``: (force on the thorax, N; its start, s; its duration, s), as ``stand_3d``'s; ``cmrt_x``: a two-axis
+    CMRT's forward part (``Cmrt.cross``)."""
     poses = one_leg_poses(stand_pose_qpos(), stance)
     ch = character(BODY)
     m, scratch, d0 = ch.model, mujoco.MjData(ch.model), mujoco.MjData(ch.model)
@@ -450,8 +451,7 @@ def leg_lift_3d(shift_s: float = 1.5, lift_s: float = 0.8, clip_s: float = 5.0, 
     mujoco.mj_kinematics(m, d0)
     both = feet_centre_xy(poses.standing)  # both feet's support centre
     swing, curve = 1 - stance, cmrt_y if cmrt_y is not None else Cmrt.zero(clip_s)
-    foot_body = ch.foot_bodies[swing]
-    lift_at_s, up = start_s + shift_s, np.array([0.0, 1.0])
+    foot_body, lift_at_s, up = ch.foot_bodies[swing], start_s + shift_s, np.array([0.0, 1.0])
 
     def reference_of(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         scratch.qpos[:] = q
@@ -464,9 +464,11 @@ def leg_lift_3d(shift_s: float = 1.5, lift_s: float = 0.8, clip_s: float = 5.0, 
     def eased(t: float, t0: float, span: float, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, ...]:
         return _eased(m, (t - t0) / span, span, a, b)
 
-    shift = _sampled(curve, clip_s, config.control_every)
+    shift, forward = (_sampled(curve, clip_s, config.control_every),
+                      _crossed(cmrt_x, clip_s, config.control_every, np.array([1.0, 0.0])))
+
     def plan(t: float) -> tuple[np.ndarray, SpatialTargets]:
-        """The reference pose at ``t`` and the controller's targets."""
+        """The reference pose at ``t`` and the controller's targets (a two-axis CMRT's forward part: ``forward``)."""
         d_m, v_m_s = shift(t)
         if t < lift_at_s:
             q, qd, qdd = eased(t, start_s, shift_s, poses.standing, poses.shifted)
@@ -481,9 +483,8 @@ def leg_lift_3d(shift_s: float = 1.5, lift_s: float = 0.8, clip_s: float = 5.0, 
                                      qd_ref=qd, qdd_ref=qdd)
         q, qd, qdd = eased(t, lift_at_s, lift_s, poses.shifted, poses.lifted)
         com, foot = reference_of(q)
-        h = 1e-3  # s: the foot's path's rate by a central difference
         foot_vel = np.diff([reference_of(eased(t + e, lift_at_s, lift_s, poses.shifted, poses.lifted)[0])[1]
-                            for e in (-h, h)], axis=0)[0] / (2 * h)
+                            for e in (-1e-3, 1e-3)], axis=0)[0] / 2e-3  # the foot path's rate: a central difference
         centre = poses.stance_centre_xy_m
         com = centre if reference == "center" else com
         return q, SpatialTargets(com_xy_m=com + d_m * up, com_vel_xy_m_s=v_m_s * up, cop_xy_m=centre, q_ref=q,
@@ -493,7 +494,7 @@ def leg_lift_3d(shift_s: float = 1.5, lift_s: float = 0.8, clip_s: float = 5.0, 
     given: dict[float, tuple[np.ndarray, SpatialTargets]] = {}  # what each control step was given, by its time
 
     def motion(t: float) -> SpatialTargets:
-        given[t] = plan(t)
+        given[t] = forward(t, *plan(t))
         return given[t][1]
 
     result = stand_3d(clip_s=clip_s, push_n=force, push_start_s=push_start_s, push_duration_s=push_duration_s,
@@ -511,29 +512,46 @@ def leg_lift_3d(shift_s: float = 1.5, lift_s: float = 0.8, clip_s: float = 5.0, 
 
 def pose_change_3d(reference: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]],
                    start_qpos: np.ndarray, clip_s: float, cmrt_x: Cmrt, config: ControllerConfig = ControllerConfig(),
-                   push: tuple[tuple[float, float, float], float, float] | None = None, held: HeldProp | None = None
-                   ) -> tuple[StandResult, np.ndarray]:
+                   push: tuple[tuple[float, float, float], float, float] | None = None, held: HeldProp | None = None,
+                   cmrt_y: Cmrt | None = None) -> tuple[StandResult, np.ndarray]:
     """The 3D body moving through ``reference`` (times (n,) -> q (n, nq), qd and qdd (n, nv): its pose, tracked
     with the rates fed forward) from ``start_qpos``, both feet down, in the paper's centre mode: the CoM's and
-    CoP's reference the feet's centre, the CoM's displaced forward by the CMRT ``cmrt_x``. Returns the clip and the
-    reference pose at its samples. ``push`` as ``leg_lift_3d``'s, ``held`` as ``stand_3d``'s."""
+    CoP's reference the feet's centre, the CoM's displaced forward by the CMRT ``cmrt_x`` (and sideways by a
+    two-axis CMRT's ``cmrt_y``, +y to the left). Returns the clip and the reference pose at its samples. ``push`` as
+    ``leg_lift_3d``'s, ``held`` as ``stand_3d``'s."""
     centre = feet_centre_xy(start_qpos)
     forward = np.array([1.0, 0.0])
     times = control_times_s(clip_s, config.control_every)  # the reference at every control step at once: one at a
     poses = reference(times)  # time, it was 40 % of a clip's time
     at = {float(t): k for k, t in enumerate(times)}
     shift = _sampled(cmrt_x, clip_s, config.control_every)
+    cross = _crossed(cmrt_y, clip_s, config.control_every, np.array([0.0, 1.0]))
 
     def motion(t: float) -> SpatialTargets:
         q, qd, qdd = (values[at[t]] for values in poses)
         shift_m, shift_m_s = shift(t)
-        return SpatialTargets(com_xy_m=centre + shift_m * forward, com_vel_xy_m_s=shift_m_s * forward,
-                              cop_xy_m=centre, q_ref=q, qd_ref=qd, qdd_ref=qdd)
+        return cross(t, q, SpatialTargets(com_xy_m=centre + shift_m * forward, com_vel_xy_m_s=shift_m_s * forward,
+                                          cop_xy_m=centre, q_ref=q, qd_ref=qd, qdd_ref=qdd))[1]
 
     force, push_start_s, push_duration_s = push if push is not None else ((0.0, 0.0, 0.0), clip_s, 0.1)
     result = stand_3d(clip_s=clip_s, push_n=force, push_start_s=push_start_s, push_duration_s=push_duration_s,
                       config=config, motion=motion, start_qpos=start_qpos, held=held)
     return result, reference(result.time_s)[0]
+
+
+def _crossed(curve: Cmrt | None, clip_s: float, control_every: int, axis: np.ndarray
+             ) -> Callable[[float, np.ndarray, SpatialTargets], tuple[np.ndarray, SpatialTargets]]:
+    """A two-axis CMRT's second displacement (``Cmrt.cross``) along ``axis`` (a unit xy vector) added to a control
+    step's CoM reference and its rate; None: the targets as they are (a one-axis CMRT's clip, bit for bit)."""
+    if curve is None:
+        return lambda t, q, targets: (q, targets)
+    shift = _sampled(curve, clip_s, control_every)
+
+    def crossed(t: float, q: np.ndarray, targets: SpatialTargets) -> tuple[np.ndarray, SpatialTargets]:
+        d_m, v_m_s = shift(t)
+        return q, replace(targets, com_xy_m=targets.com_xy_m + d_m * axis,
+                          com_vel_xy_m_s=targets.com_vel_xy_m_s + v_m_s * axis)
+    return crossed
 
 
 def _sampled(curve: Cmrt, clip_s: float, control_every: int) -> Callable[[float], tuple[float, float]]:

@@ -99,6 +99,9 @@ def cmrt_figure(task: Task, curve: Cmrt, label: str = "best CMRT"):
     t = np.linspace(0, task.clip_s, 400)
     ax.plot(t, 100 * curve.displacement_m(t), lw=1.5, label=label)
     ax.plot(curve.knot_times_s, 100 * np.asarray(curve.values_m), "o", ms=5, label="knots")
+    if curve.axes == 2:  # a CMRT in x and y: its displacement across the task's axis, at the same knots
+        ax.plot(t, 100 * curve.cross.displacement_m(t), lw=1.5, ls="--", label=f"{label}, across")
+        ax.plot(curve.knot_times_s, 100 * np.asarray(curve.cross.values_m), "s", ms=4, label="knots, across")
     _phases(ax, task)
     P, T = task.preparation_s, task.duration_s
     for x, name in ((P / 2, "preparation"), (P + T / 2, "task"), ((P + T + task.clip_s) / 2, "decay")):
@@ -162,7 +165,7 @@ def plot_run(store: Store, run_id: int, out_dir: str | Path) -> list[Path]:
     return [
         plot_cop_error(
             task,
-            [("zero CMRT", Cmrt.zero(task.clip_s)), (f"run {run_id} best CMRT", best)],
+            [("zero CMRT", Cmrt.zero(task.clip_s, task.cmrt_axes)), (f"run {run_id} best CMRT", best)],
             cop_path,
         ),
         plot_cmrt(task, best, cmrt_path, f"run {run_id}: {task.name}{speed}"),

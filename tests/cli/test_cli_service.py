@@ -181,3 +181,28 @@ def test_not_a_store_in_process(tmp_path, capsys):
         assert main([*args, "--store", str(path)]) == 2
         assert "not a CMRT store" in capsys.readouterr().err
     assert digest(path) == before
+
+
+@pytest.mark.slow  # two short 3D searches and a replay in cmrt processes
+def test_a_cmrt_in_x_and_y_through_the_service(tmp_path):
+    """punch3d's CMRT acts forward and sideways (12 parameters): optimized into the store, shown and exported with
+    its values across, replayed from the store to its objective, and the start of a warm-started search."""
+    path = tmp_path / "s.sqlite"
+    common = ("--popsize", "6", "--backend", "serial", "--json", "--no-progress")
+    out = json.loads(cmrt("optimize", "punch3d", "--seed", "1", "--max-evals", "12", "--init", "none", *common,
+                          store=path, check=True).stdout)
+    best = out["best_cmrt"]
+    assert len(best["cross_values_m"]) == 4 and any(best["cross_values_m"])
+    show = json.loads(cmrt("show", str(out["run_id"]), "--json", store=path, check=True).stdout)
+    assert len(show["best_params"]) == 12
+    rows = list(csv.DictReader(io.StringIO(cmrt("export", str(out["run_id"]), "--format", "csv", store=path,
+                                                check=True).stdout)))
+    top = min(rows, key=lambda r: float(r["objective"]))
+    assert [float(top[f"knot{i}_cross_displacement_m"]) for i in range(1, 5)] == best["cross_values_m"]
+    assert "p11" in top and "p12" not in top
+    sim = json.loads(cmrt("simulate", "punch3d", "--curve", str(out["run_id"]), "--json", store=path,
+                          check=True).stdout)
+    assert sim["objective"] == out["best_objective"] and sim["cmrt"] == best
+    warm = json.loads(cmrt("optimize", "punch3d", "--seed", "2", "--max-evals", "6", "--init", str(out["run_id"]),
+                           *common, store=path, check=True).stdout)
+    assert warm["init"] == f"run {out['run_id']}" and warm["best_objective"] <= out["best_objective"]

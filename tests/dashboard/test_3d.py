@@ -30,3 +30,25 @@ def test_a_leg_lift_runs_page_traces_and_clip(tmp_path):
     assert best["plausibility"]["timing_lag_s"] <= best["limits"]["timing_lag_s"]
     status, body = asgi_get(app, f"/clips/run{run_id}.mp4")
     assert status == 200 and len(body) > 5_000 and body[4:8] == b"ftyp"  # an MP4
+
+
+def test_a_run_page_shows_a_cmrt_in_x_and_y_with_its_values_across(tmp_path):
+    """A punch3d run's CMRT acts forward and sideways: the run page's best CMRT carries both curves and knots."""
+    from cmrt import Cmrt, load_task
+    from cmrt.service.jobs import submit
+    from cmrt.service.store import open_store
+
+    task = load_task("punch3d")
+    curve = Cmrt(task.clip_s, (0.5, 1.0, 1.5, 2.0), (0.01, 0.02, 0.03, 0.0), (0.004, 0.005, 0.002, 0.001))
+    path = tmp_path / "s.sqlite"
+    with open_store(path) as store:
+        run_id = submit(store, task, init="none", max_evals=8, popsize=4)
+        _finish(store, run_id, curve, [[11.0, 9.0, 0.6, 7.0]])
+    app = create_app(DashboardConfig(store_path=path, cache_dir=tmp_path / "clips"))
+    status, body = asgi_get(app, f"/api/runs/{run_id}")
+    assert status == 200, body
+    page = json.loads(body)
+    best = page["best_cmrt"]
+    assert best["cross_knot_values_cm"] == [0.4, 0.5, 0.2, 0.1]
+    assert len(best["cross_displacement_cm"]) == len(best["time_s"]) and max(best["cross_displacement_cm"]) > 0.4
+    assert page["zero_cmrt"]["cross_displacement_cm"] == [0.0] * len(best["time_s"])

@@ -29,8 +29,11 @@ def test_a_3d_task_round_trips_and_a_planar_one_has_no_body_key():
      "not both"),
     ({"steps": [{"foot": "R", "x_m": 0.2, "duration_s": 0.6}]}, "not steps"),
     ({"params": {"stepping": 1.0}}, "not stepping"),
-    ({"prop": {"kind": "bag"}, "end_pose_deg": {"hip": -30.0}, "params": {"clip_s": 3.0, "duration_s": 0.5}},
+    ({"prop": {"kind": "wall"}, "end_pose_deg": {"hip": -30.0}, "params": {"clip_s": 3.0, "duration_s": 0.5}},
      "not prop"),
+    ({"cmrt_axes": 2}, "not cmrt_axes 2"),  # a standing task takes no CMRT, in one axis or two
+    ({"cmrt_axes": 3}, "cmrt_axes must be 1 or 2"),
+    ({"cmrt_axes": True}, "cmrt_axes must be 1 or 2"),
     ({"prop": {"kind": "ball"}}, "not prop"),  # a ball is caught by a pose change, not by standing
     ({"prop": {"kind": "ball"}, "end_pose_deg": {"shoulder": -90.0}, "params": {"clip_s": 3.0, "duration_s": 0.5}},
      "ball_balanced = 1"),  # its mass moved into the forearms: not on the 3D body yet
@@ -39,6 +42,16 @@ def test_a_3d_task_round_trips_and_a_planar_one_has_no_body_key():
 def test_what_a_3d_task_may_not_say_is_refused(extra, says):
     with pytest.raises(CmrtError, match=says):
         task_from_dict(_stand3d(**extra))
+
+
+def test_a_cmrt_in_two_axes_is_for_the_3d_body_and_round_trips():
+    with pytest.raises(CmrtError, match="cmrt_axes = 2 is for the 3D body"):
+        task_from_dict({**load_task("bend").to_dict(), "cmrt_axes": 2})
+    task = load_task("punch3d")
+    assert task.cmrt_axes == 2 and task.n_cmrt_params == 12
+    again = task_from_dict(task.to_dict())
+    assert again.cmrt_axes == 2 and again.content_hash() == task.content_hash()
+    assert "cmrt_axes" not in load_task("bend3d").to_dict()  # one axis: absent, older hashes stay valid
 
 
 def test_the_planar_simulator_refuses_a_3d_task():

@@ -71,6 +71,11 @@ def snapshots():
     drive(state, RUGGED, 15)
     assert state.restarts >= 2
     yield "after restarts", RUGGED, state
+    two = OptimizeSettings(seed=2, max_evals=2000, stall_generations=3, min_evals=0, stop_threshold=10.0,
+                           n_params=12)  # a CMRT in x and y
+    state = new_state(two)
+    drive(state, two, 5)
+    yield "two axes", two, state
 
 
 # --- bit-identical resume ------------------------------------------------------------------------------
@@ -91,6 +96,22 @@ def test_round_trip_continues_bit_identically(name):
         assert getattr(state.es, attr).tobytes() == getattr(resumed.es, attr).tobytes(), attr
     assert state.es.sigma == resumed.es.sigma and state.best_history == resumed.best_history
     assert state.randn.rng.bit_generator.state == resumed.randn.rng.bit_generator.state
+
+
+def test_a_checkpoint_resumes_only_a_search_of_its_own_dimension():
+    """A 12-parameter search (a CMRT in x and y) resumes as one; loaded for an 8-parameter run it is refused, as
+    is a start point of the wrong length."""
+    two = OptimizeSettings(seed=2, n_params=12)
+    state = new_state(two)
+    drive(state, two, 2, sphere)
+    assert state.es.N == 12 and state.best_x.shape == (12,)
+    CmaState.loads(state.dumps(), two, run_id=1)
+    with pytest.raises(InvalidCheckpoint, match="dimension"):
+        CmaState.loads(state.dumps(), OptimizeSettings(seed=2), run_id=1)
+    with pytest.raises(CmrtError, match="a start point of 8 parameters for a CMRT of 12"):
+        OptimizeSettings(n_params=12, x0=(0.0,) * 8)
+    with pytest.raises(CmrtError, match="n_params must be 8 or 12"):
+        OptimizeSettings(n_params=16)
 
 
 def test_resume_across_restarts_matches_pickle():

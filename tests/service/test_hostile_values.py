@@ -130,7 +130,7 @@ def test_a_queued_run_at_attempt_2_63_is_failed_with_the_reason_and_jobs_still_l
 
 def test_every_column_of_every_table_has_its_check():
     """The column tables of ``service.records`` are the schema cmrt's migrations build, column for column."""
-    from cmrt.motion.curve import N_KNOTS
+    from cmrt.motion.curve import N_PARAMS, N_PARAMS_TWO_AXES
     from cmrt.service import records
     from cmrt.service.store import SCHEMA_VERSION, _expected_schema
 
@@ -138,7 +138,7 @@ def test_every_column_of_every_table_has_its_check():
     for table, columns in (("runs", records.RUNS), ("generations", records.GENERATIONS),
                            ("evaluations", records.EVALUATIONS), ("meta", records.META)):
         assert sorted(c[1] for c in schema[("table", table)][1]) == sorted(columns), table
-    assert records.CMRT_PARAMS == 2 * N_KNOTS
+    assert records.CMRT_PARAMS == (N_PARAMS, N_PARAMS_TWO_AXES)
 
 
 def test_a_run_of_an_older_schema_reads_without_its_later_columns(tmp_path, capsys):

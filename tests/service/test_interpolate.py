@@ -122,3 +122,15 @@ def test_interpolating_a_step_family_across_step_durations():
     other = task.with_steps(parse_steps("R:+0.4:0.4,L:+0.8:0.4"))
     with pytest.raises(CmrtError, match="need two library results"):
         interpolate(other)
+
+
+def test_blending_cmrts_in_two_axes_blends_the_values_across():
+    """Knot values across blend as the first axis's; a one-axis CMRT blends as one with nothing across."""
+    a = Cmrt(2.0, (0.3, 0.8, 1.2, 1.6), (0.01, 0.02, 0.03, 0.01), (0.004, -0.002, 0.0, 0.006))
+    b = Cmrt(2.0, (0.4, 0.9, 1.3, 1.7), (0.03, 0.02, 0.01, 0.0), (0.0, 0.002, 0.004, -0.002))
+    mid = blend(a, b, 0.5)
+    np.testing.assert_allclose(mid.cross_values_m, (0.002, 0.0, 0.002, 0.002), atol=1e-15)
+    assert blend(a, b, 0.0) == a and blend(a, b, 1.0) == b
+    one = Cmrt(2.0, b.knot_times_s, b.values_m)
+    np.testing.assert_allclose(blend(a, one, 0.5).cross_values_m, np.asarray(a.cross_values_m) / 2, atol=1e-15)
+    assert blend(one, one, 0.5).axes == 1

@@ -72,3 +72,18 @@ def test_resolve_curve_names_every_kind_of_known_cmrt(tmp_path):
     for spec, words in [("nonsense", "--curve must be zero"), (str(rid), "clip"), (str(path), "clip")]:
         with pytest.raises(CmrtError, match=words):
             resolve_curve(spec, BEND.with_params(clip_s=3.0) if words == "clip" else BEND, store_path)
+
+
+def test_a_one_axis_start_begins_a_two_axis_search_with_nothing_across():
+    """A stored one-axis CMRT starts a search in x and y with its values across 0; a two-axis one cannot start a
+    one-axis search (its second axis would be dropped silently)."""
+    from cmrt.errors import CmrtError
+    from cmrt.service.known import start_point
+
+    u = tuple(np.linspace(-0.5, 0.5, 8))
+    assert start_point(u, 3.1, "here", 12) == u + (0.0,) * 4
+    assert start_point(u, 3.1, "here") == u and start_point(u + (0.1,) * 4, 3.1, "here", 12)[8:] == (0.1,) * 4
+    with pytest.raises(CmrtError, match="here: expected 8 CMRT parameters, got 12"):
+        start_point(u + (0.1,) * 4, 3.1, "here", 8)
+    with pytest.raises(CmrtError, match="expected 8 or 12 CMRT parameters, got 10"):
+        start_point(u + (0.1,) * 2, 3.1, "here")

@@ -184,9 +184,11 @@ def test_the_3d_push_is_pushed_back_without_a_cmrt_and_topples_the_slab_with_the
     assert found.objective < 5.0 < zero.objective
 
 
-def test_same_catch_same_result():
-    task = load_task("catch3d").with_params(clip_s=2.0)
-    curve = Cmrt.from_params(np.full(8, 0.2), task.clip_s)
+@pytest.mark.parametrize("name, params", [("catch3d", np.full(8, 0.2)), ("punch3d", np.full(12, 0.1))])
+def test_same_prop_task_same_result(name, params):
+    """A prop's clip, run twice: the same samples, forces and figures (the punch's CMRT in x and y)."""
+    task = load_task(name).with_params(clip_s=2.0)
+    curve = Cmrt.from_params(params, task.clip_s)
     a, b = clip_3d(task, curve), clip_3d(task, curve)
     assert a.objective == b.objective and np.array_equal(a.result.qpos, b.result.qpos)
     assert np.array_equal(a.result.prop_force_n, b.result.prop_force_n) and a.prop_figures() == b.prop_figures()
@@ -206,3 +208,67 @@ def test_a_3d_clips_torques_replayed_open_loop_are_the_clip(name):
     weaker = replace(r, ctrl_nm=r.ctrl_nm * 0.9)  # other torques: another clip (the replay is open loop)
     replay_3d(weaker, com_out=com)
     assert np.abs(com - r.com_m).max() > 0.01
+
+
+@pytest.mark.parametrize("name", ["bend3d", "leg-lift"])
+def test_zero_values_across_leave_a_3d_clip_as_it_was(name):
+    """A one-axis CMRT and the same CMRT with zero values across play one clip, bit for bit: the cross axis adds
+    exactly nothing, so no one-axis result moves."""
+    task = load_task(name)
+    one = library_curve(task)
+    two = Cmrt(one.clip_s, one.knot_times_s, one.values_m, (0.0,) * 4)
+    a, b = clip_3d(task, one), clip_3d(task, two)
+    assert two.axes == 2 and a.success
+    np.testing.assert_array_equal(a.result.qpos, b.result.qpos)
+    assert a.objective == b.objective and a.failed_rules == b.failed_rules
+
+
+def test_the_cross_axis_moves_the_com_across_the_tasks_own():
+    """A two-axis CMRT's cross values displace the CoM's reference across the task's axis - sideways (+y, to the
+    left) in a pose change, forward (+x) in a leg lift - and the executed CoM follows, the other axis barely."""
+    bend = load_task("bend3d")
+    flat = Cmrt.zero(bend.clip_s, 2)
+    left = Cmrt(bend.clip_s, flat.knot_times_s, flat.values_m, (0.02,) * 4)
+    a, b = clip_3d(bend, flat), clip_3d(bend, left)
+    t = a.result.time_s
+    plateau = (t > flat.knot_times_s[0]) & (t < flat.knot_times_s[-1])  # the shift is 2 cm between the knots
+    dy = b.result.com_m[plateau, 1] - a.result.com_m[plateau, 1]
+    dx = b.result.com_m[plateau, 0] - a.result.com_m[plateau, 0]
+    assert 0.015 < dy.mean() < 0.03 and np.abs(dx).max() < 0.1 * dy.mean()
+    lift = load_task("leg-lift")
+    one = library_curve(lift)
+    ahead = Cmrt(one.clip_s, one.knot_times_s, one.values_m, (0.02,) * 4)
+    c, d = clip_3d(lift, one), clip_3d(lift, ahead)
+    before = (c.result.time_s > one.knot_times_s[0]) & (c.result.time_s < c.lift.lift_off_s)
+    forward = d.result.com_m[before, 0] - c.result.com_m[before, 0]
+    sideways = d.result.com_m[before, 1] - c.result.com_m[before, 1]
+    assert forward.mean() > 0.015 and forward.mean() > 10 * np.abs(sideways).mean()
+
+
+def test_the_planar_body_refuses_a_cmrt_in_two_axes():
+    from cmrt.sim.simulate import simulate
+
+    task = load_task("bend")
+    with pytest.raises(CmrtError, match="two axes is for the 3D body"):
+        simulate(task, Cmrt.zero(task.clip_s, 2))
+
+
+def test_the_3d_punch_needs_its_cmrt_in_both_axes():
+    """punch3d: the planar punch on the 3D body, a 40 kg bag. The reactive controller lands the strike and falls
+    backward with the recoil; the library's CMRT in x and y stands through it, its CoM shifted toward the guard side
+    (+y) before the launch; the same CMRT's forward values alone stand but break the plan sideways in the launch."""
+    task = load_task("punch3d")
+    assert task.cmrt_axes == 2
+    zero = clip_3d(task, Cmrt.zero(task.clip_s, 2))
+    assert zero.fell and zero.result.fall_direction_xy[0] < -0.9 and zero.prop_figures()["task_success"]
+    lib = library_curve(task)
+    found = clip_3d(task, lib)
+    assert lib.axes == 2 and found.success, found.failed_rules
+    struck = found.prop_figures()
+    assert struck["fist_speed_at_contact_m_s"] >= task.params["min_fist_speed_m_s"]
+    launch = int(np.searchsorted(found.result.time_s, task.preparation_s))
+    assert found.result.com_m[launch, 1] - zero.result.com_m[launch, 1] > 0.005  # toward the left, the guard's side
+    forward = clip_3d(task, lib.along())
+    assert not forward.fell and forward.failed_rules == ("plan",)
+    assert found.result.max_plan_cop_error_m <= MAX_PLAN_COP_ERROR_M < forward.result.max_plan_cop_error_m
+

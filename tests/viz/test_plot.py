@@ -120,6 +120,14 @@ def test_cmrt_and_convergence_figures_have_complete_legends():
         assert_legend_covers_everything(fig.axes[0])
     finally:
         plt.close(fig)
+    punch = load_task("punch3d")  # a CMRT in x and y: both curves and both knot sets, each in the legend
+    fig = plot.cmrt_figure(punch, library_curve(punch))
+    try:
+        assert_legend_covers_everything(fig.axes[0])
+        across = _line(fig.axes[0], "best CMRT, across")
+        assert max(across.get_ydata()) > 0.5  # cm: the punch's CoM toward the guard side before the launch
+    finally:
+        plt.close(fig)
     evals = [SimpleNamespace(objective=o, fell=f, success=s) for o, f, s in
              ((9.0, True, False), (3.0, False, False), (0.4, False, True), (0.5, False, True))]
     fig = plot.convergence_figure(evals, 0.45, "run 1")

@@ -202,6 +202,12 @@ function drawCurves(page) {
       line: { color: "#1565c0", width: 2 } });
     traces.push({ x: b.knot_times_s, y: b.knot_values_cm, name: "knots", mode: "markers", type: "scatter",
       marker: { color: "#1565c0", size: 8 } });
+    if (b.cross_displacement_cm) {  // a CMRT in x and y: its displacement across the task's axis
+      traces.push({ x: b.time_s, y: b.cross_displacement_cm, name: "best CMRT, across", mode: "lines",
+        type: "scatter", line: { color: "#2e7d32", width: 2, dash: "dash" } });
+      traces.push({ x: b.knot_times_s, y: b.cross_knot_values_cm, name: "knots, across", mode: "markers",
+        type: "scatter", marker: { color: "#2e7d32", size: 7, symbol: "square" } });
+    }
   }
   traces.push(motionLegend(page.task));
   Plotly.react("cmrt", traces, layout({ shapes: motionShapes(page.task),
