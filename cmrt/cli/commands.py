@@ -939,7 +939,8 @@ class Sequence(Command):
     name, help = "sequence", "simulate a sequence of pose changes with superposed (or zero) CMRTs"
 
     def add_arguments(self, p):
-        p.add_argument("file", help="a shipped sequence's name (four-poses) or the path of a .toml sequence file")
+        p.add_argument("file", help="a shipped sequence's name (four-poses, four-poses-3d) or the path of a .toml "
+                                    "sequence file")
         p.add_argument("--curve", choices=("superposed", "zero"), default="superposed",
                        help="superposed: each motion's CMRT shifted to its start and summed (Anticipatory Balance "
                        "Control, section 4.2)")

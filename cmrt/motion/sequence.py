@@ -6,7 +6,9 @@ sequence is simulated as one clip: the reference follows each motion in turn, an
 CMRT is the sum of the motions' CMRTs, each shifted so that its own task starts at the
 motion's start time: d(t) = sum_i d_i(t - start_i + P_i), where overlapping
 displacements add (the paper's superposition). A motion's CMRT is the library's at its
-speed, else one interpolated from the library's neighbouring speeds.
+speed, else one interpolated from the library's neighbouring speeds. The motions are one body's: the planar
+body's, or the 3D body's pose changes (``four-poses-3d``: bend3d and rise3d; docs/body3d.md), whose clip is
+``cmrt.sim.clip3d``'s.
 
 Format::
 
@@ -30,7 +32,7 @@ from cmrt import inputs
 from cmrt.errors import CmrtError
 from cmrt.inputs import MAX_RUN_S, Range, shown
 from cmrt.motion.curve import Cmrt
-from cmrt.motion.task import DEFAULT_PARAMS, Task
+from cmrt.motion.task import DEFAULT_PARAMS, DEFAULTS_3D, Task
 from cmrt.motion.taskfile import MAX_TEXT, TASKS_DIR, load_task
 
 SEQUENCES_DIR = TASKS_DIR / "sequences"
@@ -43,11 +45,19 @@ COP_SAMPLE_STEP_S = Range(0.001, 1.0, unit="s")
 
 
 class SuperposedCmrt:
-    """Sum of shifted CMRTs; quacks like :class:`Cmrt` for the simulator."""
+    """Sum of shifted CMRTs; quacks like a one-axis :class:`Cmrt` for the simulators (the planar one and the 3D
+    pose change's)."""
+
+    axes = 1  # a sequence's motions are pose changes, their CMRTs forward
+    cross_values_m = None
 
     def __init__(self, clip_s: float, parts: list[tuple[float, Cmrt]]):
         self.clip_s = clip_s
         self.parts = parts  # (offset_s, curve): the curve's t = 0 is at offset_s in the sequence
+
+    def along(self) -> SuperposedCmrt:
+        """Itself: the displacement along the motions' (forward) axis."""
+        return self
 
     def displacement_m(self, t_s):
         """d(t): the sum of the shifted CMRTs (m)."""
@@ -141,9 +151,11 @@ def load_sequence(name_or_path: str) -> SequenceTask:
             task = load_task(item["task"]).with_speed(speed)
         except CmrtError as exc:
             raise CmrtError(f"{at}: {exc}") from None
-        if task.body != "planar":  # superposed CMRTs on the 3D body wait for a 3D rise (docs/body3d.md)
-            raise CmrtError(f"{at}: task {shown(task.name)} is done with the {task.body} body; a sequence takes "
-                            "planar motions only for now (docs/body3d.md)")
+        if motions and task.body != motions[0].task.body:  # one clip, one body
+            raise CmrtError(f"{at}: task {shown(task.name)} is done with the {task.body} body, the sequence's "
+                            f"first motion with the {motions[0].task.body} body: a sequence has one body")
+        if task.cmrt_axes != 1:
+            raise CmrtError(f"{at}: task {shown(task.name)}'s CMRT is in two axes; superposed CMRTs are forward")
         motions.append(Motion(task, start_s))
     tail_s = inputs.number(raw.get("tail_s", 1.0), f"{where}: tail_s", TAIL_S, text=False)
     motions.sort(key=lambda m: m.start_s)
@@ -158,11 +170,12 @@ def load_sequence(name_or_path: str) -> SequenceTask:
     clip = max(max(m.offset_s + m.task.clip_s for m in motions), last.start_s + last.task.duration_s + tail_s)
     step = inputs.number(raw.get("cop_sample_step_s", motions[0].task.cop_sample_step_s),
                          f"{where}: cop_sample_step_s", COP_SAMPLE_STEP_S, text=False)
-    params = dict(DEFAULT_PARAMS)
+    params = dict(DEFAULT_PARAMS) | (DEFAULTS_3D if motions[0].task.body != "planar" else {})
     params.update(clip_s=clip, preparation_s=motions[0].start_s,
                   duration_s=last.start_s + last.task.duration_s - motions[0].start_s, cop_sample_step_s=step)
     if clip + params["tail_s"] > MAX_RUN_S:
         raise CmrtError(f"{where}: the sequence's clip ({clip:g} s, with its {params['tail_s']:g} s standing tail) "
                         f"is longer than the longest clip cmrt simulates ({MAX_RUN_S:g} s)")
     return SequenceTask(name=raw.get("name", path.stem), summary=raw.get("summary", ""), params=params,
-                        end_pose_deg=motions[-1].task.end_pose_deg, source=str(path), motions=tuple(motions))
+                        start_pose_deg=motions[0].task.start_pose_deg, end_pose_deg=motions[-1].task.end_pose_deg,
+                        source=str(path), motions=tuple(motions), body=motions[0].task.body)

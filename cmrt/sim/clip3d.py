@@ -38,6 +38,9 @@ from cmrt.sim.objective import (
     Evaluation,
     contact_summary,
     joint_lags_s,
+    latest_motion,
+    reachable,
+    timed_motions,
     timing_lag_bound_s,
 )
 from cmrt.sim.prop3d import HeldProp, force_times_s
@@ -156,18 +159,18 @@ def clip_3d(task: Task, curve: Cmrt, member: Perturbation | None = None) -> Clip
                      push_duration_s=p["push_duration_s"], start_qpos=start)
         centre = np.broadcast_to(feet_centre_xy(start), r.cop_xy_m.shape)  # the CoP's reference
         final = _final_pose_error(task, r, start)
-        failed, value = _judged(task, r, True, 0.0, None, centre, final)
+        failed, value = _judged(task, r, True, 0.0, (None, None), centre, final)
         return Clip3d(r, value, failed, final_pose_error_rad=final, cop_reference_xy_m=centre)
     lift_s = p["lift_fraction"] * p["duration_s"]
     lift = leg_lift_3d(shift_s=p["duration_s"] - lift_s, lift_s=lift_s, clip_s=p["clip_s"],
                        stance=stance_index(task), cmrt_y=curve.along(), start_s=p["preparation_s"],
                        reference=task.reference_mode, push=pushed, cmrt_x=_cross(curve))
     r = lift.result
-    lag = _lag(task, r, lift.q_reference)
+    lag, lag_bound = _lag(task, r, lift.q_reference)
     done = abs(lift.foot_lift_m - LIFT_HEIGHT_M) <= FOOT_LIFT_TOLERANCE_M and not r.fell
     final = _final_pose_error(task, r, lift.q_reference[-1])
-    failed, value = _judged(task, r, done, 1.0, lag, lift.cop_reference_xy_m, final)
-    return Clip3d(r, value, failed, lift, lag, timing_lag_bound_s(task), final_pose_error_rad=final,
+    failed, value = _judged(task, r, done, 1.0, (lag, lag_bound), lift.cop_reference_xy_m, final)
+    return Clip3d(r, value, failed, lift, lag, lag_bound, final_pose_error_rad=final,
                   cop_reference_xy_m=lift.cop_reference_xy_m, kind="leg lift")
 
 
@@ -202,15 +205,16 @@ def _pose_change(task: Task, curve: Cmrt, push, prop_mass_scale: float = 1.0) ->
         late_ref = reference(r.time_s[window] - task.params["max_tracking_lag"] * task.duration_s)[0]
         bound = float(np.sqrt(np.mean((late_ref[:, act] - q_ref[window][:, act]) ** 2)))
     done = tracking is not None and final < FINAL_POSE_TOLERANCE_RAD and tracking <= bound and not r.fell
-    lag = _lag(task, r, q_ref)
+    lag, lag_bound = _lag(task, r, q_ref)
     centre = np.broadcast_to(feet_centre_xy(start), r.cop_xy_m.shape)
     miss = tracking / bound - 1.0 if tracking is not None and bound > 0 else 1.0
     if held is not None:  # the planar interaction's rule: performed is the goal met, the end pose a rule of its own
-        failed, value = _judged(task, r, bool(r.prop_goal) and not r.fell, 1.0, lag, centre, final, r.prop_goal)
-        return Clip3d(r, value, failed, None, lag, timing_lag_bound_s(task), tracking, bound, final, centre,
+        failed, value = _judged(task, r, bool(r.prop_goal) and not r.fell, 1.0, (lag, lag_bound), centre, final,
+                                r.prop_goal)
+        return Clip3d(r, value, failed, None, lag, lag_bound, tracking, bound, final, centre,
                       "interaction")
-    failed, value = _judged(task, r, done, miss, lag, centre, None)
-    return Clip3d(r, value, failed, None, lag, timing_lag_bound_s(task), tracking, bound, final, centre,
+    failed, value = _judged(task, r, done, miss, (lag, lag_bound), centre, None)
+    return Clip3d(r, value, failed, None, lag, lag_bound, tracking, bound, final, centre,
                   "pose change")
 
 
@@ -227,14 +231,15 @@ def _final_pose_error(task: Task, r: StandResult, target: np.ndarray) -> float:
     return float(np.linalg.norm(r.qpos[-1, act] - target[act]))
 
 
-def _judged(task: Task, r: StandResult, done: bool, miss: float, lag: float | None, cop_reference: np.ndarray,
-            final: float | None, goal: bool | None = None) -> tuple[tuple[str, ...], float]:
+def _judged(task: Task, r: StandResult, done: bool, miss: float, timing: tuple[float | None, float | None],
+            cop_reference: np.ndarray, final: float | None, goal: bool | None = None) -> tuple[tuple[str, ...], float]:
     """The planar verdict's order (balance, performed, on_time, then the clip's own rules, final_pose last) and
     the paper's objective with the planar penalties: ``miss`` is how far a motion not done was off (its excess over
-    the tracking bound; 1 where it is not measured), ``lag`` how late it was, ``final`` the end pose's error where
+    the tracking bound; 1 where it is not measured), ``timing`` how late it was and how late it may be
+    (``_lag``), ``final`` the end pose's error where
     a rule of its own judges it (None where "performed" does: a pose change), ``goal`` a prop's goal (None: no
     prop; missed, the planar ``MISSED_GOAL_PENALTY``, fallen or not, in place of the motion's)."""
-    bound = timing_lag_bound_s(task)
+    lag, bound = timing
     failed = list(r.failed_rules)
     at = 1 if "balance" in failed else 0
     late = lag is not None and lag > bound + 1e-12
@@ -254,24 +259,31 @@ def _judged(task: Task, r: StandResult, done: bool, miss: float, lag: float | No
     return tuple(failed), value
 
 
-def _lag(task: Task, r: StandResult, q_reference: np.ndarray) -> float | None:
-    """The planar timing rule on the 3D body's actuated joints over [P, P + T], the task's balance joint (its
-    pitch and roll) excepted as on the planar body (None: it fell first); a struck prop's first touch inside the
-    window stops the limb that hits it, as on the planar body (``objective.joint_lags_s``'s ``strike_s``)."""
-    start = task.preparation_s
+def _lag(task: Task, r: StandResult, q_reference: np.ndarray) -> tuple[float | None, float]:
+    """How late the motion was and how late it may be: the planar timing rule on the 3D body's actuated joints over
+    [P, P + T] - a sequence's each motion over its own window, against its own bound (``objective.timed_motions``)
+    -, the task's balance joint (its pitch and roll) excepted as on the planar body, against the reference kept
+    inside the stops as the controller keeps it (``objective.reachable``) (lag None: it fell first); a struck
+    prop's first touch inside the window stops the limb that hits it, as on the planar body
+    (``objective.joint_lags_s``'s ``strike_s``)."""
     m = character(task.body).model
-    keep = r.time_s >= start - 1e-9
-    if r.fell:
-        keep &= r.time_s < r.fall_time_s
-    if not keep.any():
-        return None
-    t = r.time_s[keep]
     skip = task.balance_joint if task.end_pose_deg is not None else None
     joints = [int(m.jnt_qposadr[j]) for j in m.actuator_trnid[:, 0]
               if not (skip and m.joint(int(j)).name.split("_")[0] == skip)]
-    window = t <= start + task.duration_s + 1e-9
-    lags = joint_lags_s(t, r.qpos[keep], q_reference[keep], joints, window, start, _strike_s(task, r))
-    return max(0.0, float(max(lags))) if lags else None
+    q_ref = reachable(q_reference, task.body)
+    timed = []
+    for start, stop, until, bound in timed_motions(task):
+        keep = (r.time_s >= start - 1e-9) & (r.time_s < until - 1e-9)
+        if r.fell:
+            keep &= r.time_s < r.fall_time_s
+        if not keep.any():
+            continue
+        t = r.time_s[keep]
+        lags = joint_lags_s(t, r.qpos[keep], q_ref[keep], joints, t <= stop + 1e-9, start, _strike_s(task, r))
+        if lags:
+            timed.append((max(0.0, float(max(lags))), bound))
+    lag, bound = latest_motion(timed)
+    return lag, bound if bound is not None else timing_lag_bound_s(task)
 
 
 def _strike_s(task: Task, r: StandResult) -> float | None:

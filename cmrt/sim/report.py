@@ -111,12 +111,17 @@ def spatial_report(task: Task, curve: Cmrt, curve_name: str, trace: str | None =
     t0 = time.perf_counter()
     c = clip_3d(task, curve)
     wall = time.perf_counter() - t0
-    r = c.result
     if trace is not None:
-        with inputs.atomic_output(trace, "--trace") as tmp, open(tmp, "wb") as fh:
-            np.savez_compressed(fh, time_s=r.time_s, qpos=r.qpos, com_m=r.com_m, cop_xy_m=r.cop_xy_m,
-                                plan_cop_xy_m=r.plan_cop_xy_m)
+        _save_spatial_trace(trace, c)
     return spatial_dict(task, c, curve, curve_name) | {"wall_s": round(wall, 4)}
+
+
+def _save_spatial_trace(path: str, c: Clip3d) -> None:
+    """A 3D clip's samples as ``.npz`` (written whole or not at all)."""
+    r = c.result
+    with inputs.atomic_output(path, "--trace") as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(fh, time_s=r.time_s, qpos=r.qpos, com_m=r.com_m, cop_xy_m=r.cop_xy_m,
+                            plan_cop_xy_m=r.plan_cop_xy_m)
 
 
 def spatial_dict(task: Task, c: Clip3d, curve: Cmrt, curve_name: str) -> dict:
@@ -151,9 +156,11 @@ def sequence_report(seq: SequenceTask, curve: Cmrt, curve_name: str, trace: str 
     if trace is not None:
         inputs.check_output(trace, "--trace")
     t0 = time.perf_counter()
-    traj = simulate(seq, curve, record=trace is not None)
+    traj = simulate(seq, curve, record=trace is not None)  # a 3D sequence's: its clip (cmrt.sim.clip3d)
     ev = evaluate(seq, traj)
-    if trace is not None:
+    if trace is not None and isinstance(traj, Clip3d):
+        _save_spatial_trace(trace, traj)
+    elif trace is not None:
         save_trace(trace, seq, traj)
     return {
         "sequence": seq.name,

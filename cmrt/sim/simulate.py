@@ -725,10 +725,10 @@ def simulate_batch(
     one group's control step (Python and kernel) runs while the other groups' physics runs. One batch
     on t MuJoCo threads would leave the cores idle through every control step (docs/performance.md).
     A clip's result does not depend on its group (each row is simulated independently; tested)."""
-    if getattr(task, "body", "planar") != "planar":  # a SequenceTask has no body: its motions are planar
-        raise CmrtError(f"task {task.name!r} is done with the {task.body} body: its clip is cmrt.sim.spatial's "
-                        "(`cmrt simulate` runs it); optimizing, batches and the service are planar for now "
-                        "(docs/body3d.md)")
+    if getattr(task, "body", "planar") != "planar":  # a 3D task or sequence (cmrt.sim.clip3d plays it)
+        raise CmrtError(f"task {task.name!r} is done with the {task.body} body: the planar simulator does not play "
+                        "it (cmrt.simulate and cmrt.evaluate take either body; `cmrt render` draws a 3D clip; "
+                        "docs/body3d.md)")
     if any(getattr(curve, "axes", 1) != 1 for curve in curves):  # a superposed CMRT (planar) has no axes
         raise CmrtError(f"task {task.name!r}: a CMRT in two axes is for the 3D body (the planar body has one "
                         "horizontal axis)")

@@ -43,20 +43,35 @@ def test_a_sideways_push_taken_and_one_that_topples_toward_it(tmp_path):
 @pytest.mark.slow  # cmrt processes
 def test_what_the_3d_body_cannot_do_yet_is_one_line_and_exit_2(tmp_path):
     store = tmp_path / "s.sqlite"
-    seq = tmp_path / "seq.toml"  # superposition on the 3D body waits for a 3D rise
-    seq.write_text('name = "s"\nsummary = "a 3D bend"\n[[motion]]\ntask = "bend3d"\nspeed = 0.4\nstart_s = 1.0\n')
+    seq = tmp_path / "seq.toml"  # a sequence is one body's motions
+    seq.write_text('[[motion]]\ntask = "bend3d"\nspeed = 0.5\nstart_s = 1.0\n'
+                   '[[motion]]\ntask = "rise"\nspeed = 0.5\nstart_s = 2.8\n')
     for args, says in ((("optimize", TASK, "--store", str(store)), "a standing 3D task has no CMRT to optimize"),
                        (("simulate", TASK, "--curve", "library"), "no library CMRT"),
                        (("simulate", TASK, "--set", "stepping=1"), "stepping: not for the humanoid3d body"),
                        (("optimize", "leg-lift", "--robust", "--set", "push_force_y_n=50", "--store", str(store)),
                         "pushes of its own"),
                        (("check", "leg-lift"), "judges a pose change's reference"),
-                       (("sequence", str(seq)), "a sequence takes planar motions only"),
+                       (("sequence", str(seq)), "a sequence has one body"),
                        (("simulate", "bend3d", "--reference", "yu"), "takes the centre reference"),
                        (("check", TASK), "judges a pose change's reference")):
         out = run(*args)
         assert out.returncode == 2 and says in out.stderr and len(out.stderr.strip().splitlines()) == 1, out.stderr
     assert not store.exists()
+
+
+@pytest.mark.slow  # cmrt processes
+def test_a_3d_sequence_from_the_command_line_with_its_trace(tmp_path):
+    """`cmrt sequence four-poses-3d`: the 3D body's bend-rise-bend-rise, superposed CMRTs a success, and its
+    samples written with --trace."""
+    out = run("sequence", "four-poses-3d", "--json", "--trace", str(tmp_path / "s.npz"))
+    assert out.returncode == 0, out.stderr
+    r = json.loads(out.stdout)
+    assert r["success"] and r["timing_lag_s"] <= r["timing_lag_bound_s"] and len(r["motions"]) == 4
+    trace = np.load(tmp_path / "s.npz")
+    assert trace["qpos"].shape == (len(trace["time_s"]), 32) and trace["time_s"][-1] > 8.0
+    zero = json.loads(run("sequence", "four-poses-3d", "--curve", "zero", "--json").stdout)
+    assert zero["failed_rules"] == ["on_time"]
 
 
 @pytest.mark.slow  # cmrt processes

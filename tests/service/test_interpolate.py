@@ -1,4 +1,5 @@
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -134,3 +135,34 @@ def test_blending_cmrts_in_two_axes_blends_the_values_across():
     one = Cmrt(2.0, b.knot_times_s, b.values_m)
     np.testing.assert_allclose(blend(a, one, 0.5).cross_values_m, np.asarray(a.cross_values_m) / 2, atol=1e-15)
     assert blend(one, one, 0.5).axes == 1
+
+
+@pytest.mark.slow  # three 8 s 3D clips
+def test_superposed_cmrts_on_the_3d_body_and_each_motion_timed_on_its_own(tmp_path):
+    """four-poses-3d: bend3d and rise3d, T 0.5 s, each with its library CMRT shifted to its start. Zero CMRTs are
+    late, the superposed ones a success. Each motion of a sequence is timed on its own window against its own bound:
+    at T 0.4 s the superposed CMRTs leave the second bend 52 ms late - judged as one motion, from the first bend's
+    excursion alone, the sequence read 34 ms and passed."""
+    from cmrt.sim.clip3d import clip_3d
+    from cmrt.sim.objective import timed_motions
+
+    seq = load_sequence("four-poses-3d")
+    assert seq.body == "humanoid3d" and [m.task.name for m in seq.motions] == ["bend3d", "rise3d"] * 2
+    assert [w[:2] for w in timed_motions(seq)] == [(m.start_s, m.start_s + 0.5) for m in seq.motions]
+    zero = clip_3d(seq, Cmrt.zero(seq.clip_s))
+    superposed = clip_3d(seq, superpose(seq))
+    assert zero.failed_rules == ("on_time",) and superposed.success
+    assert superposed.timing_lag_s < 0.5 * zero.timing_lag_s and superposed.objective < 0.2 * zero.objective
+    fast_file = tmp_path / "fast.toml"
+    fast_file.write_text(Path(seq.source).read_text().replace("speed = 0.5", "speed = 0.4"))
+    fast = load_sequence(str(fast_file))
+    late = clip_3d(fast, superpose(fast))
+    assert late.failed_rules == ("on_time",) and late.timing_lag_s > late.timing_lag_bound_s == pytest.approx(0.04)
+
+
+def test_a_sequence_has_one_body(tmp_path):
+    path = tmp_path / "mixed.toml"
+    path.write_text('[[motion]]\ntask = "bend3d"\nspeed = 0.5\nstart_s = 1.0\n'
+                    '[[motion]]\ntask = "rise"\nspeed = 0.5\nstart_s = 2.8\n')
+    with pytest.raises(CmrtError, match="a sequence has one body"):
+        load_sequence(str(path))

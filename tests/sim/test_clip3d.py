@@ -272,3 +272,21 @@ def test_the_3d_punch_needs_its_cmrt_in_both_axes():
     assert not forward.fell and forward.failed_rules == ("plan",)
     assert found.result.max_plan_cop_error_m <= MAX_PLAN_COP_ERROR_M < forward.result.max_plan_cop_error_m
 
+
+
+def test_a_joint_ending_at_its_stop_is_timed_as_the_controller_holds_it():
+    """rise3d ends with straight knees, at their 0 rad stop; the 3D controller, as the planar one, holds every joint
+    ``stop_margin_rad`` inside its stops, and the timing rule judges against that reference (``reachable``, the
+    planar rule's): judged against the stop itself the knee was never done and the zero CMRT's rise read 0.76 s
+    late, which no CMRT could mend."""
+    from cmrt.control.controller import ControllerConfig
+    from cmrt.sim.objective import reachable
+
+    m = character("humanoid3d").model
+    knee = int(m.jnt_qposadr[m.joint("knee_r").id])
+    assert reachable(np.zeros((1, m.nq)), "humanoid3d")[0, knee] == pytest.approx(ControllerConfig.stop_margin_rad)
+    task = load_task("rise3d")
+    zero = clip_3d(task, Cmrt.zero(task.clip_s))
+    assert zero.failed_rules == ("on_time",) and 0.04 < zero.timing_lag_s < 0.1  # the trunk, as on the planar body
+    lib = clip_3d(task, library_curve(task))
+    assert lib.success and lib.timing_lag_s <= lib.timing_lag_bound_s

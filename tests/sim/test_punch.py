@@ -18,7 +18,7 @@ from cmrt import Cmrt, evaluate, load_task, simulate
 from cmrt.body.character import character
 from cmrt.body.props import CONTACT_FORCE_N, HAND_OFFSET_M
 from cmrt.motion.taskfile import task_from_dict
-from cmrt.sim.objective import DRIVING_JOINT_RAD, TIMING_FRACTION, _reachable
+from cmrt.sim.objective import DRIVING_JOINT_RAD, TIMING_FRACTION, reachable
 
 #: ``cmrt optimize punch --init none --max-evals 1500 --seed 1`` with the strike judged at its contact (40
 #: evaluations; /work/notes/punch.md): the CoM target leans 2.5-3.3 cm forward through the strike.
@@ -70,7 +70,7 @@ def _progress_at(task, traj, k: int) -> dict[str, tuple[float, float]]:
     ch = character()
     t = traj.time_s
     start, stop = task.task_window_s()
-    ref = _reachable(task.reference(t)[0])
+    ref = reachable(task.reference(t)[0])
     k0, window = int(np.searchsorted(t, start - 1e-9)), (t >= start - 1e-9) & (t <= stop + 1e-9)
     out = {}
     for j in ch.actuated_dofs:
