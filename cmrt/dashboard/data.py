@@ -27,7 +27,7 @@ from cmrt.motion.task import Task
 from cmrt.service.interpolate import blend
 from cmrt.service.query import run_details, run_summary, search_summary, stored_curve, task_of
 from cmrt.service.store import Run, Store, StoredEvaluation
-from cmrt.sim.clip3d import clip_3d, sideways_trace
+from cmrt.sim.clip3d import clip_3d, cmrt_axis, cop_trace
 from cmrt.sim.objective import evaluate
 from cmrt.sim.report import evaluation_dict, spatial_dict
 from cmrt.sim.simulate import simulate
@@ -200,7 +200,7 @@ def run_page(store: Store, run_id: int) -> dict:
 
 def _trace(task: Task, curve: Cmrt, label: str) -> dict:
     """One clip's CoP error p - s and support edges (cm) up to its fall, thinned, with its score (a 3D clip's
-    sideways: ``_trace_3d``)."""
+    along its CMRT's axis: ``_trace_3d``)."""
     if task.body != "planar":
         return _trace_3d(task, curve, label)
     traj = simulate(task, curve)
@@ -221,12 +221,18 @@ def _trace(task: Task, curve: Cmrt, label: str) -> dict:
 
 
 def _trace_3d(task: Task, curve: Cmrt, label: str) -> dict:
-    """A 3D clip's sideways CoP error and support edges (``clip3d.sideways_trace``), with its report's figures."""
+    """A 3D clip's CoP error and support edges along its CMRT's axis (``clip3d.cop_trace``: a leg lift's sideways,
+    a pose change's forward; a CMRT in x and y's error across too), with its report's figures."""
     c = clip_3d(task, curve)
     report = spatial_dict(task, c, curve, label)
-    trace = sideways_trace(task, c)
+    axis = cmrt_axis(task)
+    trace = cop_trace(task, c, axis)
     step = max(1, int(np.ceil(trace["time_s"].size / MAX_TRACE_POINTS)))
-    return inputs.json_safe({
+    across = {}
+    if task.cmrt_axes == 2:
+        across = {"cross_axis": "xy"[1 - axis],
+                  "cross_cop_error_cm": (100 * cop_trace(task, c, 1 - axis)["cop_error_m"][::step]).tolist()}
+    return inputs.json_safe(across | {
         "label": label, "verdict": verdict(c.evaluation()), "objective": c.objective,
         "fall_time_s": c.result.fall_time_s,
         "time_s": trace["time_s"][::step].tolist(), "cop_error_cm": (100 * trace["cop_error_m"][::step]).tolist(),
@@ -234,7 +240,7 @@ def _trace_3d(task: Task, curve: Cmrt, label: str) -> dict:
         "support_hi_cm": (100 * trace["support_hi_m"][::step]).tolist(),
         "plausibility": {k: report.get(k) for k, _, _ in PLAUSIBILITY},
         "limits": {k: _limit(lim, report) for k, _, lim in PLAUSIBILITY},
-        "failed_rules": list(c.failed_rules), "axis": "y",
+        "failed_rules": list(c.failed_rules), "axis": "xy"[axis],
     })
 
 

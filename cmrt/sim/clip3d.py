@@ -296,24 +296,30 @@ def _strike_s(task: Task, r: StandResult) -> float | None:
     return float(times[hit[0]]) if hit.size else None
 
 
-def sideways_trace(task: Task, c: Clip3d) -> dict[str, np.ndarray]:
-    """The clip's sideways (y) CoP error from the controller's CoP reference and the support's sideways edges
-    about it (the foot points the verdict's support polygon is made of: both feet's until lift-off, the stance
-    foot's after), up to a fall: what a 3D run's CoP plot shows (m)."""
+def cop_trace(task: Task, c: Clip3d, axis: int = 1) -> dict[str, np.ndarray]:
+    """The clip's CoP error along ``axis`` (0 forward, x; 1 sideways, y) from the controller's CoP reference and
+    the support's edges along it about that reference (the foot points the verdict's support polygon is made of:
+    both feet's until lift-off, the stance foot's after), up to a fall: what a 3D run's CoP plot shows (m)."""
     r = c.result
     ch = character(task.body)
     both = r.qpos[0, :ch.model.nq]  # the body's coordinates (a prop's follow them)
     d = mujoco.MjData(ch.model)
     d.qpos[:] = both
     mujoco.mj_kinematics(ch.model, d)
-    feet_y = [d.geom_xpos[list(pair), 1] for pair in ch.foot_points]
+    feet = [d.geom_xpos[list(pair), axis] for pair in ch.foot_points]
     reference = c.lift.cop_reference_xy_m if c.lift is not None else np.broadcast_to(
         feet_centre_xy(both), r.cop_xy_m.shape)
     lifted = (r.time_s >= c.lift.lift_off_s) if c.lift is not None else np.zeros(r.time_s.size, bool)
-    stance_y = feet_y[stance_index(task)] if c.lift is not None else np.concatenate(feet_y)
-    all_y = np.concatenate(feet_y)
-    lo = np.where(lifted, stance_y.min(), all_y.min()) - reference[:, 1]
-    hi = np.where(lifted, stance_y.max(), all_y.max()) - reference[:, 1]
+    stance = feet[stance_index(task)] if c.lift is not None else np.concatenate(feet)
+    every = np.concatenate(feet)
+    lo = np.where(lifted, stance.min(), every.min()) - reference[:, axis]
+    hi = np.where(lifted, stance.max(), every.max()) - reference[:, axis]
     n = r.time_s.size if r.fall_time_s is None else int(np.searchsorted(r.time_s, r.fall_time_s, "right"))
-    return {"time_s": r.time_s[:n], "cop_error_m": (r.cop_xy_m[:, 1] - reference[:, 1])[:n],
+    return {"time_s": r.time_s[:n], "cop_error_m": (r.cop_xy_m[:, axis] - reference[:, axis])[:n],
             "support_lo_m": lo[:n], "support_hi_m": hi[:n]}
+
+
+def cmrt_axis(task: Task) -> int:
+    """The horizontal axis a 3D task's CMRT acts in first: 1 (sideways, y) for a leg lift, 0 (forward, x) for a
+    pose change - its CoP plot's axis."""
+    return 0 if task.end_pose_deg is not None else 1

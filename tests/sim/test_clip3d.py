@@ -14,7 +14,7 @@ from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
 from cmrt.motion.library import library_curve
 from cmrt.motion.taskfile import load_task
-from cmrt.sim.clip3d import clip_3d, sideways_trace
+from cmrt.sim.clip3d import clip_3d, cop_trace
 from cmrt.sim.objective import MAX_PLAN_COP_ERROR_M, joint_lags_s
 from cmrt.sim.spatial import replay_3d
 
@@ -165,8 +165,10 @@ def test_the_3d_catch_falls_forward_without_a_cmrt_and_holds_the_ball_with_the_l
     yaw = character("humanoid3d").model.joint("shoulder_yaw_r").qposadr[0]
     settled = found.result.time_s >= held["grip_s"] + 0.5
     assert np.abs(found.result.qpos[settled, yaw]).max() < 0.05
-    trace = sideways_trace(task, found)  # the dashboard's CoP plot of a clip whose qpos carries the ball's too
-    assert trace["time_s"].size == found.result.time_s.size and np.isfinite(trace["support_lo_m"]).all()
+    for axis in (0, 1):  # the dashboard's CoP plot of a clip whose qpos carries the ball's too
+        trace = cop_trace(task, found, axis)
+        assert trace["time_s"].size == found.result.time_s.size and np.isfinite(trace["support_lo_m"]).all()
+        assert (trace["support_lo_m"] < 0.0).all() and (trace["support_hi_m"] > 0.0).all()
 
 
 def test_the_3d_push_is_pushed_back_without_a_cmrt_and_topples_the_slab_with_the_librarys():

@@ -220,12 +220,16 @@ function drawTraces(t) {
   t.clips.forEach((c, i) => {
     traces.push({ x: c.time_s, y: c.cop_error_cm, name: `${c.label}: ${num(c.objective)} (${c.verdict})`,
       mode: "lines", type: "scatter", line: { color: colors[i], width: 1.4 } });
+    if (c.cross_cop_error_cm) {  // a CMRT in x and y: the CoP error across the task's axis too
+      traces.push({ x: c.time_s, y: c.cross_cop_error_cm, name: `${c.label}, across (${c.cross_axis})`,
+        mode: "lines", type: "scatter", line: { color: colors[i], width: 1.0, dash: "dot" } });
+    }
     if (c.fall_time_s !== null) {
       shapes.push({ type: "line", yref: "paper", x0: c.fall_time_s, x1: c.fall_time_s, y0: 0, y1: 1,
         line: { color: "#c62828", dash: "dot" } });
     }
   });
-  const edge = t.clips[1], sideways = edge.axis === "y";  // a 3D clip: its sideways CoP error and support
+  const edge = t.clips[1], sideways = edge.axis === "y";  // a 3D leg lift: its sideways CoP error and support
   traces.push({ x: edge.time_s, y: edge.support_lo_cm, name: sideways ? "support edges (the feet's sides)"
     : "support edges (heel, toe)", mode: "lines",
     type: "scatter", line: { color: "#000", dash: "dash", width: 0.8 } });
@@ -233,7 +237,8 @@ function drawTraces(t) {
     line: { color: "#000", dash: "dash", width: 0.8 } });
   traces.push(motionLegend(t.task));
   Plotly.react("cop", traces, layout({ shapes, xaxis: Object.assign({ title: { text: "time (s)" } }, AXIS),
-    yaxis: Object.assign({ title: { text: sideways ? "sideways CoP error p - s, y (cm)" : "CoP error p - s (cm)" } },
+    yaxis: Object.assign({ title: { text: sideways ? "sideways CoP error p - s, y (cm)"
+      : edge.axis === "x" ? "forward CoP error p - s, x (cm)" : "CoP error p - s (cm)" } },
       AXIS) }), PLOT_CONFIG);
   const head = el("tr", {}, el("th", {}, "figure"), ...t.clips.map((c) => el("th", {}, c.label)), el("th", {}, "limit"));
   const rows = t.plausibility_fields.map((f) => el("tr", {}, el("td", {}, f.label),
