@@ -69,9 +69,9 @@ def test_a_3d_sequence_from_the_command_line_with_its_trace(tmp_path):
     r = json.loads(out.stdout)
     assert r["success"] and r["timing_lag_s"] <= r["timing_lag_bound_s"] and len(r["motions"]) == 4
     trace = np.load(tmp_path / "s.npz")
-    assert trace["qpos"].shape == (len(trace["time_s"]), 32) and trace["time_s"][-1] > 8.0
+    assert trace["qpos"].shape == (len(trace["time_s"]), 32) and trace["time_s"][-1] > 7.9  # the 8 s clip
     zero = json.loads(run("sequence", "four-poses-3d", "--curve", "zero", "--json").stdout)
-    assert zero["failed_rules"] == ["on_time"]
+    assert zero["failed_rules"][0] == "on_time" and not zero["fell"]
 
 
 @pytest.mark.slow  # cmrt processes

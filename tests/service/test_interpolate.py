@@ -1,5 +1,4 @@
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -137,27 +136,32 @@ def test_blending_cmrts_in_two_axes_blends_the_values_across():
     assert blend(one, one, 0.5).axes == 1
 
 
+# A rise3d CMRT at T 0.4 s that succeeds alone (the library's first, found after 10 evaluations) but, superposed,
+# leaves the sequence's second bend 52 ms late: an input for the timing rule's test, not a result.
+EARLY_RISE3D = Cmrt(2.6, (0.49502047253653997, 0.7401582760243994, 1.2955421666507076, 2.16649588300053),
+                    (0.004989613321177021, -0.011668813351850594, 0.00588771388921927, 0.018988344090073394))
+
+
 @pytest.mark.slow  # three 8 s 3D clips
-def test_superposed_cmrts_on_the_3d_body_and_each_motion_timed_on_its_own(tmp_path):
-    """four-poses-3d: bend3d and rise3d, T 0.5 s, each with its library CMRT shifted to its start. Zero CMRTs are
+def test_superposed_cmrts_on_the_3d_body_and_each_motion_timed_on_its_own():
+    """four-poses-3d: bend3d and rise3d at T 0.4 s, each with its library CMRT shifted to its start. Zero CMRTs are
     late, the superposed ones a success. Each motion of a sequence is timed on its own window against its own bound:
-    at T 0.4 s the superposed CMRTs leave the second bend 52 ms late - judged as one motion, from the first bend's
-    excursion alone, the sequence read 34 ms and passed."""
+    with a rise CMRT that leaves the second bend 52 ms late the sequence is late - judged as one motion, from the
+    first bend's excursion alone, it read 34 ms and passed."""
     from cmrt.sim.clip3d import clip_3d
     from cmrt.sim.objective import timed_motions
 
     seq = load_sequence("four-poses-3d")
     assert seq.body == "humanoid3d" and [m.task.name for m in seq.motions] == ["bend3d", "rise3d"] * 2
-    assert [w[:2] for w in timed_motions(seq)] == [(m.start_s, m.start_s + 0.5) for m in seq.motions]
+    assert [w[:2] for w in timed_motions(seq)] == [(m.start_s, m.start_s + 0.4) for m in seq.motions]
     zero = clip_3d(seq, Cmrt.zero(seq.clip_s))
     superposed = clip_3d(seq, superpose(seq))
-    assert zero.failed_rules == ("on_time",) and superposed.success
+    assert "on_time" in zero.failed_rules and superposed.success
     assert superposed.timing_lag_s < 0.5 * zero.timing_lag_s and superposed.objective < 0.2 * zero.objective
-    fast_file = tmp_path / "fast.toml"
-    fast_file.write_text(Path(seq.source).read_text().replace("speed = 0.5", "speed = 0.4"))
-    fast = load_sequence(str(fast_file))
-    late = clip_3d(fast, superpose(fast))
+    curves = [EARLY_RISE3D if m.task.name == "rise3d" else None for m in seq.motions]
+    late = clip_3d(seq, superpose(seq, curves))
     assert late.failed_rules == ("on_time",) and late.timing_lag_s > late.timing_lag_bound_s == pytest.approx(0.04)
+    assert clip_3d(load_task("rise3d"), EARLY_RISE3D).success  # alone, it is on time
 
 
 def test_a_sequence_has_one_body(tmp_path):
