@@ -37,10 +37,8 @@ from cmrt.sim.objective import (
     NOT_PLAUSIBLE_PENALTY,
     Evaluation,
     contact_summary,
-    joint_lags_s,
-    latest_motion,
+    motion_lags,
     reachable,
-    timed_motions,
     timing_lag_bound_s,
 )
 from cmrt.sim.prop3d import HeldProp, force_times_s
@@ -270,19 +268,10 @@ def _lag(task: Task, r: StandResult, q_reference: np.ndarray) -> tuple[float | N
     skip = task.balance_joint if task.end_pose_deg is not None else None
     joints = [int(m.jnt_qposadr[j]) for j in m.actuator_trnid[:, 0]
               if not (skip and m.joint(int(j)).name.split("_")[0] == skip)]
-    q_ref = reachable(q_reference, task.body)
-    timed = []
-    for start, stop, until, bound in timed_motions(task):
-        keep = (r.time_s >= start - 1e-9) & (r.time_s < until - 1e-9)
-        if r.fell:
-            keep &= r.time_s < r.fall_time_s
-        if not keep.any():
-            continue
-        t = r.time_s[keep]
-        lags = joint_lags_s(t, r.qpos[keep], q_ref[keep], joints, t <= stop + 1e-9, start, _strike_s(task, r))
-        if lags:
-            timed.append((max(0.0, float(max(lags))), bound))
-    lag, bound = latest_motion(timed)
+    alive = r.time_s < r.fall_time_s if r.fell else np.ones(r.time_s.size, bool)
+    q_ref, strike_s = reachable(q_reference, task.body)[alive], _strike_s(task, r)
+    lag, bound = motion_lags(task, r.time_s[alive], r.qpos[alive], lambda keep: q_ref[keep], joints,
+                             lambda start, stop: strike_s)
     return lag, bound if bound is not None else timing_lag_bound_s(task)
 
 

@@ -33,6 +33,7 @@ Penalty (0 for a success), graded so that CMA-ES has a slope:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import mujoco
@@ -635,15 +636,24 @@ def timing_s(task: Task, traj: Trajectory) -> tuple[float | None, float | None]:
     if task.balance_joint:
         skip = {i for i, name in enumerate(ch.dof_names) if name.split("_")[0] == task.balance_joint}
     joints = [j for j in ch.actuated_dofs if j not in skip]
+    return motion_lags(task, t_all, traj.qpos[idx], lambda keep: reachable(task.reference(t_all[keep])[0]),
+                       joints, lambda start, stop: _strike_s(task, traj, start, stop))
+
+
+def motion_lags(task: Task, t: np.ndarray, q: np.ndarray, reference_at: Callable[[np.ndarray], np.ndarray],
+                joints: list[int], strike_at: Callable[[float, float], float | None]
+                ) -> tuple[float | None, float | None]:
+    """``timing_s``'s rule on any body: over the samples ``t`` (s; up to a fall) of the poses ``q``, each motion of
+    ``timed_motions(task)`` over its own samples (a boolean mask ``keep``) against ``reference_at(keep)`` - the
+    reachable reference there -, its ``joints`` (columns of ``q``) timed by ``joint_lags_s`` with a strike's first
+    touch ``strike_at(start, stop)`` (None: no strike); (lag, bound) of the motion latest against its bound."""
     timed = []
     for start, stop, until, bound in timed_motions(task):
-        keep = (t_all >= start - 1e-9) & (t_all < until - 1e-9)
+        keep = (t >= start - 1e-9) & (t < until - 1e-9)
         if not keep.any():
             continue
-        t = t_all[keep]
-        q_ref = reachable(task.reference(t)[0])
-        lags = joint_lags_s(t, traj.qpos[idx[keep]], q_ref, joints, t <= stop + 1e-9, start,
-                            _strike_s(task, traj, start, stop))
+        lags = joint_lags_s(t[keep], q[keep], reference_at(keep), joints, t[keep] <= stop + 1e-9, start,
+                            strike_at(start, stop))
         if lags:
             timed.append((max(0.0, float(max(lags))), bound))
     return latest_motion(timed)
