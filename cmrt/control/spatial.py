@@ -27,27 +27,27 @@ for a turn of the feet (a one-arm punch's return), its points were given forces 
 twisted and the CoP ran 63 mm off the plan (measured; tests/control/test_spatial.py checks the cone itself).
 
 The torques follow from the plan by inverse dynamics (the actuated rows of M qdd + h - J^T f), so the plan is what
-the motors are asked for; MuJoCo's own M, bias forces, Jacobians and their rates are used throughout, and the
-centroidal momentum's bias is ``kernel.centroidal_spatial``'s, the rows the planar kernel also uses.
+the motors are asked for. The step's arithmetic is compiled (``cmrt.control.spatial_kernel``: MuJoCo's M and bias
+forces, the centroidal momentum and the Jacobians from MuJoCo's com-based fields as the planar kernel's, checked
+against MuJoCo's own functions) and its QP is ``cmrt.control.dual_qp``'s, warm-started from the last step's working
+set; this class keeps what lasts between steps (the references, the delayed feedback, the working set).
 """
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 
-import daqp
 import mujoco
 import numpy as np
 
 from cmrt.body.character import GRAVITY_M_S2, Character
-from cmrt.control import kernel
+from cmrt.control import dual_qp
+from cmrt.control import spatial_kernel as sk
 from cmrt.control.controller import ControllerConfig
 from cmrt.control.planar import PlanarKinematics
 from cmrt.errors import CmrtError
 
-N_BASE = 6  # a free root's dofs
-EQUALITY = 5  # daqp's sense for an equality row
+N_BASE = sk.N_BASE
 
 
 @dataclass(frozen=True)
@@ -109,7 +109,6 @@ class SpatialController:
         self.mass_kg = float(self.model.body_subtreemass[1])  # with what the forearms carry (a handed-over ball)
         step_s = control_step_s if control_step_s is not None else m.opt.timestep * config.control_every
         self.delay_steps = int(round(config.feedback_delay_s / step_s))
-        self.history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=self.delay_steps + 1)
         self.com_ref_m: np.ndarray | None = None  # the CoM held: where it was at the first control step
         self.cop_ref_m: np.ndarray | None = None  # the CoP asked for: the feet's centre at the first control step
         self.infeasible = False  # the last plan found none within the stops and limits (clipped after the solve)
@@ -123,207 +122,75 @@ class SpatialController:
         the generalized force (nv; N, N m) of what the character holds (a caught ball's pull on the hands), known
         to the plan as the planar kernel knows a held load: the floating base moves under the ground's forces and
         it, and the torques take it out. ``held_mass``: a mass the hands hold (kg), where (world, m) and the bodies
-        holding it equally - a gripped ball moving with them, its weight and its inertia in the plan's dynamics."""
-        m, c = self.model, self.config
-        nv, n_pts = self.nv, len(self.points)
-        self.mass_kg = float(m.body_subtreemass[1])
-        com = d.subtree_com[1].copy()
-        A, a = self._momentum(d)
-        self.history.append((com, A[:3] @ d.qvel[:nv] / self.mass_kg))
+        holding it equally - a gripped ball moving with them, its weight and its inertia in the plan's dynamics:
+        planning with a held ball's inertia, not only last step's pull - the pull alone, measured one step late,
+        left the arms' rotation about their own axes (whose inertia the 7 kg ball outweighs fifty times) swinging
+        0.4 rad."""
+        self.mass_kg = float(self.model.body_subtreemass[1])
         if self.com_ref_m is None:
-            self.com_ref_m = com.copy()
-            self.cop_ref_m = d.geom_xpos[list(self.points), :2].mean(axis=0)
-        com_seen, vel_seen = self.history[0]  # the state ``feedback_delay_s`` ago (the oldest kept)
-        com_ref, vel_ref = self.com_ref_m.copy(), np.zeros(3)
+            self.com_ref_m = d.subtree_com[1].copy()
+            self.cop_ref_m = d.geom_xpos[self._point_ids, :2].mean(axis=0)
+        t = self._targets
+        t[sk.T_COM:sk.T_COM + 3] = self.com_ref_m
         if targets.com_xy_m is not None:
-            com_ref[:2] = targets.com_xy_m
-        if targets.com_vel_xy_m_s is not None:
-            vel_ref[:2] = targets.com_vel_xy_m_s
-        ldot = c.k_l * self.mass_kg * (com_ref - com_seen) + c.d_l * self.mass_kg * (vel_ref - vel_seen)
-        ldot[2] = 0.0  # horizontal, as the planar rule: the CoM's height follows the pose (a bend lowers it)
-        force = ldot + np.array([0.0, 0.0, self.mass_kg * GRAVITY_M_S2])
-        cop_ref = self.cop_ref_m if targets.cop_xy_m is None else targets.cop_xy_m
-        p_ref = np.array([cop_ref[0], cop_ref[1], 0.0])
+            t[sk.T_COM:sk.T_COM + 2] = targets.com_xy_m
+        t[sk.T_VEL:sk.T_VEL + 3] = 0.0 if targets.com_vel_xy_m_s is None else (*targets.com_vel_xy_m_s, 0.0)
+        t[sk.T_COP:sk.T_COP + 2] = self.cop_ref_m if targets.cop_xy_m is None else targets.cop_xy_m
+        t[sk.T_SWING] = targets.swing_foot
         if targets.swing_foot >= 0:
-            loaded = loaded.copy()
-            loaded[self._foot_point_index[targets.swing_foot]] = False
-        r = p_ref - com
-        hdot = np.array([r[1] * force[2] - r[2] * force[1], r[2] * force[0] - r[0] * force[2],
-                         r[0] * force[1] - r[1] * force[0]])  # r x force (np.cross: 40 us a call)
-        Jp = self._point_jacobians(d)
-        H_qp, f_qp = self._objective(d, A, a, ldot, hdot, n_pts, targets)
-        if targets.swing_foot >= 0:
-            self._swing_objective(d, targets, H_qp, f_qp)
-        M = np.zeros((m.nv, m.nv))  # the joint-space inertia, once a control step: the rows and the torques use it
-        mujoco.mj_fullM(m, d, M)
-        M = M[:nv, :nv]
-        bias = d.qfrc_bias[:nv] - (load_gen if load_gen is not None else 0.0)
+            t[sk.T_SWING_POS:sk.T_SWING_POS + 3] = targets.swing_pos_m
+            t[sk.T_SWING_VEL:sk.T_SWING_VEL + 3] = targets.swing_vel_m_s
+        t[sk.T_HELD] = 0.0 if held_mass is None else held_mass[0]
+        held_bodies = self._no_bodies
         if held_mass is not None:
-            M, bias = self._holding(d, M, bias, held_mass)
-        rows, lo, hi, sense = self._constraints(d, M, Jp, loaded, bias)
-        x, _, flag, _ = daqp.solve(H_qp, f_qp, rows, hi, lo, sense)
-        self.infeasible = flag < 1
-        if self.infeasible:  # no plan within the stops and the motors' limits (a fall): the plan without those
-            n_limits = 2 * len(self.act_dofs)  # rows (the last), its torques clipped after the solve
-            x, _, flag, _ = daqp.solve(H_qp, f_qp, rows[:-n_limits], hi[:-n_limits], lo[:-n_limits],
-                                       sense[:-n_limits])
-            if flag < 1:
-                raise CmrtError(f"the 3D balance QP has no solution (daqp exit {flag})")
-        qdd, forces = x[:nv], x[nv:].reshape(n_pts, 3)
-        generalized = M @ qdd + bias - Jp.T @ x[nv:]
-        torque = np.clip(generalized[self.act_dofs], -self.ch.torque_limit_nm, self.ch.torque_limit_nm)
-        fz = forces[:, 2].sum()
-        xy = d.geom_xpos[list(self.points), :2]
-        cop = (forces[:, 2:3] * xy).sum(axis=0) / fz if fz > 1e-9 else np.full(2, np.nan)
-        return SpatialPlan(torque / self.gear, forces, cop)
-
-    def _momentum(self, d: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
-        """The centroidal momentum matrix (6, nv) - MuJoCo's own - and its bias, A qdd + a being the rate."""
-        m = self.model
-        A = np.empty((6, m.nv))
-        mujoco.mj_jacSubtreeCom(m, d, A[:3], 1)
-        A[:3] *= self.mass_kg
-        mujoco.mj_angmomMat(m, d, A[3:], 1)
-        _, a = kernel.centroidal_spatial(d.cdof, d.cdof_dot, d.cvel, d.cinert, d.qvel, self.chain)
-        return A[:, :self.nv], a
-
-    def _point_jacobians(self, d: mujoco.MjData) -> np.ndarray:
-        """The contact points' translational Jacobians stacked (3 n, nv), at each sphere's lowest point."""
-        m, jacp = self.model, self._jacp
-        lowest = d.geom_xpos[self._point_ids] - self._point_drop
-        for p, body in enumerate(self._point_bodies):
-            mujoco.mj_jac(m, d, jacp[p], None, lowest[p], body)
-        return jacp[:, :, :self.nv].reshape(-1, self.nv)
-
-    def _objective(self, d: mujoco.MjData, A: np.ndarray, a: np.ndarray, ldot: np.ndarray, hdot: np.ndarray,
-                   n_pts: int, targets: SpatialTargets) -> tuple[np.ndarray, np.ndarray]:
-        """The QP's cost (H, f) over x = [qdd, f]: momentum rates, joint tracking, a small regularization. The
-        tracking feeds the reference's rate and acceleration forward, as the planar kernel's: without them a
-        moving reference is followed d_t / k_t = 0.2 s late (a leg lift's swing leg was, measured)."""
-        c, nv = self.config, self.ch.model.nv
-        n = nv + 3 * n_pts
-        H = np.zeros((n, n))
-        f = np.zeros(n)
-        H[:nv, :nv] += c.beta_l * A[:2].T @ A[:2] + c.beta_h * A[3:].T @ A[3:]
-        f[:nv] -= c.beta_l * A[:2].T @ (ldot[:2] - a[:2]) + c.beta_h * A[3:].T @ (hdot - a[3:])
-        q = d.qpos[self.act_qpos]
-        qd = d.qvel[self.act_dofs]
-        ref = self.q_ref if targets.q_ref is None else targets.q_ref
-        qdd_des = c.k_t * (np.clip(ref[self.act_qpos], *self.stops) - q) - c.d_t * qd
-        if targets.qd_ref is not None:
-            qdd_des += c.d_t * targets.qd_ref[self.act_dofs]
-        if targets.qdd_ref is not None:
-            qdd_des += targets.qdd_ref[self.act_dofs]
-        H[self.act_dofs, self.act_dofs] += c.beta_t
-        f[self.act_dofs] -= c.beta_t * qdd_des
-        H[np.arange(n), np.arange(n)] += c.regularization
-        return 2.0 * H, 2.0 * f
-
-    def _swing_objective(self, d: mujoco.MjData, targets: SpatialTargets, H: np.ndarray, f: np.ndarray) -> None:
-        """A lifted foot's frame toward its path (the planar swing objective's weight and gains), level, in place
-        into the QP's cost (H, f as ``_objective`` returns them)."""
-        c, nv = self.config, self.nv
-        body = self.ch.foot_bodies[targets.swing_foot]
-        jac, jdot = self._frame_jacobians(d, body)
-        vel = jac @ d.qvel[:nv]
-        local, level = np.zeros(3), np.zeros(3)  # the rotation from the foot's frame to level (axis x angle)
-        mujoco.mju_subQuat(local, np.array([1.0, 0.0, 0.0, 0.0]), d.xquat[body])  # in the foot's frame ...
-        mujoco.mju_rotVecQuat(level, local, d.xquat[body])  # ... and in the world's, as the Jacobian's rows
-        want = np.concatenate([
-            c.swing_k * (targets.swing_pos_m - d.xpos[body]) + c.swing_d * (targets.swing_vel_m_s - vel[:3]),
-            c.swing_k * level - c.swing_d * vel[3:]]) - jdot @ d.qvel[:nv]
-        H[:nv, :nv] += 2.0 * c.swing_weight * jac.T @ jac
-        f[:nv] -= 2.0 * c.swing_weight * jac.T @ want
-
-    def _holding(self, d: mujoco.MjData, M: np.ndarray, bias: np.ndarray,
-                 held_mass: tuple[float, np.ndarray, tuple[int, ...]]) -> tuple[np.ndarray, np.ndarray]:
-        """The body's dynamics with a point mass carried by the hands (M qdd + bias): the mass accelerates with
-        its point on the bodies holding it (the mean of their Jacobians there, J, and rates), so its force on them,
-        m (g - J qdd - Jdot qd), adds m J^T J to the inertia and m J^T (Jdot qd - g) to the bias. Planning with a
-        held ball's inertia, not only last step's pull: the pull alone, measured one step late, left the arms'
-        rotation about their own axes - whose inertia the 7 kg ball outweighs fifty times - swinging 0.4 rad."""
-        mass, point, bodies = held_mass
-        m = self.model
-        jac, jdot = np.zeros((3, self.nv)), np.zeros((3, self.nv))
-        one, rate = np.empty((3, m.nv)), np.empty((3, m.nv))
-        for body in bodies:
-            mujoco.mj_jac(m, d, one, None, np.asarray(point, float), int(body))
-            mujoco.mj_jacDot(m, d, rate, None, np.asarray(point, float), int(body))
-            jac += one[:, :self.nv] / len(bodies)
-            jdot += rate[:, :self.nv] / len(bodies)
-        gravity = np.array([0.0, 0.0, -GRAVITY_M_S2])
-        return M + mass * jac.T @ jac, bias + mass * jac.T @ (jdot @ d.qvel[:self.nv] - gravity)
-
-    def _frame_jacobians(self, d: mujoco.MjData, body: int) -> tuple[np.ndarray, np.ndarray]:
-        """A body frame's [linear, angular] Jacobian (6, nv) and its rate, MuJoCo's (``mj_jacBody``,
-        ``mj_jacDot``)."""
-        m = self.model
-        jac, jdot = np.empty((6, m.nv)), np.empty((6, m.nv))
-        mujoco.mj_jacBody(m, d, jac[:3], jac[3:], body)
-        mujoco.mj_jacDot(m, d, jdot[:3], jdot[3:], d.xpos[body], body)
-        return jac[:, :self.nv], jdot[:, :self.nv]
-
-    def _constraints(self, d: mujoco.MjData, M: np.ndarray, Jp: np.ndarray, loaded: np.ndarray, bias: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The QP's rows (A, lo, hi, sense), in this order: base dynamics and supporting feet (equalities), each
-        point's floor and friction pyramid (a point off the floor carries nothing), each joint's stops, the motors'
-        limits. ``bias``: the generalized forces the plan does not choose (MuJoCo's bias forces less a held
-        load's). Written as whole blocks (the rows that never change made once, ``_constant_parts``): row by row in
-        Python this was a third of a 3D clip's time."""
-        c, nv, act = self.config, self.nv, self.act_dofs
-        ground, stops = self._ground_rows, self._stop_rows
-        feet = [foot for foot, pair in enumerate(self.ch.foot_points) if loaded[self._foot_point_index[foot]].any()]
-        n_eq = N_BASE * (1 + len(feet))
-        rows = np.empty((n_eq + len(ground) + len(stops) + len(act), ground.shape[1]))
-        lo, hi = np.empty(rows.shape[0]), np.empty(rows.shape[0])
-        rows[:N_BASE, :nv], rows[:N_BASE, nv:] = M[:N_BASE], -Jp[:, :N_BASE].T  # M_base qdd - J_base^T f = -h_base
-        lo[:N_BASE] = hi[:N_BASE] = -bias[:N_BASE]
-        qvel = d.qvel[:nv]
-        for k, foot in enumerate(feet):
-            jac, jdot = self._frame_jacobians(d, self.ch.foot_bodies[foot])
-            at = slice(N_BASE * (1 + k), N_BASE * (2 + k))
-            rows[at, :nv], rows[at, nv:] = jac, 0.0
-            lo[at] = hi[at] = -jdot @ qvel - c.support_damping * (jac @ qvel)
-        at = n_eq + len(ground)
-        rows[n_eq:at] = ground
-        lo[n_eq:at], hi[n_eq:at] = self._ground_lo, self._ground_hi
-        lo[n_eq:at:5] = np.where(loaded, self.point_floor_n, 0.0)  # each point's floor: its first row of five
-        hi[n_eq:at:5] = np.where(loaded, np.inf, 0.0)
-        q, qd = d.qpos[self.act_qpos], d.qvel[act]
-        low = -c.stop_k * (q - self.stops[0]) - c.stop_d * qd  # approach a stop no faster than a critically
-        high = -c.stop_k * (q - self.stops[1]) - c.stop_d * qd  # damped spring
-        rows[at:at + len(stops)] = stops
-        lo[at:at + len(stops)] = np.where(np.isfinite(low), low, -np.inf)
-        hi[at:at + len(stops)] = np.where(np.isfinite(high), high, np.inf)
-        at += len(stops)
-        limit = self.ch.torque_limit_nm  # tau = M_a qdd + h_a - J_a^T f within its limit (the last rows)
-        rows[at:, :nv], rows[at:, nv:] = M[act], -Jp[:, act].T
-        lo[at:], hi[at:] = -limit - bias[act], limit - bias[act]
-        sense = np.zeros(rows.shape[0], dtype=np.int32)
-        sense[:n_eq] = EQUALITY
-        return rows, lo, hi, sense
+            t[sk.T_HELD_AT:sk.T_HELD_AT + 3] = held_mass[1]
+            held_bodies = np.asarray(held_mass[2], dtype=np.int64)
+        t[sk.T_MASS] = self.mass_kg
+        refs = (self.q_ref if targets.q_ref is None else np.asarray(targets.q_ref, float),
+                self._still if targets.qd_ref is None else np.asarray(targets.qd_ref, float),
+                self._still if targets.qdd_ref is None else np.asarray(targets.qdd_ref, float))
+        fields = (d.cdof, d.cdof_dot, d.cvel, d.cinert, d.qpos, d.qvel, d.M, d.qfrc_bias, d.subtree_com,
+                  d.geom_xpos, d.xpos, d.xquat)
+        torque, forces, cop, status, limited = sk.plan_step(
+            fields, self._body, self._gains, t, refs, np.asarray(loaded, dtype=np.bool_),
+            self._still if load_gen is None else np.asarray(load_gen, float)[:self.nv], held_bodies,
+            self._history, self._count, self._active)
+        self.infeasible = not limited  # no plan within the stops and the motors' limits (a fall): planned without
+        if status != dual_qp.OPTIMAL:  # the limits' rows, the torques clipped after the solve
+            raise CmrtError(f"the 3D balance QP has no solution (status {status})")
+        return SpatialPlan(torque, forces, cop)
 
     def _constant_parts(self) -> None:
-        """What does not change between control steps, made once: the QP's ground rows - per point its floor (f_z)
-        and the friction pyramid's four faces (+-f_x +-f_y <= mu f_z: MuJoCo's pyramid, scaled) -, a unit row per
-        actuated joint for its stops, and the foot points' geoms, bodies, drop to their lowest point and Jacobian
-        buffer."""
-        nv, n_pts, mu = self.nv, len(self.points), self.config.friction_coef
-        n = nv + 3 * n_pts
-        ground = np.zeros((5 * n_pts, n))
-        lo, hi = np.zeros(5 * n_pts), np.zeros(5 * n_pts)
-        for p in range(n_pts):
-            fx, fy, fz = nv + 3 * p, nv + 3 * p + 1, nv + 3 * p + 2
-            ground[5 * p, fz] = 1.0
-            for r, (sx, sy) in enumerate(((1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0))):
-                ground[5 * p + 1 + r, [fx, fy, fz]] = sx, sy, -mu
-                lo[5 * p + 1 + r], hi[5 * p + 1 + r] = -np.inf, 0.0
-        self._ground_rows, self._ground_lo, self._ground_hi = ground, lo, hi
-        self._stop_rows = np.zeros((len(self.act_dofs), n))
-        self._stop_rows[np.arange(len(self.act_dofs)), self.act_dofs] = 1.0
+        """What the compiled step (``spatial_kernel.plan_step``) reads that does not change between control steps:
+        the body's index structure, stops, limits and contact points, the gains; and its state across steps (the
+        delayed feedback's history, the QP's working set)."""
+        m, c, ch = self.model, self.config, self.ch
+        kin = PlanarKinematics(m)
+        nb = ch.model.nbody
         self._point_ids = list(self.points)
-        self._point_drop = np.zeros((n_pts, 3))  # from a point's centre to its lowest point
-        self._point_drop[:, 2] = self.model.geom_size[self._point_ids, 0]
-        self._point_bodies = [int(self.model.geom_bodyid[g]) for g in self.points]
-        self._jacp = np.empty((n_pts, 3, self.model.nv))
-        self._foot_point_index = [[self.points.index(g) for g in pair] for pair in self.ch.foot_points]
+        foot_points = np.array([[self.points.index(g) for g in pair] for pair in ch.foot_points], dtype=np.int64)
+        self._foot_point_index = [list(row) for row in foot_points]
+        self._body = (
+            np.ascontiguousarray(self.chain[:nb, :self.nv]), kin.m_rows.astype(np.int64),
+            kin.m_cols.astype(np.int64), self.act_dofs.astype(np.int64), self.act_qpos.astype(np.int64),
+            np.array(self.stops[0], float), np.array(self.stops[1], float),  # copies: the character's are shared
+            np.array(ch.torque_limit_nm, float), np.array(self.gear, float),
+            np.array(self._point_ids, dtype=np.int64),
+            np.array([int(m.geom_bodyid[g]) for g in self.points], dtype=np.int64),
+            np.array(m.geom_size[self._point_ids, 0], float),  # a point's drop from its centre to its lowest
+            np.array(ch.foot_bodies, dtype=np.int64), foot_points)
+        gains = np.empty(sk.N_GAINS)
+        for index, value in ((sk.G_KL, c.k_l), (sk.G_DL, c.d_l), (sk.G_KT, c.k_t), (sk.G_DT, c.d_t),
+                             (sk.G_BL, c.beta_l), (sk.G_BH, c.beta_h), (sk.G_BT, c.beta_t),
+                             (sk.G_EPS, c.regularization), (sk.G_MU, c.friction_coef),
+                             (sk.G_FLOOR, self.point_floor_n), (sk.G_DAMP, c.support_damping),
+                             (sk.G_SW, c.swing_weight), (sk.G_SK, c.swing_k), (sk.G_SD, c.swing_d),
+                             (sk.G_JK, c.stop_k), (sk.G_JD, c.stop_d), (sk.G_GRAVITY, GRAVITY_M_S2)):
+            gains[index] = value
+        self._gains = gains
+        self._targets = np.zeros(sk.N_TARGETS)
+        self._still = np.zeros(self.nv)
+        self._no_bodies = np.zeros(0, dtype=np.int64)
+        self._history = np.zeros((self.delay_steps + 1, 6))  # the CoM and its velocity, the last control steps'
+        self._count = np.zeros(1, dtype=np.int64)
+        self._active = np.zeros(sk.n_rows(len(self.act_dofs), len(self.points)), dtype=np.int8)  # the QP's

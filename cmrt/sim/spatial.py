@@ -22,6 +22,7 @@ polygon - the convex hull of the touching points - in every sample judged).
 from __future__ import annotations
 
 import copy
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
@@ -37,6 +38,8 @@ from cmrt.body.character import (
     joint_angles_from_pose,
 )
 from cmrt.body.one_leg import one_leg_poses
+from cmrt.control import spatial_kernel
+from cmrt.control.compiled import note_first_compile
 from cmrt.control.controller import ControllerConfig
 from cmrt.control.spatial import SpatialController, SpatialPlan, SpatialTargets
 from cmrt.motion.curve import Cmrt
@@ -139,34 +142,40 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
                         tuple(float(f) for f in push_n), push_start_s, push_duration_s, held, clip_s,
                         config.control_every)
     m, d, prop = _clip_start(inputs)
+    note_first_compile(dispatcher=spatial_kernel.plan_step)  # the first 3D clip after an install compiles: say so
     ctl = SpatialController(ch, d.qpos[:ch.model.nq].copy(), config, model=m)
-    points = list(ch.foot_point_geoms)
+    points = np.array(ch.foot_point_geoms)
+    n_pts, acts, every, dt = len(points), np.array(ch.actuated_dofs), config.control_every, m.opt.timestep
     push = np.asarray(push_n, float)
     rows: list[tuple] = []
     ctrl: list[np.ndarray] = []  # the motors' commands from each control step on
-    ground: list[float] = []  # the touch sensors' total at every physics step (N)
+    steps = int(round(clip_s / dt))
+    touches = np.empty((steps, n_pts))  # the touch sensors at every physics step (N)
     infeasible = 0
     fall: tuple[float, np.ndarray] | None = None  # (time, the capture point's way out of the support)
     held_cop = np.full(2, np.nan)  # the CoP the torques held since the last control step were planned for
-    for k in range(int(round(clip_s / m.opt.timestep))):
-        t, control = k * m.opt.timestep, k % config.control_every == 0
+    thorax, sensors, xfrc, geom_xpos = ch.thorax_body, d.sensordata, d.xfrc_applied, d.geom_xpos
+    pushing = False
+    for k in range(steps):
+        t, control = k * dt, k % every == 0
         if prop is not None and fall is None:
             prop.step(t, control)
         if control:
-            touch = d.sensordata[:len(points)].copy()
-            xy = d.geom_xpos[points, :2]
-            cop = touch @ xy / touch.sum() if touch.sum() > 0 else np.full(2, np.nan)
+            touch = sensors[:n_pts].copy()
+            xy = geom_xpos[points, :2]
+            total = touch.sum()
+            cop = touch @ xy / total if total > 0 else np.full(2, np.nan)
             rows.append((t, d.subtree_com[1].copy(), cop, held_cop, _margin(cop, xy[touch > 0.0]), d.qpos.copy(),
                          np.where(touch >= PLANTED_FORCE_N, 1.0, np.nan)[:, None] * xy,
-                         float(np.abs(d.qvel[list(ch.actuated_dofs)]).max())))
+                         float(np.abs(d.qvel[acts]).max())))
             if fall is None and t >= SETTLE_S - 1e-12:  # judged once the first contacts have settled: a pose
                 fall = _fallen(m, d, t, touch, prop)  # placed just on the floor touches with no force at first
                 if fall is not None:
                     _protective(m, ch, d)
                     if prop is not None:
-                        prop.judge(m.opt.timestep)  # a fall freezes the prop's verdict
+                        prop.judge(dt)  # a fall freezes the prop's verdict
             if fall is None:
-                on_floor = d.geom_xpos[points, 2] - FOOT_POINT_RADIUS_M < CONTACT_HEIGHT_M  # the planar rule
+                on_floor = geom_xpos[points, 2] - FOOT_POINT_RADIUS_M < CONTACT_HEIGHT_M  # the planar rule
                 plan = _planned(ctl, d, on_floor, SpatialTargets() if motion is None else motion(t), prop)
                 infeasible += ctl.infeasible
                 d.ctrl[:] = plan.torque_nm
@@ -174,11 +183,14 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
             else:
                 held_cop = np.full(2, np.nan)
             ctrl.append(d.ctrl.copy())
-        d.xfrc_applied[ch.thorax_body, :3] = push if push_start_s <= t < push_start_s + push_duration_s else 0.0
+        if (push_start_s <= t < push_start_s + push_duration_s) != pushing:  # the push starts or ends
+            pushing = not pushing
+            xfrc[thorax, :3] = push if pushing else 0.0
         mujoco.mj_step(m, d)
-        ground.append(float(d.sensordata[:len(points)].sum()))
+        touches[k] = sensors[:n_pts]
         if prop is not None:
             prop.record()
+    ground = touches.sum(axis=1).tolist()
     result = _finished(m, d, ctl, rows, (fall, infeasible, ground), push_start_s, prop)
     return replace(result, ctrl_nm=np.array(ctrl), inputs=inputs)
 
@@ -288,16 +300,7 @@ def _with_body_figures(r: StandResult, ground: tuple[np.ndarray, np.ndarray], pl
     peak = float(bw[judged(step_t)].max()) if judged(step_t).any() else float("nan")
     airborne = float((bw[judged(step_t)] <= 0.0).sum() * (step_t[1] - step_t[0])) if len(step_t) > 1 else 0.0
     sample = judged(r.time_s)
-    slide = 0.0
-    for p in range(planted_xy.shape[1]):
-        start = None
-        for k in np.flatnonzero(sample):
-            here = planted_xy[k, p]
-            if np.isnan(here).any():
-                start = None
-            else:
-                start = here if start is None else start
-                slide = max(slide, float(np.linalg.norm(here - start)))
+    slide = _planted_slide_m(planted_xy[sample])
     failed = list(r.failed_rules)
     extra = [rule for rule, broken in (("ground_force", not peak <= MAX_GROUND_FORCE_BW),
                                        ("airborne", airborne > MAX_AIRBORNE_S)) if broken]
@@ -308,6 +311,32 @@ def _with_body_figures(r: StandResult, ground: tuple[np.ndarray, np.ndarray], pl
                    max_foot_slip_m=slide, failed_rules=tuple(failed))
 
 
+def _planted_slide_m(planted_xy: np.ndarray) -> float:
+    """How far any point slid while planted: ``planted_xy`` (samples, points, 2), NaN where a point is not planted;
+    each run of planted samples measured from its first."""
+    planted = ~np.isnan(planted_xy).any(axis=2)  # (samples, points)
+    index = np.arange(len(planted_xy))[:, None]
+    starts = planted & ~np.vstack([np.zeros((1, planted.shape[1]), bool), planted[:-1]])
+    first = np.maximum.accumulate(np.where(starts, index, 0), axis=0)  # each sample's run's first sample
+    moved = planted_xy - np.take_along_axis(planted_xy, first[:, :, None], axis=0)
+    dist = np.sqrt((moved ** 2).sum(axis=2))
+    return float(dist[planted].max()) if planted.any() else 0.0
+
+
+_LIMITS = BalanceLimits()
+_LEVEL_COS = float(np.cos(_LIMITS.roll_rad))
+
+
+@functools.cache
+def _feet() -> tuple[np.ndarray, dict[tuple[bool, bool], np.ndarray]]:
+    """The feet's bodies, and the geoms of the soles that touch by (right touches, left touches): each foot's
+    whole sole."""
+    ch = character(BODY)
+    soles = {(r, lf): np.array([g for pair, on in zip(ch.foot_points, (r, lf), strict=True) if on for g in pair],
+                               dtype=int) for r in (False, True) for lf in (False, True)}
+    return np.array(ch.foot_bodies), soles
+
+
 def _fallen(m: mujoco.MjModel, d: mujoco.MjData, t: float, touch: np.ndarray, prop: PropClip | None = None
             ) -> tuple[float, np.ndarray] | None:
     """The planar monitor's rules in 3D (``cmrt.sim.balance``): a foot rolled more than ``roll_rad`` off level, the
@@ -316,18 +345,19 @@ def _fallen(m: mujoco.MjModel, d: mujoco.MjData, t: float, touch: np.ndarray, pr
     over its sole) - or the CoM below ``com_height_m``. Returns (now, the capture point's offset from the support's
     centre) on a fall, else None. A held mass the body does not carry counts in the CoM (``prop3d.with_held``); hands
     on a prop that holds the body up (a slab) suspend the capture point's rule, as on the planar body."""
-    limits, ch = BalanceLimits(), character(BODY)
+    limits = _LIMITS
     mujoco.mj_subtreeVel(m, d)
     com, vel = d.subtree_com[1], d.subtree_linvel[1]
     if prop is not None:
         com, vel = with_held(com, vel, float(m.body_subtreemass[1]), prop.held())
     capture = com[:2] + vel[:2] / np.sqrt(GRAVITY_M_S2 / max(float(com[2]), 1e-3))
     half = len(touch) // 2  # each foot's points: the right's, then the left's
-    soles = [list(pair) for pair, n in zip(ch.foot_points, (touch[:half], touch[half:]), strict=True)
-             if (n > 0.0).any()]
-    sole_xy = d.geom_xpos[[g for pair in soles for g in pair], :2]
+    right, left = touch[:half].max() > 0.0, touch[half:].max() > 0.0
+    feet, soles_of = _feet()
+    soles = soles_of[(bool(right), bool(left))]
+    sole_xy = d.geom_xpos[soles, :2]
     centre = sole_xy.mean(axis=0) if len(sole_xy) else com[:2]
-    rolled = any(d.xmat[body, 8] < np.cos(limits.roll_rad) for body in ch.foot_bodies)  # the sole's normal's z
+    rolled = d.xmat[feet, 8].min() < _LEVEL_COS  # a sole's normal's z
     out = len(sole_xy) == 0 or _margin(capture, sole_xy) < -limits.capture_margin_m
     out = out and not (prop is not None and prop.leaning())
     if rolled or out or com[2] < limits.com_height_m:
@@ -428,6 +458,60 @@ class LegLiftClip:
     com_shift_m: float  # the CoM's move toward the stance foot from the motion's start to lift-off (y, signed)
 
 
+@dataclass(frozen=True)
+class _LegLiftReference:
+    """A leg lift's reference without its CMRT - the same for every clip of a task at a speed, so made once: the
+    poses, both feet's centre, lift-off, and ``at(t)``: (q, qd, qdd, the CoM's reference, its rate, the CoP's, and
+    from lift-off the swing foot's path and rate, else None), for the control steps' times made ahead."""
+
+    poses: object
+    both_xy_m: np.ndarray
+    lift_at_s: float
+    at: Callable[[float], tuple]
+
+
+@functools.lru_cache(maxsize=32)
+def _leg_lift_reference(shift_s: float, lift_s: float, clip_s: float, stance: int, start_s: float, reference: str,
+                        control_every: int) -> _LegLiftReference:
+    """``leg_lift_3d``'s reference (its docstring says what each mode asks); three kinematics passes a control
+    step once lifting (the foot's path and its rate by a central difference) were a sixth of a clip's time."""
+    poses = one_leg_poses(stand_pose_qpos(), stance)
+    ch = character(BODY)
+    m, scratch = ch.model, mujoco.MjData(ch.model)
+    both = feet_centre_xy(poses.standing)  # both feet's support centre
+    foot_body, lift_at_s = ch.foot_bodies[1 - stance], start_s + shift_s
+
+    def reference_of(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        scratch.qpos[:] = q
+        mujoco.mj_kinematics(m, scratch)
+        mujoco.mj_comPos(m, scratch)
+        return scratch.subtree_com[1, :2].copy(), scratch.xpos[foot_body].copy()
+
+    standing_com, shifted_com = reference_of(poses.standing)[0], reference_of(poses.shifted)[0]
+
+    def eased(t: float, t0: float, span: float, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, ...]:
+        return _eased(m, (t - t0) / span, span, a, b)
+
+    def at(t: float) -> tuple:
+        if t < lift_at_s:
+            q, qd, qdd = eased(t, start_s, shift_s, poses.standing, poses.shifted)
+            u = (t - start_s) / shift_s
+            a, rate = _smoothstep(u), _smoothstep_rate(u) / shift_s
+            if reference == "center":
+                return q, qd, qdd, both.copy(), np.zeros(2), both, None, None
+            return (q, qd, qdd, reference_of(q)[0], rate * (shifted_com - standing_com),
+                    both + a * (poses.stance_centre_xy_m - both), None, None)
+        q, qd, qdd = eased(t, lift_at_s, lift_s, poses.shifted, poses.lifted)
+        com, foot = reference_of(q)
+        foot_vel = np.diff([reference_of(eased(t + e, lift_at_s, lift_s, poses.shifted, poses.lifted)[0])[1]
+                            for e in (-1e-3, 1e-3)], axis=0)[0] / 2e-3  # the foot path's rate: a central difference
+        centre = poses.stance_centre_xy_m
+        return q, qd, qdd, centre if reference == "center" else com, None, centre, foot, foot_vel
+
+    made = {t: at(t) for t in control_times_s(clip_s, control_every).tolist()}
+    return _LegLiftReference(poses, both, lift_at_s, lambda t: made[t] if t in made else at(t))
+
+
 def leg_lift_3d(shift_s: float = 1.5, lift_s: float = 0.8, clip_s: float = 5.0, stance: int = 1,
                 config: ControllerConfig = ControllerConfig(), cmrt_y: Cmrt | None = None, start_s: float = 0.5,
                 reference: str = "yu", push: tuple[tuple[float, float, float], float, float] | None = None,
@@ -444,50 +528,25 @@ def leg_lift_3d(shift_s: float = 1.5, lift_s: float = 0.8, clip_s: float = 5.0, 
 
     ``push``: (force on the thorax, N; its start, s; its duration, s), as ``stand_3d``'s; ``cmrt_x``: a two-axis
     CMRT's forward part (``Cmrt.cross``)."""
-    poses = one_leg_poses(stand_pose_qpos(), stance)
+    ref = _leg_lift_reference(shift_s, lift_s, clip_s, stance, start_s, reference, config.control_every)
+    poses, both, lift_at_s, swing = ref.poses, ref.both_xy_m, ref.lift_at_s, 1 - stance
     ch = character(BODY)
     m, scratch, d0 = ch.model, mujoco.MjData(ch.model), mujoco.MjData(ch.model)
     d0.qpos[:] = poses.standing
     mujoco.mj_kinematics(m, d0)
-    both = feet_centre_xy(poses.standing)  # both feet's support centre
-    swing, curve = 1 - stance, cmrt_y if cmrt_y is not None else Cmrt.zero(clip_s)
-    foot_body, lift_at_s, up = ch.foot_bodies[swing], start_s + shift_s, np.array([0.0, 1.0])
-
-    def reference_of(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        scratch.qpos[:] = q
-        mujoco.mj_kinematics(m, scratch)
-        mujoco.mj_comPos(m, scratch)
-        return scratch.subtree_com[1, :2].copy(), scratch.xpos[foot_body].copy()
-
-    standing_com, shifted_com = reference_of(poses.standing)[0], reference_of(poses.shifted)[0]
-
-    def eased(t: float, t0: float, span: float, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, ...]:
-        return _eased(m, (t - t0) / span, span, a, b)
-
+    foot_body, up = ch.foot_bodies[swing], np.array([0.0, 1.0])
+    curve = cmrt_y if cmrt_y is not None else Cmrt.zero(clip_s)
     shift, forward = (_sampled(curve, clip_s, config.control_every),
                       _crossed(cmrt_x, clip_s, config.control_every, np.array([1.0, 0.0])))
 
     def plan(t: float) -> tuple[np.ndarray, SpatialTargets]:
         """The reference pose at ``t`` and the controller's targets (a two-axis CMRT's forward part: ``forward``)."""
         d_m, v_m_s = shift(t)
-        if t < lift_at_s:
-            q, qd, qdd = eased(t, start_s, shift_s, poses.standing, poses.shifted)
-            u = (t - start_s) / shift_s
-            a, rate = _smoothstep(u), _smoothstep_rate(u) / shift_s
-            if reference == "center":
-                com, vel, cop = both.copy(), np.zeros(2), both
-            else:
-                com, vel, cop = reference_of(q)[0], rate * (shifted_com - standing_com), both + a * (
-                    poses.stance_centre_xy_m - both)
+        q, qd, qdd, com, vel, cop, foot, foot_vel = ref.at(t)
+        if foot is None:
             return q, SpatialTargets(com_xy_m=com + d_m * up, com_vel_xy_m_s=vel + v_m_s * up, cop_xy_m=cop, q_ref=q,
                                      qd_ref=qd, qdd_ref=qdd)
-        q, qd, qdd = eased(t, lift_at_s, lift_s, poses.shifted, poses.lifted)
-        com, foot = reference_of(q)
-        foot_vel = np.diff([reference_of(eased(t + e, lift_at_s, lift_s, poses.shifted, poses.lifted)[0])[1]
-                            for e in (-1e-3, 1e-3)], axis=0)[0] / 2e-3  # the foot path's rate: a central difference
-        centre = poses.stance_centre_xy_m
-        com = centre if reference == "center" else com
-        return q, SpatialTargets(com_xy_m=com + d_m * up, com_vel_xy_m_s=v_m_s * up, cop_xy_m=centre, q_ref=q,
+        return q, SpatialTargets(com_xy_m=com + d_m * up, com_vel_xy_m_s=v_m_s * up, cop_xy_m=cop, q_ref=q,
                                  qd_ref=qd, qdd_ref=qdd, swing_foot=swing, swing_pos_m=foot, swing_vel_m_s=foot_vel)
 
     force, push_start_s, push_duration_s = push if push is not None else ((0.0, 0.0, 0.0), clip_s, 0.1)

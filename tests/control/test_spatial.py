@@ -152,3 +152,20 @@ def test_a_held_load_known_to_the_plan_is_what_happens():
     assert told_gap < 0.001
     assert blind_gap > 0.01
     assert told_ratio == pytest.approx(1.0 + 80.0 / (character(BODY).mass_kg * 9.81), rel=0.02)
+
+
+def test_with_no_plan_inside_the_motors_limits_the_plan_leaves_them_out_and_clips():
+    """Where no plan meets the motors' limits (here limits no torque meets: -1 N m, bounds crossed) the QP with their
+    rows has no solution, so the step plans without them - a fall's last steps still need torques - clips the
+    torques after the solve and says so; with the limits back the next step plans within them again."""
+    ch, d = _standing()
+    ctl = SpatialController(ch, d.qpos.copy())
+    ctl._body[7][:] = -1.0  # the motors' limits (N m) as the compiled step reads them
+    plan = ctl.plan(d, np.ones(len(ch.foot_point_geoms), bool))
+    assert ctl.infeasible
+    assert np.allclose(plan.torque_nm * ch.model.actuator_gear[:, 0], -1.0)  # clipped into [1, -1]: its upper end
+    assert plan.point_force_n[:, 2].sum() > 0.5 * ctl.mass_kg * 9.81  # the ground still carries the body
+    ctl._body[7][:] = ch.torque_limit_nm
+    plan = ctl.plan(d, np.ones(len(ch.foot_point_geoms), bool))
+    assert not ctl.infeasible
+    assert (np.abs(plan.torque_nm * ch.model.actuator_gear[:, 0]) <= ch.torque_limit_nm + 1e-6).all()
