@@ -12,6 +12,12 @@ whatever touches the floor, so the last control step's working set starts the ne
 
 A foot off the floor has empty rows; a point off the floor carries nothing (f = 0: its first three rows fix its
 force, its last two are empty).
+
+A numba pitfall for whoever edits the solver: numba's cache keys a compiled function on its own source file, and
+``plan_step`` compiles ``dual_qp.solve`` and the planar kernel's functions into itself - so after editing
+``dual_qp.py`` or ``kernel.py`` alone, a cached ``plan_step`` keeps running the old code (measured: a fingerprint of
+the 3D clips did not move for an edit of the solver). Delete ``cmrt/control/__pycache__/spatial_kernel*.nb*`` (or
+touch this file) before measuring; a fresh install or CI compiles everything anew.
 """
 
 from __future__ import annotations

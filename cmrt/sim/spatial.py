@@ -42,6 +42,7 @@ from cmrt.control import spatial_kernel
 from cmrt.control.compiled import note_first_compile
 from cmrt.control.controller import ControllerConfig
 from cmrt.control.spatial import SpatialController, SpatialPlan, SpatialTargets
+from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
 from cmrt.sim.balance import BalanceLimits
 from cmrt.sim.monitor import PROTECTIVE_DAMPING_PER_RAD_S, PROTECTIVE_STIFFNESS_PER_RAD
@@ -178,9 +179,15 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
                 on_floor = geom_xpos[points, 2] - FOOT_POINT_RADIUS_M < CONTACT_HEIGHT_M  # the planar rule
                 plan = _planned(ctl, d, on_floor, SpatialTargets() if motion is None else motion(t), prop)
                 infeasible += ctl.infeasible
-                d.ctrl[:] = plan.torque_nm
-                held_cop = plan.cop_xy_m
-            else:
+                if plan is None:  # no plan at all, even past the motors' limits: the body is lost - scored as a
+                    fall = (t, np.zeros(2))  # fall (penalised), not a crash of the search
+                    _protective(m, ch, d)
+                    if prop is not None:
+                        prop.judge(dt)
+                else:
+                    d.ctrl[:] = plan.torque_nm
+                    held_cop = plan.cop_xy_m
+            if fall is not None:
                 held_cop = np.full(2, np.nan)
             ctrl.append(d.ctrl.copy())
         if (push_start_s <= t < push_start_s + push_duration_s) != pushing:  # the push starts or ends
@@ -235,9 +242,19 @@ def replay_3d(r: StandResult, com_out: np.ndarray | None = None) -> int:
 
 
 def _planned(ctl: SpatialController, d: mujoco.MjData, loaded: np.ndarray, targets: SpatialTargets,
-             prop: PropClip | None) -> SpatialPlan:
+             prop: PropClip | None) -> SpatialPlan | None:
     """The control step's plan, a held prop's load on the hands known to it and the CoM target moved by the share
-    of a held mass the controller balances (``prop3d.balancing_held``)."""
+    of a held mass the controller balances (``prop3d.balancing_held``); None where the QP has no solution at all."""
+    try:
+        return _plan_for(ctl, d, loaded, targets, prop)
+    except CmrtError:
+        ctl.infeasible = True
+        return None
+
+
+def _plan_for(ctl: SpatialController, d: mujoco.MjData, loaded: np.ndarray, targets: SpatialTargets,
+              prop: PropClip | None) -> SpatialPlan:
+    """``_planned``'s plan; raises CmrtError where the QP has no solution."""
     if prop is None:
         return ctl.plan(d, loaded, targets)
     held = prop.held()

@@ -31,6 +31,7 @@ from cmrt.motion.taskfile import load_task  # noqa: E402
 from cmrt.service.interpolate import candidates, interpolate, superpose  # noqa: E402
 from cmrt.service.query import stored_curve, task_of  # noqa: E402
 from cmrt.service.store import Store, StoredEvaluation  # noqa: E402
+from cmrt.sim.clip3d import clip_3d, cmrt_axis, cop_trace  # noqa: E402
 from cmrt.sim.objective import evaluate  # noqa: E402
 from cmrt.sim.report import simulate_report  # noqa: E402
 from cmrt.sim.simulate import simulate  # noqa: E402
@@ -66,26 +67,54 @@ def until_fall(traj, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def cop_error_figure(task: Task, curves: list[tuple[str, Cmrt]]):
-    """ABC Fig. 2: CoP and support centre over the clip, one panel per CMRT."""
+    """ABC Fig. 2: CoP and support centre over the clip, one panel per CMRT (``cop_series``: a 3D task's along its
+    CMRT's axis, a CMRT in x and y's error across too)."""
     fig, axes = plt.subplots(len(curves), 1, figsize=(9.5, 2.4 * len(curves)), sharex=True, squeeze=False)
     for ax, (label, curve) in zip(axes[:, 0], curves, strict=True):
-        traj = simulate(task, curve)
-        ev = evaluate(task, traj)
-        ax.plot(*until_fall(traj, 100 * (traj.cop_x_m - traj.support_center_x_m)), lw=1.2, label="CoP error p - s")
-        t, lo = until_fall(traj, 100 * (traj.support_lo_x_m - traj.support_center_x_m))
-        ax.plot(t, lo, "k--", lw=0.8, label="support edges (heel, toe)")
-        ax.plot(*until_fall(traj, 100 * (traj.support_hi_x_m - traj.support_center_x_m)), "k--", lw=0.8)
-        if traj.fall_time_s is not None:
-            ax.axvline(traj.fall_time_s, color="r", ls=":", label=f"balance lost ({traj.fall_time_s:.2f} s)")
+        cop = cop_series(task, curve)
+        ax.plot(cop["time_s"], cop["error_cm"], lw=1.2, label=f"CoP error p - s{cop['along']}")
+        ax.plot(cop["time_s"], cop["lo_cm"], "k--", lw=0.8, label=f"support edges ({cop['edges']})")
+        ax.plot(cop["time_s"], cop["hi_cm"], "k--", lw=0.8)
+        if cop["across_cm"] is not None:
+            ax.plot(cop["time_s"], cop["across_cm"], lw=1.0, ls="-.", label=f"CoP error, {cop['across']}")
+        if cop["fall_s"] is not None:
+            ax.axvline(cop["fall_s"], color="r", ls=":", label=f"balance lost ({cop['fall_s']:.2f} s)")
         _phases(ax, task)
-        ax.set_title(f"{label}: objective {ev.objective:.3f} ({verdict(ev)})", fontsize=10)
+        ax.set_title(f"{label}: objective {cop['evaluation'].objective:.3f} ({verdict(cop['evaluation'])})",
+                     fontsize=10)
         ax.set_ylabel("p - s (cm)")
-        ax.set_xlim(0, task.clip_s + task.tail_s)
-        ax.axvspan(task.clip_s, task.clip_s + task.tail_s, color="0.95", zorder=0, label="standing tail (not scored)")
+        ax.set_xlim(0, task.clip_s + cop["tail_s"])
+        if cop["tail_s"] > 0:
+            ax.axvspan(task.clip_s, task.clip_s + cop["tail_s"], color="0.95", zorder=0,
+                       label="standing tail (not scored)")
         _legend(ax)
     axes[-1, 0].set_xlabel("time (s)")
     fig.tight_layout()
     return fig
+
+
+def cop_series(task: Task, curve: Cmrt) -> dict:
+    """A clip's CoP error from its reference and the support's edges about it (cm), up to a fall, with its
+    evaluation, fall time and scored-free tail (s): a planar clip's along x (heel to toe), a 3D clip's along its
+    CMRT's axis (``clip3d.cop_trace``, what the dashboard draws: a pose change's forward, a leg lift's sideways) and,
+    for a CMRT in x and y, its error across (``across_cm``; None otherwise)."""
+    if task.body == "planar":
+        traj = simulate(task, curve)
+        t, error = until_fall(traj, 100 * (traj.cop_x_m - traj.support_center_x_m))
+        return {"time_s": t, "error_cm": error, "lo_cm": until_fall(traj, 100 * (traj.support_lo_x_m
+                                                                                   - traj.support_center_x_m))[1],
+                "hi_cm": until_fall(traj, 100 * (traj.support_hi_x_m - traj.support_center_x_m))[1],
+                "across_cm": None, "along": "", "across": "", "edges": "heel, toe",
+                "evaluation": evaluate(task, traj), "fall_s": traj.fall_time_s, "tail_s": task.tail_s}
+    c = clip_3d(task, curve)
+    axis = cmrt_axis(task)
+    trace = cop_trace(task, c, axis)
+    along, across = ("forward", "sideways") if axis == 0 else ("sideways", "forward")
+    return {"time_s": trace["time_s"], "error_cm": 100 * trace["cop_error_m"], "lo_cm": 100 * trace["support_lo_m"],
+            "hi_cm": 100 * trace["support_hi_m"],
+            "across_cm": 100 * cop_trace(task, c, 1 - axis)["cop_error_m"] if curve.axes == 2 else None,
+            "along": f", {along}", "across": across, "edges": f"foot points, {along}",
+            "evaluation": c.evaluation(), "fall_s": c.result.fall_time_s, "tail_s": 0.0}
 
 
 def plot_cop_error(task: Task, curves: list[tuple[str, Cmrt]], out: Path) -> Path:
@@ -233,13 +262,12 @@ def sequence_figure(seq_file: str):
     ax1.plot(t, 100 * sup.displacement_m(t), "k-", lw=1.8, label="superposed")
     ax1.set_ylabel("d(t) (cm)")
     for i, (label, curve) in enumerate((("zero CMRTs", Cmrt.zero(seq.clip_s)), ("superposed CMRTs", sup))):
-        traj = simulate(seq, curve)
-        ev = evaluate(seq, traj)
-        ax2.plot(*until_fall(traj, 100 * (traj.cop_x_m - traj.support_center_x_m)), lw=1, color=f"C{i}",
-                 label=f"{label}: e={ev.objective:.3f} ({verdict(ev)})")
-        if traj.fall_time_s is not None:
-            ax2.axvline(traj.fall_time_s, color=f"C{i}", ls=":", lw=1.2,
-                        label=f"{label}: balance lost ({traj.fall_time_s:.2f} s)")
+        cop = cop_series(seq, curve)  # either body's: a 3D sequence's forward
+        ax2.plot(cop["time_s"], cop["error_cm"], lw=1, color=f"C{i}",
+                 label=f"{label}: e={cop['evaluation'].objective:.3f} ({verdict(cop['evaluation'])})")
+        if cop["fall_s"] is not None:
+            ax2.axvline(cop["fall_s"], color=f"C{i}", ls=":", lw=1.2,
+                        label=f"{label}: balance lost ({cop['fall_s']:.2f} s)")
     for i, m in enumerate(seq.motions):
         for ax in (ax1, ax2):
             ax.axvspan(m.start_s, m.start_s + m.task.duration_s, color="0.92", zorder=0,

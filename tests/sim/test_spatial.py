@@ -122,3 +122,28 @@ def test_the_cop_error_objective_is_the_papers_2_norm_plus_a_fall_penalty():
     late = replace(fallen, fall_time_s=float(fallen.time_s[-1]))
     standing = replace(fallen, fell=False, fall_time_s=None, failed_rules=("plan",), max_plan_cop_error_m=0.1)
     assert cop_error_objective(late, zero) > cop_error_objective(standing, zero) == pytest.approx(norm + 10.0)
+
+
+def test_a_step_with_no_plan_at_all_is_a_fall_not_a_crash(monkeypatch):
+    """Where the QP has no solution even without the motors' limits the controller raises; the clip then counts the
+    body as lost - a fall at that step, played out in the protective mode and scored as one - rather than ending the
+    search that asked for it. The replay of the clip (the bench's floor) is the clip."""
+    from cmrt.control.spatial import SpatialController
+    from cmrt.errors import CmrtError
+    from cmrt.sim.spatial import replay_3d
+
+    plan = SpatialController.plan
+
+    def failing(self, d, *args, **kwargs):
+        if d.time >= 0.5:
+            raise CmrtError("the 3D balance QP has no solution (status -1)")
+        return plan(self, d, *args, **kwargs)
+
+    monkeypatch.setattr(SpatialController, "plan", failing)
+    r = stand_3d(clip_s=1.5)
+    assert r.fell and r.fall_time_s == pytest.approx(0.5, abs=0.01) and r.infeasible_steps == 1
+    assert "balance" in r.failed_rules
+    assert np.all(r.ctrl_nm[np.searchsorted(r.time_s, r.fall_time_s):] == 0.0)  # the motors off from the fall on
+    com = np.full_like(r.com_m, np.nan)
+    replay_3d(r, com_out=com)
+    assert np.array_equal(com, r.com_m)

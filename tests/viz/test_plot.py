@@ -113,6 +113,40 @@ def test_cop_error_figure_of_a_fall():
         plt.close(fig)
 
 
+def test_a_3d_task_is_drawn_along_its_cmrts_axis():
+    """A 3D task's CoP panel is along its CMRT's axis (the punch's forward, with its error across: a CMRT in x and
+    y), up to its fall, within the foot points' extent; no standing tail (a 3D clip has none)."""
+    task = load_task("punch3d")
+    fig = plot.cop_error_figure(task, [("zero CMRT", Cmrt.zero(task.clip_s, 2)), ("library CMRT",
+                                                                                  library_curve(task))])
+    try:
+        fallen, kept = fig.axes
+        for ax in (fallen, kept):
+            assert_legend_covers_everything(ax)
+            assert not any(p.get_label() == "standing tail (not scored)" for p in ax.patches)
+        assert "lost balance" in fallen.get_title() and "SUCCESS" in kept.get_title()
+        fall = _line(fallen, "balance lost").get_xdata()[0]
+        assert _line(fallen, "CoP error p - s, forward").get_xdata().max() <= fall
+        along, across = _line(kept, "CoP error p - s, forward"), _line(kept, "CoP error, sideways")
+        assert along.get_xdata().max() > task.clip_s - 0.01 and across.get_xdata().size == along.get_xdata().size
+        lo, hi = min(kept.lines[1].get_ydata()), max(kept.lines[2].get_ydata())
+        assert lo < min(along.get_ydata()) and max(along.get_ydata()) < hi  # a success: the CoP inside the feet
+    finally:
+        plt.close(fig)
+
+
+def test_a_3d_sequence_figure_shows_the_late_zero_and_the_superposed_success():
+    fig = plot.sequence_figure("four-poses-3d")
+    try:
+        bottom = fig.axes[1]
+        assert_legend_covers_everything(bottom)
+        assert "(SUCCESS)" not in _line(bottom, "zero CMRTs: e=").get_label()
+        assert "(SUCCESS)" in _line(bottom, "superposed CMRTs: e=").get_label()
+        assert _line(bottom, "superposed CMRTs: e=").get_xdata().max() > 7.9
+    finally:
+        plt.close(fig)
+
+
 def test_cmrt_and_convergence_figures_have_complete_legends():
     task = load_task("bend").with_speed(0.4)
     fig = plot.cmrt_figure(task, library_curve(task))
