@@ -468,6 +468,22 @@ def test_plausibility_tool():
         assert r["success"] == (r["failed_rules"] == [])
 
 
+def test_profile_evaluator_tool_on_a_3d_task():
+    """A 3D task's split: MuJoCo's steps, the control steps and the rest adding up to the evaluator's time, and the
+    steps about the floor's (the same clips' physics)."""
+    import re
+
+    out = _ok(run_tool("profile_evaluator.py", "--task", "bend3d", "--speed", "0.4", "--population", "2",
+                       "--rounds", "1")).stdout
+    num = r"([\d.]+)"
+    m = re.search(rf"3D, one thread: floor {num} \| evaluator {num} = steps {num} \+ control steps {num} \+ rest "
+                  rf"{num} ms/clip \(x{num}\)", out)
+    assert m, out
+    floor, evaluator, steps, plans, rest = (float(m[i]) for i in range(1, 6))
+    assert abs(steps + plans + rest - evaluator) <= 0.15 and plans > 0 and rest > 0
+    assert 0.5 * floor < steps < 2.0 * floor
+
+
 def test_profile_evaluator_tool():
     """No --json: the two lines it prints, and the one-thread parts adding up to the evaluator's time."""
     import re
