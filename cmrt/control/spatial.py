@@ -158,6 +158,8 @@ class SpatialController:
         self.infeasible = not limited  # no plan within the stops and the motors' limits (a fall): planned without
         if status != dual_qp.OPTIMAL:  # the limits' rows, the torques clipped after the solve
             raise CmrtError(f"the 3D balance QP has no solution (status {status})")
+        if not np.isfinite(torque).all():  # never hand MuJoCo a NaN (it resets the clip, 'simulation is unstable')
+            raise CmrtError("the 3D balance QP gave torques that are not finite")
         return SpatialPlan(torque, forces, cop)
 
     def _constant_parts(self) -> None:

@@ -169,3 +169,21 @@ def test_with_no_plan_inside_the_motors_limits_the_plan_leaves_them_out_and_clip
     plan = ctl.plan(d, np.ones(len(ch.foot_point_geoms), bool))
     assert not ctl.infeasible
     assert (np.abs(plan.torque_nm * ch.model.actuator_gear[:, 0]) <= ch.torque_limit_nm + 1e-6).all()
+
+
+def test_torques_that_are_not_finite_are_refused(monkeypatch):
+    """A plan whose torques are not finite is no plan (the clip counts it a fall): MuJoCo, handed a NaN, warns
+    "simulation is unstable" and resets the clip's state - a fault that once came from the QP's warm start."""
+    from cmrt.control import spatial_kernel
+
+    ch, d = _standing()
+    ctl = SpatialController(ch, d.qpos.copy())
+    step = spatial_kernel.plan_step
+
+    def nan_torques(*args):
+        torque, forces, cop, status, limited = step(*args)
+        return torque * np.nan, forces, cop, status, limited
+
+    monkeypatch.setattr(spatial_kernel, "plan_step", nan_torques)
+    with pytest.raises(CmrtError, match="not finite"):
+        ctl.plan(d, np.ones(len(ch.foot_point_geoms), bool))
