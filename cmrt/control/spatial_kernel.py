@@ -4,7 +4,8 @@
 Every quantity comes from MuJoCo's com-based fields as the planar kernel's do (``kernel.centroidal_spatial``,
 ``kernel.point_frame_spatial``: the centroidal momentum matrix and its bias, the contact points' and the feet's
 Jacobians and their rates, checked against ``mj_angmomMat``, ``mj_jac`` and ``mj_jacDot`` in tests/control) and the
-joint-space inertia from MuJoCo's sparse ``qM``; the QP is ``cmrt.control.dual_qp``'s. The rows keep one layout
+joint-space inertia from MuJoCo's sparse one (``d.M``, its rows' columns ``M_colind``); the QP is
+``cmrt.control.dual_qp``'s. The rows keep one layout
 whatever touches the floor, so the last control step's working set starts the next:
 
     base dynamics (6) | right foot held (6) | left foot held (6) | per point: floor, four pyramid faces (5 each)
@@ -52,13 +53,13 @@ def plan_step(fields, body, gains, targets, refs, loaded, load_gen, held_bodies,
     status, whether the plan is within the motors' limits - where no plan is, the limits' rows are left out and the
     torques clipped after the solve, as a fall's last steps need).
 
-    ``fields``: (cdof, cdof_dot, cvel, cinert, qpos, qvel, qM, qfrc_bias, subtree_com, geom_xpos, xpos, xquat) of the
+    ``fields``: (cdof, cdof_dot, cvel, cinert, qpos, qvel, M, qfrc_bias, subtree_com, geom_xpos, xpos, xquat) of the
     clip's MjData (a prop's bodies and dofs after the humanoid's are not read). ``body``: (chain, m_rows, m_cols,
     act_dofs, act_qpos, stop_lo, stop_hi, torque_limit, gear, point_geoms, point_bodies, point_drop, foot_bodies,
     foot_points). ``refs``: (q_ref (nq), qd_ref (nv), qdd_ref (nv)). ``history`` (delay + 1, 6): the CoM and its
     velocity of the last control steps, ``count`` (1,) how many were written; the plan feeds back the oldest kept.
     ``active``: the QP's working set, carried to the next step."""
-    cdof, cdof_dot, cvel, cinert, qpos, qvel, qM, qfrc_bias, subtree_com, geom_xpos, xpos, xquat = fields
+    cdof, cdof_dot, cvel, cinert, qpos, qvel, M_sparse, qfrc_bias, subtree_com, geom_xpos, xpos, xquat = fields
     (chain, m_rows, m_cols, act_dofs, act_qpos, stop_lo, stop_hi, torque_limit, gear, point_geoms, point_bodies,
      point_drop, foot_bodies, foot_points) = body
     nv = chain.shape[1]
@@ -94,7 +95,7 @@ def plan_step(fields, body, gains, targets, refs, loaded, load_gen, held_bodies,
     if swing >= 0:
         _swing_objective(cdof, cdof_dot, cvel, qd, chain, foot_bodies[swing], xpos, xquat, com, targets, gains,
                          H1, f)
-    M, bias = _dynamics(qM, m_rows, m_cols, qfrc_bias, load_gen, nv)
+    M, bias = _dynamics(M_sparse, m_rows, m_cols, qfrc_bias, load_gen, nv)
     if targets[T_HELD] > 0.0:
         _holding(cdof, cdof_dot, cvel, qd, chain, held_bodies, targets, com, gains, M, bias)
     rows, lo, hi, equality = _rows(cdof, cdof_dot, cvel, qpos, qd, chain, body, gains, M, bias, Jp, on, com,
@@ -130,7 +131,8 @@ def plan_step(fields, body, gains, targets, refs, loaded, load_gen, held_bodies,
 
 @njit(cache=True, nogil=True, inline="always")
 def _dot(a, b):  # pragma: no cover - compiled
-    """a . b as a plain loop (numba's np.dot calls BLAS: dearer than these short sums)."""
+    """a . b as a plain loop in order (numba's np.dot calls BLAS: dearer than these short sums). Not the solver's
+    ``dual_qp._dot``, which may reassociate (fastmath): the kernel's sums keep IEEE order."""
     s = 0.0
     for i in range(a.size):
         s += a[i] * b[i]
@@ -226,15 +228,15 @@ def _swing_objective(cdof, cdof_dot, cvel, qd, chain, foot, xpos, xquat, com, ta
 
 
 @njit(cache=True, nogil=True)
-def _dynamics(qM, m_rows, m_cols, qfrc_bias, load_gen, nv):  # pragma: no cover - compiled
+def _dynamics(M_sparse, m_rows, m_cols, qfrc_bias, load_gen, nv):  # pragma: no cover - compiled
     """The joint-space inertia (nv, nv) from MuJoCo's sparse M (the humanoid's block), and the bias forces less a
     held load's generalized force."""
     M = np.zeros((nv, nv))
     for k in range(m_rows.size):
         i, j = m_rows[k], m_cols[k]
         if i < nv and j < nv:
-            M[i, j] = qM[k]
-            M[j, i] = qM[k]
+            M[i, j] = M_sparse[k]
+            M[j, i] = M_sparse[k]
     bias = np.empty(nv)
     for j in range(nv):
         bias[j] = qfrc_bias[j] - load_gen[j]
