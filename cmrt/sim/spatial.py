@@ -155,20 +155,20 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
     infeasible = 0
     fall: tuple[float, np.ndarray] | None = None  # (time, the capture point's way out of the support)
     held_cop = np.full(2, np.nan)  # the CoP the torques held since the last control step were planned for
-    thorax, sensors, xfrc, geom_xpos = ch.thorax_body, d.sensordata, d.xfrc_applied, d.geom_xpos
+    thorax, xfrc, geom_xpos = ch.thorax_body, d.xfrc_applied, d.geom_xpos
+    sensors = d.sensordata[:n_pts]  # the foot points' touch sensors (a view: the data's buffer is fixed)
     pushing = False
     for k in range(steps):
         t, control = k * dt, k % every == 0
         if prop is not None and fall is None:
             prop.step(t, control)
         if control:
-            touch = sensors[:n_pts].copy()
+            touch = sensors.copy()
             xy = geom_xpos[points, :2]
             total = touch.sum()
             cop = touch @ xy / total if total > 0 else np.full(2, np.nan)
-            rows.append((t, d.subtree_com[1].copy(), cop, held_cop, _margin(cop, xy[touch > 0.0]), d.qpos.copy(),
-                         np.where(touch >= PLANTED_FORCE_N, 1.0, np.nan)[:, None] * xy,
-                         float(np.abs(d.qvel[acts]).max())))
+            rows.append((t, d.subtree_com[1].copy(), cop, held_cop, d.qpos.copy(),
+                         *_sample(cop, touch, xy, d.qvel, acts, PLANTED_FORCE_N)))
             if fall is None and t >= SETTLE_S - 1e-12:  # judged once the first contacts have settled: a pose
                 fall = _fallen(m, d, t, touch, prop)  # placed just on the floor touches with no force at first
                 if fall is not None:
@@ -194,7 +194,7 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
             pushing = not pushing
             xfrc[thorax, :3] = push if pushing else 0.0
         mujoco.mj_step(m, d)
-        touches[k] = sensors[:n_pts]
+        touches[k] = sensors
         if prop is not None:
             prop.record()
     ground = touches.sum(axis=1).tolist()
@@ -275,7 +275,7 @@ def _finished(m: mujoco.MjModel, d: mujoco.MjData, ctl: SpatialController, rows:
     time_s = np.array([r[0] for r in rows])
     com = np.array([r[1] for r in rows])
     cop, plan_cop = np.array([r[2] for r in rows]), np.array([r[3] for r in rows])
-    margin, qpos = np.array([r[4] for r in rows]), np.array([r[5] for r in rows])
+    qpos, margin = np.array([r[4] for r in rows]), np.array([r[5] for r in rows])
     mujoco.mj_subtreeVel(m, d)
     impacts = (push_start_s,)
     if prop is not None:
@@ -341,17 +341,15 @@ def _planted_slide_m(planted_xy: np.ndarray) -> float:
 
 
 _LIMITS = BalanceLimits()
-_LEVEL_COS = float(np.cos(_LIMITS.roll_rad))
+# what ``_fall_rules`` reads: the cos of the roll limit, the capture margin (m), the CoM's height (m), gravity
+_LIMITS_VECTOR = np.array([np.cos(_LIMITS.roll_rad), _LIMITS.capture_margin_m, _LIMITS.com_height_m, GRAVITY_M_S2])
 
 
 @functools.cache
-def _feet() -> tuple[np.ndarray, dict[tuple[bool, bool], np.ndarray]]:
-    """The feet's bodies, and the geoms of the soles that touch by (right touches, left touches): each foot's
-    whole sole."""
+def _feet() -> tuple[np.ndarray, np.ndarray]:
+    """The feet's bodies, and each foot's sole (its point geoms; the right foot's first)."""
     ch = character(BODY)
-    soles = {(r, lf): np.array([g for pair, on in zip(ch.foot_points, (r, lf), strict=True) if on for g in pair],
-                               dtype=int) for r in (False, True) for lf in (False, True)}
-    return np.array(ch.foot_bodies), soles
+    return np.array(ch.foot_bodies, dtype=np.int64), np.array([list(pair) for pair in ch.foot_points], dtype=np.int64)
 
 
 def _fallen(m: mujoco.MjModel, d: mujoco.MjData, t: float, touch: np.ndarray, prop: PropClip | None = None
@@ -362,24 +360,78 @@ def _fallen(m: mujoco.MjModel, d: mujoco.MjData, t: float, touch: np.ndarray, pr
     over its sole) - or the CoM below ``com_height_m``. Returns (now, the capture point's offset from the support's
     centre) on a fall, else None. A held mass the body does not carry counts in the CoM (``prop3d.with_held``); hands
     on a prop that holds the body up (a slab) suspend the capture point's rule, as on the planar body."""
-    limits = _LIMITS
     mujoco.mj_subtreeVel(m, d)
     com, vel = d.subtree_com[1], d.subtree_linvel[1]
     if prop is not None:
         com, vel = with_held(com, vel, float(m.body_subtreemass[1]), prop.held())
-    capture = com[:2] + vel[:2] / np.sqrt(GRAVITY_M_S2 / max(float(com[2]), 1e-3))
-    half = len(touch) // 2  # each foot's points: the right's, then the left's
-    right, left = touch[:half].max() > 0.0, touch[half:].max() > 0.0
-    feet, soles_of = _feet()
-    soles = soles_of[(bool(right), bool(left))]
-    sole_xy = d.geom_xpos[soles, :2]
-    centre = sole_xy.mean(axis=0) if len(sole_xy) else com[:2]
-    rolled = d.xmat[feet, 8].min() < _LEVEL_COS  # a sole's normal's z
-    out = len(sole_xy) == 0 or _margin(capture, sole_xy) < -limits.capture_margin_m
-    out = out and not (prop is not None and prop.leaning())
-    if rolled or out or com[2] < limits.com_height_m:
-        return t, capture - centre
-    return None
+    feet, soles = _feet()
+    fell, offset = _fall_rules(com, vel, touch, d.geom_xpos, soles, d.xmat, feet, prop is not None and prop.leaning(),
+                               _LIMITS_VECTOR)
+    return (t, offset) if fell else None
+
+
+@njit(cache=True, nogil=True)
+def _fall_rules(com, vel, touch, geom_xpos, soles, xmat, feet, leaning, limits):  # pragma: no cover - compiled
+    """``_fallen``'s rules, compiled (numpy's a dozen small calls a control step were a tenth of a clip): whether
+    the body fell, and the capture point's offset from the touching soles' centre. ``soles`` (2, points per foot):
+    each foot's geoms, the right's first; ``limits``: (cos of the roll limit, capture margin m, CoM height m,
+    gravity m/s^2). The arithmetic is numpy's, in its order (a mean is a sum in order over the count)."""
+    scale = np.sqrt(limits[3] / max(com[2], 1e-3))
+    capture = np.array([com[0] + vel[0] / scale, com[1] + vel[1] / scale])
+    half = touch.size // 2  # each foot's points: the right's, then the left's
+    on = (touch[:half].max() > 0.0, touch[half:].max() > 0.0)
+    count = 0
+    for foot in range(2):
+        count += soles.shape[1] if on[foot] else 0
+    sole_xy = np.empty((count, 2))
+    k = 0
+    for foot in range(2):
+        if on[foot]:
+            for g in soles[foot]:
+                sole_xy[k, 0], sole_xy[k, 1] = geom_xpos[g, 0], geom_xpos[g, 1]
+                k += 1
+    centre = np.array([com[0], com[1]])
+    if count:
+        total = np.zeros(2)
+        for i in range(count):
+            total = total + sole_xy[i]
+        centre = total / count
+    rolled = False
+    for body in feet:
+        rolled = rolled or xmat[body, 8] < limits[0]  # a sole's normal's z
+    out = count == 0 or (count >= 3 and -_hull_margin(capture[0], capture[1], sole_xy) > limits[1])
+    if count and count < 3:
+        out = 0.0 < -limits[1]  # fewer than three points: no area, the margin 0 (``_margin``)
+    out = out and not leaning
+    return rolled or out or com[2] < limits[2], capture - centre
+
+
+@njit(cache=True, nogil=True)
+def _sample(cop, touch, xy, qvel, acts, planted_n):  # pragma: no cover - compiled
+    """A control step's sample beside the CoP: the CoP's margin inside the touching points (``_margin``), each
+    point's place where it carries ``planted_n`` or more (NaN elsewhere) and the fastest actuated joint (rad/s) -
+    compiled, as numpy's small calls were a control step's cost; the arithmetic is theirs."""
+    n = touch.size
+    touching = 0
+    for p in range(n):
+        touching += touch[p] > 0.0
+    pts = np.empty((touching, 2))
+    k = 0
+    for p in range(n):
+        if touch[p] > 0.0:
+            pts[k, 0], pts[k, 1] = xy[p, 0], xy[p, 1]
+            k += 1
+    margin = 0.0
+    if np.isfinite(cop[0]) and np.isfinite(cop[1]) and touching >= 3:
+        margin = _hull_margin(cop[0], cop[1], pts)
+    planted = np.empty((n, 2))
+    for p in range(n):
+        on = 1.0 if touch[p] >= planted_n else np.nan
+        planted[p, 0], planted[p, 1] = on * xy[p, 0], on * xy[p, 1]
+    speed = 0.0
+    for j in acts:
+        speed = max(speed, abs(qvel[j]))
+    return margin, planted, speed
 
 
 def _protective(m: mujoco.MjModel, ch, d: mujoco.MjData) -> None:
