@@ -147,3 +147,59 @@ def test_a_step_with_no_plan_at_all_is_a_fall_not_a_crash(monkeypatch):
     com = np.full_like(r.com_m, np.nan)
     replay_3d(r, com_out=com)
     assert np.array_equal(com, r.com_m)
+
+
+def test_a_samples_margin_planted_points_and_joint_speed_are_numpys():
+    """The compiled sample (``_sample``) is the numpy expressions it replaced, bit for bit: the CoP's margin inside
+    the touching points (``_margin``), each point's place where it carries 5 N or more (NaN elsewhere), the fastest
+    actuated joint; and with fewer than three points touching or no CoP, a margin of 0."""
+    from cmrt.sim.simulate import PLANTED_FORCE_N
+    from cmrt.sim.spatial import _sample
+
+    rng = np.random.default_rng(5)
+    acts = np.arange(6, 31)
+    for touching in (8, 5, 3, 2, 0):
+        touch = np.zeros(8)
+        touch[rng.permutation(8)[:touching]] = rng.uniform(0.5, 200.0, touching)
+        xy = rng.uniform(-0.2, 0.2, (8, 2))
+        qvel = rng.standard_normal(31)
+        for cop in (rng.uniform(-0.1, 0.1, 2), np.full(2, np.nan)):
+            margin, planted, speed = _sample(cop, touch, xy, qvel, acts, PLANTED_FORCE_N)
+            assert margin == _margin(cop, xy[touch > 0.0])
+            np.testing.assert_array_equal(planted, np.where(touch >= PLANTED_FORCE_N, 1.0, np.nan)[:, None] * xy)
+            assert speed == float(np.abs(qvel[acts]).max())
+
+
+def test_the_compiled_fall_rules_are_numpys():
+    """``_fall_rules`` is the numpy it replaced, bit for bit, on random states: the capture point from the CoM and
+    its velocity, the touching soles' centre (a mean), a foot rolled past the limit, the capture point's margin
+    outside the soles, the CoM's height; hands leaning on a prop suspend the capture rule."""
+    from cmrt.body.character import GRAVITY_M_S2, character
+    from cmrt.sim.balance import BalanceLimits
+    from cmrt.sim.spatial import BODY, _fall_rules, _feet
+
+    limits, ch = BalanceLimits(), character(BODY)
+    feet, soles = _feet()
+    vector = np.array([np.cos(limits.roll_rad), limits.capture_margin_m, limits.com_height_m, GRAVITY_M_S2])
+    rng = np.random.default_rng(6)
+    seen = set()
+    for _ in range(400):
+        com = np.array([*rng.uniform(-0.15, 0.15, 2), rng.uniform(0.5, 1.0)])
+        vel = rng.normal(0.0, 0.4, 3)
+        touch = np.where(rng.random(8) < 0.7, rng.uniform(0.0, 100.0, 8), 0.0)
+        geom_xpos = rng.uniform(-0.2, 0.2, (ch.model.ngeom, 3))
+        xmat = np.tile(np.eye(3).ravel(), (ch.model.nbody, 1))
+        xmat[feet, 8] = rng.uniform(0.97, 1.0, 2)
+        leaning = bool(rng.random() < 0.2)
+        fell, offset = _fall_rules(com, vel, touch, geom_xpos, soles, xmat, feet, leaning, vector)
+        # the numpy it replaced (cmrt.sim.spatial._fallen before it was compiled)
+        capture = com[:2] + vel[:2] / np.sqrt(GRAVITY_M_S2 / max(float(com[2]), 1e-3))
+        on = [(n > 0.0).any() for n in (touch[:4], touch[4:])]
+        sole_xy = geom_xpos[[g for foot, o in zip(soles, on, strict=True) if o for g in foot], :2]
+        centre = sole_xy.mean(axis=0) if len(sole_xy) else com[:2]
+        rolled = any(xmat[b, 8] < np.cos(limits.roll_rad) for b in feet)
+        out = (len(sole_xy) == 0 or _margin(capture, sole_xy) < -limits.capture_margin_m) and not leaning
+        assert fell == (rolled or out or com[2] < limits.com_height_m)
+        np.testing.assert_array_equal(offset, capture - centre)
+        seen.add(bool(fell))
+    assert seen == {True, False}
