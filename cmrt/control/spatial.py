@@ -102,7 +102,6 @@ class SpatialController:
         self.q_ref[self.act_qpos] = np.clip(self.q_ref[self.act_qpos], *self.stops)
         self.gear = m.actuator_gear[:, 0]
         self.points = ch.foot_point_geoms
-        self.chain = PlanarKinematics(m).chain.astype(bool)
         # the planar floor per heel or toe point, shared by the points across that end of a 3D foot: the same
         # force per length of foot, so the same share of the foot stays open to the CoP
         self.point_floor_n = config.min_point_force_n * 4 / len(self.points)
@@ -167,13 +166,11 @@ class SpatialController:
         the body's index structure, stops, limits and contact points, the gains; and its state across steps (the
         delayed feedback's history, the QP's working set)."""
         m, c, ch = self.model, self.config, self.ch
-        kin = PlanarKinematics(m)
-        nb = ch.model.nbody
+        kin = PlanarKinematics(m)  # the clip's model: the humanoid's bodies and dofs lead, a prop's tree after them
         self._point_ids = list(self.points)
         foot_points = np.array([[self.points.index(g) for g in pair] for pair in ch.foot_points], dtype=np.int64)
-        self._foot_point_index = [list(row) for row in foot_points]
         self._body = (
-            np.ascontiguousarray(self.chain[:nb, :self.nv]), kin.m_rows.astype(np.int64),
+            np.ascontiguousarray(kin.chain[:ch.model.nbody, :self.nv]), kin.m_rows.astype(np.int64),
             kin.m_cols.astype(np.int64), self.act_dofs.astype(np.int64), self.act_qpos.astype(np.int64),
             np.array(self.stops[0], float), np.array(self.stops[1], float),  # copies: the character's are shared
             np.array(ch.torque_limit_nm, float), np.array(self.gear, float),

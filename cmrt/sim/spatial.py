@@ -399,9 +399,7 @@ def _fall_rules(com, vel, touch, geom_xpos, soles, xmat, feet, leaning, limits):
     rolled = False
     for body in feet:
         rolled = rolled or xmat[body, 8] < limits[0]  # a sole's normal's z
-    out = count == 0 or (count >= 3 and -_hull_margin(capture[0], capture[1], sole_xy) > limits[1])
-    if count and count < 3:
-        out = 0.0 < -limits[1]  # fewer than three points: no area, the margin 0 (``_margin``)
+    out = count == 0 or _hull_margin(capture[0], capture[1], sole_xy) < -limits[1]
     out = out and not leaning
     return rolled or out or com[2] < limits[2], capture - centre
 
@@ -421,9 +419,7 @@ def _sample(cop, touch, xy, qvel, acts, planted_n):  # pragma: no cover - compil
         if touch[p] > 0.0:
             pts[k, 0], pts[k, 1] = xy[p, 0], xy[p, 1]
             k += 1
-    margin = 0.0
-    if np.isfinite(cop[0]) and np.isfinite(cop[1]) and touching >= 3:
-        margin = _hull_margin(cop[0], cop[1], pts)
+    margin = _hull_margin(cop[0], cop[1], pts)
     planted = np.empty((n, 2))
     for p in range(n):
         on = 1.0 if touch[p] >= planted_n else np.nan
@@ -450,18 +446,19 @@ def _margin(cop: np.ndarray, touching_xy: np.ndarray) -> float:
     foot points this is quicker than qhull (``scipy.spatial.ConvexHull``, 0.45 ms a call: two calls a control
     step made it 40 % of a leg lift's clip) and the same to rounding (a test); compiled, as numpy's 15 calls cost
     60 us a call - a fifth of a clip's time before its QP was written in blocks."""
-    cop, pts = np.asarray(cop, float), np.ascontiguousarray(touching_xy, dtype=float)
-    if not np.isfinite(cop).all() or len(pts) < 3:
-        return 0.0
-    return _hull_margin(cop[0], cop[1], pts)
+    cop = np.asarray(cop, float)
+    return _hull_margin(cop[0], cop[1], np.ascontiguousarray(touching_xy, dtype=float).reshape(-1, 2))
 
 
 @njit(cache=True, nogil=True)
 def _hull_margin(x: float, y: float, pts: np.ndarray) -> float:  # pragma: no cover - compiled
-    """``_margin`` for a finite point (x, y) and three or more points: each ordered pair (i, j) is an edge of
-    the hull when every point lies on or behind the line i -> j turned clockwise (tolerance 1e-9 of the points'
-    span); the margin is the smallest distance to an edge's line, negative outside."""
+    """``_margin``, compiled (the clip's samples and fall rules call it too): 0 for a point that is not finite or
+    fewer than three points; else each ordered pair (i, j) is an edge of the hull when every point lies on or behind
+    the line i -> j turned clockwise (tolerance 1e-9 of the points' span), and the margin is the smallest distance
+    to an edge's line, negative outside."""
     n = pts.shape[0]
+    if not (np.isfinite(x) and np.isfinite(y)) or n < 3:
+        return 0.0
     scale = 1e-12
     for i in range(n):
         for j in range(n):
