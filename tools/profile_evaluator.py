@@ -10,10 +10,12 @@ add up to the wall time; the default evaluator runs one such group per core in p
 the last column is that: its wall time against the floor on all cores' threads (``cmrt bench``'s ratio).
 docs/performance.md has the figures. Timers wrap the calls, so the split costs a few percent itself.
 
-A 3D task's clips run one after another in one thread (no lockstep batch yet): its floor is ``cmrt bench``'s
-(``replay_3d`` of each evaluated clip), its evaluator ``evaluate_batch``, split into MuJoCo's steps
-(``mujoco.mj_step``), the control steps (``SpatialController.plan``: the compiled step and its Python) and the
-rest (the clip loop: the motion's targets, the samples, the fall monitor).
+A 3D task's clips run one after another in one thread, a clip without a prop whole in compiled code
+(``cmrt.sim.spatial_loop.run_clip``: MuJoCo's steps, the control steps, the samples and the fall monitor): its
+floor is ``cmrt bench``'s (``replay_3d`` of each evaluated clip), its evaluator ``evaluate_batch``, split into the
+compiled clips and the Python around them (the targets made, the controller set up, the clip scored); the
+compiled clips' physics is the floor's, so their control steps are what they take beyond it. A task with a prop
+runs its Python loop, and its split is all "Python".
 
     python tools/profile_evaluator.py [--task bend] [--speed 0.4] [--population 16] [--rounds 5]
     python tools/profile_evaluator.py --task leg-lift --speed 2.3 --population 8 --rounds 3
@@ -30,10 +32,10 @@ import mujoco.batch
 import numpy as np
 
 from cmrt import Cmrt, load_task
-from cmrt.control.spatial import SpatialController
 from cmrt.optimize.bench import bench_candidates, record_replay, replay_physics
 from cmrt.optimize.parallel import evaluate_batch
 from cmrt.sim import simulate as simulate_module  # noqa: E402
+from cmrt.sim import spatial_loop
 from cmrt.sim.clip3d import clip_3d
 from cmrt.sim.simulate import simulate_batch
 from cmrt.sim.spatial import replay_3d
@@ -118,18 +120,13 @@ def profile_3d(task, n: int, rounds: int) -> None:
     """The 3D body's split (the module's docstring), one line a round and the median."""
     xs = bench_candidates(task, n)
     results = [clip_3d(task, Cmrt.from_params(x, task.clip_s)).result for x in xs]  # also the warm-up
-    spent = {"step": 0.0, "plan": 0.0}
-    mj_step, plan = mujoco.mj_step, SpatialController.plan
+    spent = [0.0]
+    run_clip = spatial_loop.run_clip
 
-    def timed_step(*a, **k):
+    def timed_run(*a):
         t0 = time.perf_counter()
-        mj_step(*a, **k)
-        spent["step"] += time.perf_counter() - t0
-
-    def timed_plan(self, *a, **k):
-        t0 = time.perf_counter()
-        out = plan(self, *a, **k)
-        spent["plan"] += time.perf_counter() - t0
+        out = run_clip(*a)
+        spent[0] += time.perf_counter() - t0
         return out
 
     rows = []
@@ -138,22 +135,22 @@ def profile_3d(task, n: int, rounds: int) -> None:
         for r in results:
             replay_3d(r)
         floor = time.perf_counter() - t0
-        spent.update(step=0.0, plan=0.0)
-        mujoco.mj_step, SpatialController.plan = timed_step, timed_plan
+        spent[0] = 0.0
+        spatial_loop.run_clip = timed_run
         try:
             t0 = time.perf_counter()
             evaluate_batch(task, xs)
             wall = time.perf_counter() - t0
         finally:
-            mujoco.mj_step, SpatialController.plan = mj_step, plan
-        rows.append((floor, wall, spent["step"], spent["plan"], wall - spent["step"] - spent["plan"]))
+            spatial_loop.run_clip = run_clip
+        rows.append((floor, wall, spent[0], wall - spent[0]))
         ms = [1e3 * v / n for v in rows[-1]]
-        print(f"3D, one thread: floor {ms[0]:.1f} | evaluator {ms[1]:.1f} = steps {ms[2]:.1f} + control steps "
-              f"{ms[3]:.1f} + rest {ms[4]:.1f} ms/clip (x{wall / floor:.2f})")
+        print(f"3D, one thread: floor {ms[0]:.1f} | evaluator {ms[1]:.1f} = compiled clips {ms[2]:.1f} + Python "
+              f"{ms[3]:.1f} ms/clip (x{wall / floor:.2f}); the compiled clips' control steps ~{ms[2] - ms[0]:.1f}")
     a = np.array(rows)
-    share = np.median(a[:, 2:5] / a[:, :1], axis=0)
-    print(f"median: x{np.median(a[:, 1] / a[:, 0]):.2f} = steps {share[0]:.2f} + control steps {share[1]:.2f} + rest "
-          f"{share[2]:.2f} of the floor (load {os.getloadavg()[0]:.2f})")
+    share = np.median(a[:, 1:4] / a[:, :1], axis=0)
+    print(f"median: x{share[0]:.2f} = physics 1.00 + control steps {share[1] - 1.0:.2f} + Python {share[2]:.2f} of "
+          f"the floor (load {os.getloadavg()[0]:.2f})")
 
 
 if __name__ == "__main__":

@@ -39,6 +39,13 @@ def solve(H1, h2, f, A, lo, hi, equality, active):  # pragma: no cover - compile
     """x (n,), status (OPTIMAL, INFEASIBLE, ITERATION_LIMIT, NOT_CONVEX) and the number of iterations. ``active``
     (m,) int8: the working set to start from (UPPER, LOWER; FIXED for equality rows is set here), updated in place
     to the solution's."""
+    return solve_spanned(H1, h2, f, A, lo, hi, equality, active, spans(A))
+
+
+@njit(cache=True, nogil=True, fastmath=FAST)
+def solve_spanned(H1, h2, f, A, lo, hi, equality, active, span):  # pragma: no cover - compiled
+    """``solve`` with each row's nonzero span given (m, 2): ``spans(A)``'s, from a caller that knows where its rows'
+    nonzeros can be (``row_span``) - scanning every row of the 3D plan from both ends was a tenth of its QP."""
     n1, n = H1.shape[0], f.size
     m = A.shape[0]
     L = np.empty((n1, n1))
@@ -49,7 +56,6 @@ def solve(H1, h2, f, A, lo, hi, equality, active):  # pragma: no cover - compile
     _forward_from(L, f, 0, v)
     for j in range(n1, n):
         v[j] = f[j] / root[j - n1]
-    span = _spans(A)
     # the least-distance rows (unit length), their bounds and nonzero spans, made when first needed
     M = np.empty((m, n))  # each row written over its span before it is read
     up, down = np.full(m, np.inf), np.full(m, -np.inf)
@@ -121,19 +127,30 @@ def _x_of(L, root, v, u):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True, fastmath=FAST)
-def _spans(A):  # pragma: no cover - compiled
-    """Each row's nonzeros' span [first, last + 1) (empty for a row of zeros)."""
+def spans(A):  # pragma: no cover - compiled
+    """Each row's nonzeros' span [first, last + 1); (n, n) for a row of zeros."""
     m, n = A.shape
     span = np.zeros((m, 2), np.int64)
     for i in range(m):
-        a = 0
-        while a < n and A[i, a] == 0.0:
-            a += 1
-        b = n
-        while b > a and A[i, b - 1] == 0.0:
-            b -= 1
-        span[i, 0], span[i, 1] = a, b
+        row_span(A, i, 0, n, span)
     return span
+
+
+@njit(cache=True, nogil=True, inline="always")
+def row_span(A, i, first, end, span):  # pragma: no cover - compiled
+    """Row i's span into ``span[i]``, scanning only [first, end): the row's whole span where it is zero outside
+    that window, as ``spans`` finds it ((n, n) for a row of zeros)."""
+    n = A.shape[1]
+    a = first
+    while a < end and A[i, a] == 0.0:
+        a += 1
+    if a == end:
+        span[i, 0], span[i, 1] = n, n
+        return
+    b = end
+    while b > a and A[i, b - 1] == 0.0:
+        b -= 1
+    span[i, 0], span[i, 1] = a, b
 
 
 @njit(cache=True, nogil=True, fastmath=FAST)

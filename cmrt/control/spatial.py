@@ -77,6 +77,35 @@ class SpatialTargets:
     swing_vel_m_s: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class SpatialTargetTable:
+    """A motion's targets at every control step of a clip, made before it runs (a motion's references depend on
+    time alone): row ``i`` is control step ``i``'s ``SpatialTargets``. A field left None is the standing default at
+    every step; ``swing_foot`` is -1 in a row without a foot in the air (its path's row is then not read). A
+    compiled clip (``cmrt.sim.spatial_loop``) reads the arrays, a clip with a prop asks ``at`` each step."""
+
+    com_xy_m: np.ndarray | None = None  # (n, 2)
+    com_vel_xy_m_s: np.ndarray | None = None  # (n, 2)
+    cop_xy_m: np.ndarray | None = None  # (n, 2)
+    q_ref: np.ndarray | None = None  # (n, nq)
+    qd_ref: np.ndarray | None = None  # (n, nv)
+    qdd_ref: np.ndarray | None = None  # (n, nv)
+    swing_foot: np.ndarray | None = None  # (n,) int: 0 right, 1 left, -1 none
+    swing_pos_m: np.ndarray | None = None  # (n, 3)
+    swing_vel_m_s: np.ndarray | None = None  # (n, 3)
+
+    def at(self, i: int) -> SpatialTargets:
+        """Control step ``i``'s targets."""
+        swing = -1 if self.swing_foot is None else int(self.swing_foot[i])
+
+        def row(values: np.ndarray | None) -> np.ndarray | None:
+            return None if values is None else values[i]
+        return SpatialTargets(row(self.com_xy_m), row(self.com_vel_xy_m_s), row(self.cop_xy_m), row(self.q_ref),
+                              row(self.qd_ref), row(self.qdd_ref), swing,
+                              row(self.swing_pos_m) if swing >= 0 else None,
+                              row(self.swing_vel_m_s) if swing >= 0 else None)
+
+
 class SpatialController:
     """The 3D momentum controller of one simulation: ``plan`` once per control step on a forward-computed MjData.
     ``q_ref`` (nq) is the pose it holds, kept ``stop_margin_rad`` inside every joint's stops. ``model``: the clip's
@@ -126,9 +155,7 @@ class SpatialController:
         left the arms' rotation about their own axes (whose inertia the 7 kg ball outweighs fifty times) swinging
         0.4 rad."""
         self.mass_kg = float(self.model.body_subtreemass[1])
-        if self.com_ref_m is None:
-            self.com_ref_m = d.subtree_com[1].copy()
-            self.cop_ref_m = d.geom_xpos[self._point_ids, :2].mean(axis=0)
+        self.start(d)
         t = self._targets
         t[sk.T_COM:sk.T_COM + 3] = self.com_ref_m
         if targets.com_xy_m is not None:
@@ -160,6 +187,33 @@ class SpatialController:
         if not np.isfinite(torque).all():  # never hand MuJoCo a NaN (it resets the clip, 'simulation is unstable')
             raise CmrtError("the 3D balance QP gave torques that are not finite")
         return SpatialPlan(torque, forces, cop)
+
+    def start(self, d: mujoco.MjData) -> None:
+        """Hold what the first control step finds (``d`` after mj_forward): the CoM where it is, the CoP at the
+        feet's centre - the standing defaults of every later step."""
+        if self.com_ref_m is None:
+            self.com_ref_m = d.subtree_com[1].copy()
+            self.cop_ref_m = d.geom_xpos[self._point_ids, :2].mean(axis=0)
+
+    def table_arrays(self, table: SpatialTargetTable, n: int) -> tuple[np.ndarray, ...]:
+        """``table``'s ``n`` rows as the compiled clip reads them, every default filled in as ``plan`` fills it
+        (after ``start``): (CoM xy, its rate, CoP xy, q_ref, qd_ref, qdd_ref, swing foot, its path, its rate)."""
+        def full(values: np.ndarray | None, default: np.ndarray) -> np.ndarray:
+            source = np.broadcast_to(default, (n, *default.shape)) if values is None else values[:n]
+            return np.ascontiguousarray(source, dtype=float)
+        return (full(table.com_xy_m, self.com_ref_m[:2]), full(table.com_vel_xy_m_s, np.zeros(2)),
+                full(table.cop_xy_m, self.cop_ref_m), full(table.q_ref, self.q_ref),
+                full(table.qd_ref, self._still), full(table.qdd_ref, self._still),
+                np.full(n, -1, dtype=np.int64) if table.swing_foot is None
+                else np.ascontiguousarray(table.swing_foot[:n], dtype=np.int64),
+                full(table.swing_pos_m, np.zeros(3)), full(table.swing_vel_m_s, np.zeros(3)))
+
+    def compiled_parts(self) -> tuple:
+        """What the compiled clip hands ``spatial_kernel.plan_step`` beside the data and the targets: (the body's
+        index structure, the gains, the targets' buffer, no held bodies, no load, the feedback's history and count,
+        the working set) - the controller's own arrays, so its state is the clip's after the run."""
+        return (self._body, self._gains, self._targets, self._no_bodies, self._still, self._history, self._count,
+                self._active)
 
     def _constant_parts(self) -> None:
         """What the compiled step (``spatial_kernel.plan_step``) reads that does not change between control steps:

@@ -17,8 +17,9 @@ force, its last two are empty).
 A numba pitfall for whoever edits the solver: numba's cache keys a compiled function on its own source file, and
 ``plan_step`` compiles ``dual_qp.solve`` and the planar kernel's functions into itself - so after editing
 ``dual_qp.py`` or ``kernel.py`` alone, a cached ``plan_step`` keeps running the old code (measured: a fingerprint of
-the 3D clips did not move for an edit of the solver). Delete ``cmrt/control/__pycache__/spatial_kernel*.nb*`` (or
-touch this file) before measuring; a fresh install or CI compiles everything anew.
+the 3D clips did not move for an edit of the solver). ``cmrt.sim.spatial_loop.run_clip`` compiles all of them in
+again. Delete ``cmrt/control/__pycache__/*.nb*`` and ``cmrt/sim/__pycache__/*.nb*`` before measuring an edit; a
+fresh install or CI compiles everything anew.
 """
 
 from __future__ import annotations
@@ -98,15 +99,15 @@ def plan_step(fields, body, gains, targets, refs, loaded, load_gen, held_bodies,
     M, bias = _dynamics(M_sparse, m_rows, m_cols, qfrc_bias, load_gen, nv)
     if targets[T_HELD] > 0.0:
         _holding(cdof, cdof_dot, cvel, qd, chain, held_bodies, targets, com, gains, M, bias)
-    rows, lo, hi, equality = _rows(cdof, cdof_dot, cvel, qpos, qd, chain, body, gains, M, bias, Jp, on, com,
-                                   xpos, n)
+    rows, lo, hi, equality, span = _rows(cdof, cdof_dot, cvel, qpos, qd, chain, body, gains, M, bias, Jp, on, com,
+                                         xpos, n)
     h2 = np.full(n - nv, 2.0 * gains[G_EPS])
-    x, status, _ = dual_qp.solve(H1, h2, f, rows, lo, hi, equality, active)
+    x, status, _ = dual_qp.solve_spanned(H1, h2, f, rows, lo, hi, equality, active, span)
     limited = status == dual_qp.OPTIMAL
     if not limited:
         lo[-n_act:], hi[-n_act:] = -np.inf, np.inf
         active[:] = dual_qp.INACTIVE
-        x, status, _ = dual_qp.solve(H1, h2, f, rows, lo, hi, equality, active)
+        x, status, _ = dual_qp.solve_spanned(H1, h2, f, rows, lo, hi, equality, active, span)
     if status != dual_qp.OPTIMAL:
         return np.zeros(n_act), np.zeros((n_pts, 3)), np.full(2, np.nan), status, limited
     torque = np.empty(n_act)
@@ -271,7 +272,8 @@ def _holding(cdof, cdof_dot, cvel, qd, chain, held_bodies, targets, com, gains, 
 @njit(cache=True, nogil=True)
 def _rows(cdof, cdof_dot, cvel, qpos, qd, chain, body, gains, M, bias, Jp, on, com, xpos, n
           ):  # pragma: no cover - compiled
-    """The QP's rows (A, lo, hi, equality) in the module's layout."""
+    """The QP's rows (A, lo, hi, equality, each row's nonzero span) in the module's layout; a row's span is
+    scanned only where its nonzeros can be (``dual_qp.row_span``: the same span a scan of the whole row finds)."""
     (_, _, _, act_dofs, act_qpos, stop_lo, stop_hi, torque_limit, _, point_geoms, _, _, foot_bodies,
      foot_points) = body
     nv, n_pts, n_act = chain.shape[1], point_geoms.size, act_dofs.size
@@ -279,6 +281,7 @@ def _rows(cdof, cdof_dot, cvel, qpos, qd, chain, body, gains, M, bias, Jp, on, c
     A = np.zeros((m, n))
     lo, hi = np.full(m, -np.inf), np.full(m, np.inf)
     equality = np.zeros(m, np.bool_)
+    span = np.empty((m, 2), np.int64)
     for r in range(N_BASE):  # M_base qdd - J_base' f = -h_base
         A[r, :nv] = M[r]
         for p in range(3 * n_pts):
@@ -298,6 +301,10 @@ def _rows(cdof, cdof_dot, cvel, qpos, qd, chain, body, gains, M, bias, Jp, on, c
             A[r, :nv] = J[i]
             lo[r] = hi[r] = -rate[i] - gains[G_DAMP] * _dot(J[i], qd)
             equality[r] = True
+    for r in range(N_BASE):
+        dual_qp.row_span(A, r, 0, n, span)
+    for r in range(N_BASE, 3 * N_BASE):  # empty where the foot is not carried
+        dual_qp.row_span(A, r, 0, nv, span)
     at = 3 * N_BASE
     mu = gains[G_MU]
     for p in range(n_pts):
@@ -316,6 +323,8 @@ def _rows(cdof, cdof_dot, cvel, qpos, qd, chain, body, gains, M, bias, Jp, on, c
                 A[r + c, nv + 3 * p + (2 - c)] = 1.0
                 lo[r + c] = hi[r + c] = 0.0
                 equality[r + c] = True
+        for c in range(5):  # a point's rows touch its own force only
+            dual_qp.row_span(A, r + c, fx, fz + 1, span)
     at += 5 * n_pts
     for k in range(n_act):  # each joint approaches its stops no faster than a critically damped spring
         j, qa = act_dofs[k], act_qpos[k]
@@ -324,6 +333,7 @@ def _rows(cdof, cdof_dot, cvel, qpos, qd, chain, body, gains, M, bias, Jp, on, c
         high = -gains[G_JK] * (qpos[qa] - stop_hi[k]) - gains[G_JD] * qd[j]
         lo[at + k] = low if np.isfinite(low) else -np.inf
         hi[at + k] = high if np.isfinite(high) else np.inf
+        dual_qp.row_span(A, at + k, j, j + 1, span)
     at += n_act
     for k in range(n_act):  # tau = M_a qdd + h_a - J_a' f within the motor's limit
         j = act_dofs[k]
@@ -332,4 +342,5 @@ def _rows(cdof, cdof_dot, cvel, qpos, qd, chain, body, gains, M, bias, Jp, on, c
             A[at + k, nv + p] = -Jp[p, j]
         lo[at + k] = -torque_limit[k] - bias[j]
         hi[at + k] = torque_limit[k] - bias[j]
-    return A, lo, hi, equality
+        dual_qp.row_span(A, at + k, 0, n, span)
+    return A, lo, hi, equality, span

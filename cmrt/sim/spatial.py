@@ -23,12 +23,12 @@ from __future__ import annotations
 
 import copy
 import functools
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import mujoco
 import numpy as np
-from numba import njit
 
 from cmrt.body.character import (
     FOOT_POINT_RADIUS_M,
@@ -41,9 +41,10 @@ from cmrt.body.one_leg import one_leg_poses
 from cmrt.control import spatial_kernel
 from cmrt.control.compiled import note_first_compile
 from cmrt.control.controller import ControllerConfig
-from cmrt.control.spatial import SpatialController, SpatialPlan, SpatialTargets
+from cmrt.control.spatial import SpatialController, SpatialPlan, SpatialTargets, SpatialTargetTable
 from cmrt.errors import CmrtError
 from cmrt.motion.curve import Cmrt
+from cmrt.sim import mjc, spatial_loop
 from cmrt.sim.balance import BalanceLimits
 from cmrt.sim.monitor import PROTECTIVE_DAMPING_PER_RAD_S, PROTECTIVE_STIFFNESS_PER_RAD
 from cmrt.sim.objective import (
@@ -117,71 +118,155 @@ class StandResult:
 def stand_pose_qpos(pose_deg: dict[str, float] | None = None) -> np.ndarray:
     """The 3D body standing feet flat in a pose (degrees by joint name; default: the stand task's, every joint at
     zero)."""
-    pose = pose_deg if pose_deg is not None else {}
-    return feet_flat_qpos(joint_angles_from_pose({k: np.radians(v) for k, v in pose.items()}, BODY), body=BODY)
+    return _pose_qpos(tuple(sorted((pose_deg or {}).items()))).copy()
+
+
+@functools.lru_cache(maxsize=64)
+def _pose_qpos(pose_deg: tuple[tuple[str, float], ...]) -> np.ndarray:
+    """``stand_pose_qpos``, once per pose (its balance solve was a tenth of a clip's Python)."""
+    return feet_flat_qpos(joint_angles_from_pose({k: np.radians(v) for k, v in pose_deg}, BODY), body=BODY)
 
 
 def feet_centre_xy(qpos: np.ndarray) -> np.ndarray:
     """The centre of the 3D body's foot points in pose ``qpos`` (world x, y; m): both feet's support centre."""
     ch = character(BODY)
-    d = mujoco.MjData(ch.model)
+    d = _scratch()
     d.qpos[:] = qpos
     mujoco.mj_kinematics(ch.model, d)
     return d.geom_xpos[list(ch.foot_point_geoms), :2].mean(axis=0)
 
 
+_local = threading.local()
+
+
+def _scratch() -> mujoco.MjData:
+    """A data of the body's model for kinematics passes, one per thread (a new MjData costs 0.35 ms: two a leg lift
+    were a sixth of its clip's Python)."""
+    if not hasattr(_local, "data"):
+        _local.data = mujoco.MjData(character(BODY).model)
+    return _local.data
+
+
+@dataclass(frozen=True)
+class ClipSamples:
+    """What a clip records, written in place by either loop (``spatial_loop.run_clip``, ``_run_with_prop``): at
+    each control step (n samples) the CoM, the executed and the planned CoP, the pose, the CoP's margin, the
+    planted points' places, the fastest joint and the motors' commands held from it on; at every physics step the
+    foot points' touch sensors."""
+
+    com_m: np.ndarray  # (n, 3)
+    cop_xy_m: np.ndarray  # (n, 2) executed: the touch sensors' over the control step before the sample
+    plan_cop_xy_m: np.ndarray  # (n, 2) planned for that control step (NaN after a fall)
+    qpos: np.ndarray  # (n, nq) the clip's model's (a prop's coordinates after the body's)
+    margin_m: np.ndarray  # (n,)
+    planted_xy_m: np.ndarray  # (n, points, 2): NaN where a point carries less than PLANTED_FORCE_N
+    joint_speed_rad_s: np.ndarray  # (n,)
+    ctrl_nm: np.ndarray  # (n, nu)
+    touch_n: np.ndarray  # (physics steps, points)
+
+    @classmethod
+    def empty(cls, steps: int, every: int, m: mujoco.MjModel, n_points: int) -> ClipSamples:
+        n = -(-steps // every)  # the control steps: every ``every``-th physics step from the first
+        return cls(np.empty((n, 3)), np.empty((n, 2)), np.empty((n, 2)), np.empty((n, m.nq)), np.empty(n),
+                   np.empty((n, n_points, 2)), np.empty(n), np.empty((n, m.nu)), np.empty((steps, n_points)))
+
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        """In field order: what ``spatial_loop.run_clip`` writes."""
+        return (self.com_m, self.cop_xy_m, self.plan_cop_xy_m, self.qpos, self.margin_m, self.planted_xy_m,
+                self.joint_speed_rad_s, self.ctrl_nm, self.touch_n)
+
+
 def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0, 0.0), push_start_s: float = 1.0,
              push_duration_s: float = 0.1, config: ControllerConfig = ControllerConfig(),
-             motion: Callable[[float], SpatialTargets] | None = None, start_qpos: np.ndarray | None = None,
-             held: HeldProp | None = None) -> StandResult:
+             motion: SpatialTargetTable | None = None, start_qpos: np.ndarray | None = None,
+             held: HeldProp | None = None, compiled: bool = True) -> StandResult:
     """Simulate the 3D body standing for ``clip_s`` (from ``start_qpos``, default the standing pose), pushed at the
-    thorax by ``push_n``; ``motion``: the controller's targets at each control step's time (None: hold the start
-    pose); ``held``: the task's prop (a ball to catch), its load on the hands known to the plan and its held mass
-    counted in what balances and falls. A fall plays out in the planar clips' protective mode."""
+    thorax by ``push_n``; ``motion``: the controller's targets at each control step (None: hold the start pose);
+    ``held``: the task's prop (a ball to catch), its load on the hands known to the plan and its held mass counted
+    in what balances and falls. A fall plays out in the planar clips' protective mode. A clip without a prop runs
+    whole in compiled code (``cmrt.sim.spatial_loop``; ``compiled=False``: the Python loop a prop needs, the same
+    clip bit for bit - for the tests that say so)."""
     ch = character(BODY)
     inputs = ClipInputs(stand_pose_qpos() if start_qpos is None else np.asarray(start_qpos, float),
                         tuple(float(f) for f in push_n), push_start_s, push_duration_s, held, clip_s,
                         config.control_every)
     m, d, prop = _clip_start(inputs)
-    note_first_compile(dispatcher=spatial_kernel.plan_step)  # the first 3D clip after an install compiles: say so
     ctl = SpatialController(ch, d.qpos[:ch.model.nq].copy(), config, model=m)
+    table = motion if motion is not None else SpatialTargetTable()
+    steps = int(round(clip_s / m.opt.timestep))
+    out = ClipSamples.empty(steps, config.control_every, m, len(ch.foot_point_geoms))
+    if prop is None and compiled:
+        note_first_compile(dispatcher=spatial_loop.run_clip)  # the first 3D clip after an install compiles: say so
+        fall, infeasible = _run_compiled(m, d, ctl, inputs, table, out)
+    else:
+        note_first_compile(dispatcher=spatial_kernel.plan_step)
+        fall, infeasible = _run_with_prop(m, d, ctl, inputs, table, prop, out)
+    result = _finished(m, d, ctl, out, (fall, infeasible), push_start_s, prop)
+    return replace(result, ctrl_nm=out.ctrl_nm, inputs=inputs)
+
+
+def _run_compiled(m: mujoco.MjModel, d: mujoco.MjData, ctl: SpatialController, inputs: ClipInputs,
+                  table: SpatialTargetTable, out: ClipSamples) -> tuple[tuple[float, np.ndarray] | None, int]:
+    """A clip without a prop, whole in ``spatial_loop.run_clip``: returns (the fall: its time and the capture
+    point's way out, or None; the control steps without a plan within the limits)."""
+    ch, c = character(BODY), mjc.c_functions()
+    ctl.start(d)
+    points = np.array(ch.foot_point_geoms, dtype=np.int64)
+    fields = (d.cdof, d.cdof_dot, d.cvel, d.cinert, d.qpos, d.qvel, d.M, d.qfrc_bias, d.subtree_com, d.geom_xpos,
+              d.xpos, d.xquat)
+    data = (d.qpos, d.qvel, d.ctrl, d.xfrc_applied, d.sensordata[:points.size], d.geom_xpos, d.subtree_com,
+            d.subtree_linvel, d.xmat, fields)
+    dt = m.opt.timestep
+    clip = (out.touch_n.shape[0], inputs.control_every, dt, SETTLE_S - 1e-12, np.asarray(inputs.push_n, float),
+            inputs.push_start_s, inputs.push_start_s + inputs.push_duration_s, ch.thorax_body, points,
+            np.array(ch.actuated_dofs, dtype=np.int64), PLANTED_FORCE_N, FOOT_POINT_RADIUS_M, CONTACT_HEIGHT_M)
+    controller = (ctl.compiled_parts(), ctl.mass_kg, ctl.com_ref_m)
+    judge = (*_feet(), _LIMITS_VECTOR, _protective_parts(m))
+    fall_k, offset, infeasible = spatial_loop.run_clip(
+        c.step, c.subtree_vel, (m._address, d._address), data, clip, controller,
+        ctl.table_arrays(table, out.com_m.shape[0]), judge, out.arrays())
+    return (None if fall_k < 0 else (fall_k * dt, offset)), int(infeasible)
+
+
+def _run_with_prop(m: mujoco.MjModel, d: mujoco.MjData, ctl: SpatialController, inputs: ClipInputs,
+                   table: SpatialTargetTable, prop: PropClip | None, out: ClipSamples
+                   ) -> tuple[tuple[float, np.ndarray] | None, int]:
+    """``spatial_loop.run_clip``'s loop in Python, with the prop's logic at every physics step; the same returns."""
+    ch = character(BODY)
     points = np.array(ch.foot_point_geoms)
-    n_pts, acts, every, dt = len(points), np.array(ch.actuated_dofs), config.control_every, m.opt.timestep
-    push = np.asarray(push_n, float)
-    rows: list[tuple] = []
-    ctrl: list[np.ndarray] = []  # the motors' commands from each control step on
-    steps = int(round(clip_s / dt))
-    touches = np.empty((steps, n_pts))  # the touch sensors at every physics step (N)
+    n_pts, acts, every, dt = len(points), np.array(ch.actuated_dofs), inputs.control_every, m.opt.timestep
+    push, push_end = np.asarray(inputs.push_n, float), inputs.push_start_s + inputs.push_duration_s
     infeasible = 0
     fall: tuple[float, np.ndarray] | None = None  # (time, the capture point's way out of the support)
     held_cop = np.full(2, np.nan)  # the CoP the torques held since the last control step were planned for
     thorax, xfrc, geom_xpos = ch.thorax_body, d.xfrc_applied, d.geom_xpos
     sensors = d.sensordata[:n_pts]  # the foot points' touch sensors (a view: the data's buffer is fixed)
     pushing = False
-    for k in range(steps):
+    for k in range(out.touch_n.shape[0]):
         t, control = k * dt, k % every == 0
         if prop is not None and fall is None:
             prop.step(t, control)
         if control:
+            i = k // every
             touch = sensors.copy()
             xy = geom_xpos[points, :2]
-            total = touch.sum()
-            cop = touch @ xy / total if total > 0 else np.full(2, np.nan)
-            rows.append((t, d.subtree_com[1].copy(), cop, held_cop, d.qpos.copy(),
-                         *_sample(cop, touch, xy, d.qvel, acts, PLANTED_FORCE_N)))
+            cop = spatial_loop.executed_cop(touch, xy)
+            out.com_m[i], out.cop_xy_m[i], out.plan_cop_xy_m[i], out.qpos[i] = d.subtree_com[1], cop, held_cop, d.qpos
+            out.margin_m[i], out.planted_xy_m[i], out.joint_speed_rad_s[i] = spatial_loop.sample(
+                cop, touch, xy, d.qvel, acts, PLANTED_FORCE_N)
             if fall is None and t >= SETTLE_S - 1e-12:  # judged once the first contacts have settled: a pose
                 fall = _fallen(m, d, t, touch, prop)  # placed just on the floor touches with no force at first
                 if fall is not None:
-                    _protective(m, ch, d)
+                    _protective(m, d)
                     if prop is not None:
                         prop.judge(dt)  # a fall freezes the prop's verdict
             if fall is None:
                 on_floor = geom_xpos[points, 2] - FOOT_POINT_RADIUS_M < CONTACT_HEIGHT_M  # the planar rule
-                plan = _planned(ctl, d, on_floor, SpatialTargets() if motion is None else motion(t), prop)
+                plan = _planned(ctl, d, on_floor, table.at(i), prop)
                 infeasible += ctl.infeasible
                 if plan is None:  # no plan at all, even past the motors' limits: the body is lost - scored as a
                     fall = (t, np.zeros(2))  # fall (penalised), not a crash of the search
-                    _protective(m, ch, d)
+                    _protective(m, d)
                     if prop is not None:
                         prop.judge(dt)
                 else:
@@ -189,52 +274,75 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
                     held_cop = plan.cop_xy_m
             if fall is not None:
                 held_cop = np.full(2, np.nan)
-            ctrl.append(d.ctrl.copy())
-        if (push_start_s <= t < push_start_s + push_duration_s) != pushing:  # the push starts or ends
+            out.ctrl_nm[i] = d.ctrl
+        if (inputs.push_start_s <= t < push_end) != pushing:  # the push starts or ends
             pushing = not pushing
             xfrc[thorax, :3] = push if pushing else 0.0
         mujoco.mj_step(m, d)
-        touches[k] = sensors
+        out.touch_n[k] = sensors
         if prop is not None:
             prop.record()
-    ground = touches.sum(axis=1).tolist()
-    result = _finished(m, d, ctl, rows, (fall, infeasible, ground), push_start_s, prop)
-    return replace(result, ctrl_nm=np.array(ctrl), inputs=inputs)
+    return fall, infeasible
 
 
 def _clip_start(inputs: ClipInputs) -> tuple[mujoco.MjModel, mujoco.MjData, PropClip | None]:
     """A clip's own model (protective mode and a prop change it) and data at its start pose, its prop in place
     before the first forward."""
     ch, held = character(BODY), inputs.held
-    m = copy.deepcopy(ch.model if held is None else held.model)
-    d = mujoco.MjData(m)
+    if held is None:
+        m, d = _clip_pair()
+    else:
+        m = copy.deepcopy(held.model)
+        d = mujoco.MjData(m)
     d.qpos[:ch.model.nq] = inputs.start_qpos
     prop = PropClip(held, m, d) if held is not None else None
     mujoco.mj_forward(m, d)
     return m, d, prop
 
 
+def _clip_pair() -> tuple[mujoco.MjModel, mujoco.MjData]:
+    """A clip without a prop's model and data, one pair per thread, reset: the body's model with the protective
+    mode's arrays (a fall writes them) restored from the body's, the data ``mj_resetData``'s - what a fresh copy
+    and a new MjData are (tests/sim/test_spatial_loop.py), without the 0.5 ms they cost a clip."""
+    ch = character(BODY)
+    if not hasattr(_local, "clip"):
+        model = copy.deepcopy(ch.model)
+        _local.clip = (model, mujoco.MjData(model))
+    m, d = _local.clip
+    for name in ("jnt_stiffness", "dof_damping", "qpos_spring"):
+        getattr(m, name)[:] = getattr(ch.model, name)
+    mujoco.mj_resetData(m, d)
+    return m, d
+
+
 def replay_3d(r: StandResult, com_out: np.ndarray | None = None) -> int:
     """Step ``r``'s clip again open loop: its recorded torques at each control step (held in between), its push,
     its prop's own per-step behaviour and, from its fall, the protective mode - the clip's physics alone, what
-    ``cmrt bench`` times as the floor. ``com_out`` (n, 3): filled with the CoM at each of ``r``'s samples (not
-    while timing; it equals ``r.com_m`` when the replay is the clip). Returns the physics steps taken."""
+    ``cmrt bench`` times as the floor (a clip without a prop in compiled code, as it ran: ``spatial_loop``).
+    ``com_out`` (n, 3): filled with the CoM at each of ``r``'s samples (not while timing; it equals ``r.com_m`` when
+    the replay is the clip). Returns the physics steps taken."""
     inputs, ch = r.inputs, character(BODY)
     m, d, prop = _clip_start(inputs)
     push = np.asarray(inputs.push_n, float)
     fall_sample = -1 if r.fall_time_s is None else int(np.searchsorted(r.time_s, r.fall_time_s - 1e-12))
     steps, every, dt = int(round(inputs.clip_s / m.opt.timestep)), inputs.control_every, m.opt.timestep
     window = (inputs.push_start_s, inputs.push_start_s + inputs.push_duration_s)
+    if prop is None:
+        c = mjc.c_functions()
+        return spatial_loop.replay_clip(
+            c.step, (m._address, d._address), (d.qpos, d.ctrl, d.xfrc_applied, d.subtree_com),
+            (steps, every, dt, push, *window, ch.thorax_body), np.ascontiguousarray(r.ctrl_nm), fall_sample,
+            _protective_parts(m), np.zeros((0, 3)) if com_out is None else com_out)
     for k in range(steps):
         t, control = k * dt, k % every == 0
         sample = k // every
-        if prop is not None and (fall_sample < 0 or k <= fall_sample * every):  # a fall stops the prop's logic
+        if fall_sample < 0 or k <= fall_sample * every:  # a fall stops the prop's logic
             prop.step(t, control)
         if control:
             if com_out is not None:
                 com_out[sample] = d.subtree_com[1]
             if sample == fall_sample:
-                _protective(m, ch, d)
+                _protective(m, d)
             d.ctrl[:] = r.ctrl_nm[sample]
         d.xfrc_applied[ch.thorax_body, :3] = push if window[0] <= t < window[1] else 0.0
         mujoco.mj_step(m, d)
@@ -266,16 +374,13 @@ def _plan_for(ctl: SpatialController, d: mujoco.MjData, loaded: np.ndarray, targ
     return ctl.plan(d, loaded, targets, prop.load(ctl.nv))
 
 
-def _finished(m: mujoco.MjModel, d: mujoco.MjData, ctl: SpatialController, rows: list[tuple],
-              outcome: tuple[tuple[float, np.ndarray] | None, int, list[float]], push_start_s: float,
+def _finished(m: mujoco.MjModel, d: mujoco.MjData, ctl: SpatialController, out: ClipSamples,
+              outcome: tuple[tuple[float, np.ndarray] | None, int], push_start_s: float,
               prop: PropClip | None) -> StandResult:
-    """The clip's result from its control-step samples (``rows``) and its outcome (the fall, the infeasible
-    steps, the ground force every physics step), the prop's verdict and figures with it."""
-    fall, infeasible, ground = outcome
-    time_s = np.array([r[0] for r in rows])
-    com = np.array([r[1] for r in rows])
-    cop, plan_cop = np.array([r[2] for r in rows]), np.array([r[3] for r in rows])
-    qpos, margin = np.array([r[4] for r in rows]), np.array([r[5] for r in rows])
+    """The clip's result from its samples and its outcome (the fall, the infeasible steps), the prop's verdict and
+    figures with it."""
+    fall, infeasible = outcome
+    time_s = np.arange(0, out.touch_n.shape[0], ctl.config.control_every) * m.opt.timestep  # k x dt, as stepped
     mujoco.mj_subtreeVel(m, d)
     impacts = (push_start_s,)
     if prop is not None:
@@ -283,14 +388,16 @@ def _finished(m: mujoco.MjModel, d: mujoco.MjData, ctl: SpatialController, rows:
         force = np.array(prop.force_n)
         first = contact_summary(force, force_times_s(force.size, m.opt.timestep), np.ones(force.size, bool))
         impacts += (first["first_contact_s"],) if first["first_contact_s"] is not None else ()
-    result = _result((time_s, qpos, com), (cop, plan_cop, margin), fall, impacts, infeasible,
+    result = _result((time_s, out.qpos, out.com_m), (out.cop_xy_m, out.plan_cop_xy_m, out.margin_m), fall, impacts,
+                     infeasible,
                      float(np.linalg.norm(d.subtree_linvel[1])))
     if prop is not None:
         result = replace(result, prop_goal=prop.goal, prop_force_n=np.array(prop.force_n),
                          prop_extras=tuple(prop.extras.items()))
+    ground = out.touch_n.sum(axis=1)
     step_t = np.arange(len(ground)) * m.opt.timestep + m.opt.timestep  # each total is after its step
-    return _with_body_figures(result, (step_t, np.array(ground) / (ctl.mass_kg * GRAVITY_M_S2)),
-                              np.array([r[6] for r in rows]), np.array([r[7] for r in rows]), impacts)
+    return _with_body_figures(result, (step_t, ground / (ctl.mass_kg * GRAVITY_M_S2)), out.planted_xy_m,
+                              out.joint_speed_rad_s, impacts)
 
 
 def _outside_impacts(t: np.ndarray, impacts: tuple[float, ...]) -> np.ndarray:
@@ -341,7 +448,7 @@ def _planted_slide_m(planted_xy: np.ndarray) -> float:
 
 
 _LIMITS = BalanceLimits()
-# what ``_fall_rules`` reads: the cos of the roll limit, the capture margin (m), the CoM's height (m), gravity
+# what ``spatial_loop.fall_rules`` reads: the cos of the roll limit, the capture margin (m), the CoM height (m), g
 _LIMITS_VECTOR = np.array([np.cos(_LIMITS.roll_rad), _LIMITS.capture_margin_m, _LIMITS.com_height_m, GRAVITY_M_S2])
 
 
@@ -365,79 +472,25 @@ def _fallen(m: mujoco.MjModel, d: mujoco.MjData, t: float, touch: np.ndarray, pr
     if prop is not None:
         com, vel = with_held(com, vel, float(m.body_subtreemass[1]), prop.held())
     feet, soles = _feet()
-    fell, offset = _fall_rules(com, vel, touch, d.geom_xpos, soles, d.xmat, feet, prop is not None and prop.leaning(),
-                               _LIMITS_VECTOR)
+    fell, offset = spatial_loop.fall_rules(com, vel, touch, d.geom_xpos, soles, d.xmat, feet,
+                                           prop is not None and prop.leaning(), _LIMITS_VECTOR)
     return (t, offset) if fell else None
 
 
-@njit(cache=True, nogil=True)
-def _fall_rules(com, vel, touch, geom_xpos, soles, xmat, feet, leaning, limits):  # pragma: no cover - compiled
-    """``_fallen``'s rules, compiled (numpy's a dozen small calls a control step were a tenth of a clip): whether
-    the body fell, and the capture point's offset from the touching soles' centre. ``soles`` (2, points per foot):
-    each foot's geoms, the right's first; ``limits``: (cos of the roll limit, capture margin m, CoM height m,
-    gravity m/s^2). The arithmetic is numpy's, in its order (a mean is a sum in order over the count)."""
-    scale = np.sqrt(limits[3] / max(com[2], 1e-3))
-    capture = np.array([com[0] + vel[0] / scale, com[1] + vel[1] / scale])
-    half = touch.size // 2  # each foot's points: the right's, then the left's
-    on = (touch[:half].max() > 0.0, touch[half:].max() > 0.0)
-    count = 0
-    for foot in range(2):
-        count += soles.shape[1] if on[foot] else 0
-    sole_xy = np.empty((count, 2))
-    k = 0
-    for foot in range(2):
-        if on[foot]:
-            for g in soles[foot]:
-                sole_xy[k, 0], sole_xy[k, 1] = geom_xpos[g, 0], geom_xpos[g, 1]
-                k += 1
-    centre = np.array([com[0], com[1]])
-    if count:
-        total = np.zeros(2)
-        for i in range(count):
-            total = total + sole_xy[i]
-        centre = total / count
-    rolled = False
-    for body in feet:
-        rolled = rolled or xmat[body, 8] < limits[0]  # a sole's normal's z
-    out = count == 0 or _hull_margin(capture[0], capture[1], sole_xy) < -limits[1]
-    out = out and not leaning
-    return rolled or out or com[2] < limits[2], capture - centre
+def _protective_parts(m: mujoco.MjModel) -> tuple[np.ndarray, ...]:
+    """The planar protective mode (``cmrt.sim.monitor``) for ``spatial_loop.protect``: motors off, every actuated
+    joint a passive spring and damper about the pose it fell in (0.1 x its motor's limit per rad and per rad/s),
+    integrated by MuJoCo - (the joints, their dofs, their qpos, the stiffness and damping, and the clip's own model's
+    arrays they go into)."""
+    joints, limit = m.actuator_trnid[:, 0], character(BODY).torque_limit_nm
+    return (joints.astype(np.int64), m.jnt_dofadr[joints].astype(np.int64), m.jnt_qposadr[joints].astype(np.int64),
+            PROTECTIVE_STIFFNESS_PER_RAD * limit, PROTECTIVE_DAMPING_PER_RAD_S * limit, m.jnt_stiffness,
+            m.dof_damping, m.qpos_spring)
 
 
-@njit(cache=True, nogil=True)
-def _sample(cop, touch, xy, qvel, acts, planted_n):  # pragma: no cover - compiled
-    """A control step's sample beside the CoP: the CoP's margin inside the touching points (``_margin``), each
-    point's place where it carries ``planted_n`` or more (NaN elsewhere) and the fastest actuated joint (rad/s) -
-    compiled, as numpy's small calls were a control step's cost; the arithmetic is theirs."""
-    n = touch.size
-    touching = 0
-    for p in range(n):
-        touching += touch[p] > 0.0
-    pts = np.empty((touching, 2))
-    k = 0
-    for p in range(n):
-        if touch[p] > 0.0:
-            pts[k, 0], pts[k, 1] = xy[p, 0], xy[p, 1]
-            k += 1
-    margin = _hull_margin(cop[0], cop[1], pts)
-    planted = np.empty((n, 2))
-    for p in range(n):
-        on = 1.0 if touch[p] >= planted_n else np.nan
-        planted[p, 0], planted[p, 1] = on * xy[p, 0], on * xy[p, 1]
-    speed = 0.0
-    for j in acts:
-        speed = max(speed, abs(qvel[j]))
-    return margin, planted, speed
-
-
-def _protective(m: mujoco.MjModel, ch, d: mujoco.MjData) -> None:
-    """The planar protective mode (``cmrt.sim.monitor``): motors off, every actuated joint a passive spring and
-    damper about the pose it fell in (0.1 x its motor's limit per rad and per rad/s), integrated by MuJoCo."""
-    joints = m.actuator_trnid[:, 0]
-    m.jnt_stiffness[joints] = PROTECTIVE_STIFFNESS_PER_RAD * ch.torque_limit_nm
-    m.dof_damping[m.jnt_dofadr[joints]] = PROTECTIVE_DAMPING_PER_RAD_S * ch.torque_limit_nm
-    m.qpos_spring[m.jnt_qposadr[joints]] = d.qpos[m.jnt_qposadr[joints]]
-    d.ctrl[:] = 0.0
+def _protective(m: mujoco.MjModel, d: mujoco.MjData) -> None:
+    """The protective mode a fall starts (``_protective_parts``), from Python."""
+    spatial_loop.protect(_protective_parts(m), d.qpos, d.ctrl)
 
 
 def _margin(cop: np.ndarray, touching_xy: np.ndarray) -> float:
@@ -447,44 +500,7 @@ def _margin(cop: np.ndarray, touching_xy: np.ndarray) -> float:
     step made it 40 % of a leg lift's clip) and the same to rounding (a test); compiled, as numpy's 15 calls cost
     60 us a call - a fifth of a clip's time before its QP was written in blocks."""
     cop = np.asarray(cop, float)
-    return _hull_margin(cop[0], cop[1], np.ascontiguousarray(touching_xy, dtype=float).reshape(-1, 2))
-
-
-@njit(cache=True, nogil=True)
-def _hull_margin(x: float, y: float, pts: np.ndarray) -> float:  # pragma: no cover - compiled
-    """``_margin``, compiled (the clip's samples and fall rules call it too): 0 for a point that is not finite or
-    fewer than three points; else each ordered pair (i, j) is an edge of the hull when every point lies on or behind
-    the line i -> j turned clockwise (tolerance 1e-9 of the points' span), and the margin is the smallest distance
-    to an edge's line, negative outside."""
-    n = pts.shape[0]
-    if not (np.isfinite(x) and np.isfinite(y)) or n < 3:
-        return 0.0
-    scale = 1e-12
-    for i in range(n):
-        for j in range(n):
-            scale = max(scale, abs(pts[j, 0] - pts[i, 0]), abs(pts[j, 1] - pts[i, 1]))
-    tol = 1e-9 * scale
-    flat = True  # every point on every edge's line: no area
-    best = -np.inf  # the largest signed distance outside a hull edge
-    for i in range(n):
-        for j in range(n):
-            nx, ny = pts[j, 1] - pts[i, 1], -(pts[j, 0] - pts[i, 0])
-            length = np.sqrt(nx * nx + ny * ny)
-            if not length > tol:
-                continue
-            ux, uy = nx / length, ny / length
-            behind = True
-            for k in range(n):
-                side = ux * (pts[k, 0] - pts[i, 0]) + uy * (pts[k, 1] - pts[i, 1])
-                if abs(side) > tol:
-                    flat = False
-                if side > tol:
-                    behind = False
-            if behind:
-                best = max(best, ux * (x - pts[i, 0]) + uy * (y - pts[i, 1]))
-    if flat or best == -np.inf:
-        return 0.0
-    return -best
+    return spatial_loop.hull_margin(cop[0], cop[1], np.ascontiguousarray(touching_xy, dtype=float).reshape(-1, 2))
 
 
 def _result(motion: tuple[np.ndarray, np.ndarray, np.ndarray], cops: tuple[np.ndarray, np.ndarray, np.ndarray],
@@ -527,13 +543,15 @@ class LegLiftClip:
 @dataclass(frozen=True)
 class _LegLiftReference:
     """A leg lift's reference without its CMRT - the same for every clip of a task at a speed, so made once: the
-    poses, both feet's centre, lift-off, and ``at(t)``: (q, qd, qdd, the CoM's reference, its rate, the CoP's, and
-    from lift-off the swing foot's path and rate, else None), for the control steps' times made ahead."""
+    poses, both feet's centre, lift-off, and at every control step (n rows) the targets without the CMRT (its
+    ``com_vel_xy_m_s`` the reference's own rate before lift-off, 0 after) and whether the foot is lifting."""
 
     poses: object
     both_xy_m: np.ndarray
     lift_at_s: float
-    at: Callable[[float], tuple]
+    table: SpatialTargetTable
+    lifting: np.ndarray  # (n,) bool
+    foot_start_z_m: float  # the lifted foot's frame's height standing
 
 
 @functools.lru_cache(maxsize=32)
@@ -574,8 +592,14 @@ def _leg_lift_reference(shift_s: float, lift_s: float, clip_s: float, stance: in
         centre = poses.stance_centre_xy_m
         return q, qd, qdd, centre if reference == "center" else com, None, centre, foot, foot_vel
 
-    made = {t: at(t) for t in control_times_s(clip_s, control_every).tolist()}
-    return _LegLiftReference(poses, both, lift_at_s, lambda t: made[t] if t in made else at(t))
+    rows = [at(t) for t in control_times_s(clip_s, control_every).tolist()]
+    lifting = np.array([row[6] is not None for row in rows])
+
+    def column(j: int, width: int) -> np.ndarray:
+        return np.array([row[j] if row[j] is not None else np.zeros(width) for row in rows], dtype=float)
+    table = SpatialTargetTable(column(3, 2), column(4, 2), column(5, 2), column(0, 0), column(1, 0), column(2, 0),
+                               np.where(lifting, 1 - stance, -1), column(6, 3), column(7, 3))
+    return _LegLiftReference(poses, both, lift_at_s, table, lifting, float(reference_of(poses.standing)[1][2]))
 
 
 def leg_lift_3d(shift_s: float = 1.5, lift_s: float = 0.8, clip_s: float = 5.0, stance: int = 1,
@@ -597,41 +621,26 @@ def leg_lift_3d(shift_s: float = 1.5, lift_s: float = 0.8, clip_s: float = 5.0, 
     ref = _leg_lift_reference(shift_s, lift_s, clip_s, stance, start_s, reference, config.control_every)
     poses, both, lift_at_s, swing = ref.poses, ref.both_xy_m, ref.lift_at_s, 1 - stance
     ch = character(BODY)
-    m, scratch, d0 = ch.model, mujoco.MjData(ch.model), mujoco.MjData(ch.model)
-    d0.qpos[:] = poses.standing
-    mujoco.mj_kinematics(m, d0)
+    m, scratch = ch.model, _scratch()
     foot_body, up = ch.foot_bodies[swing], np.array([0.0, 1.0])
     curve = cmrt_y if cmrt_y is not None else Cmrt.zero(clip_s)
-    shift, forward = (_sampled(curve, clip_s, config.control_every),
-                      _crossed(cmrt_x, clip_s, config.control_every, np.array([1.0, 0.0])))
-
-    def plan(t: float) -> tuple[np.ndarray, SpatialTargets]:
-        """The reference pose at ``t`` and the controller's targets (a two-axis CMRT's forward part: ``forward``)."""
-        d_m, v_m_s = shift(t)
-        q, qd, qdd, com, vel, cop, foot, foot_vel = ref.at(t)
-        if foot is None:
-            return q, SpatialTargets(com_xy_m=com + d_m * up, com_vel_xy_m_s=vel + v_m_s * up, cop_xy_m=cop, q_ref=q,
-                                     qd_ref=qd, qdd_ref=qdd)
-        return q, SpatialTargets(com_xy_m=com + d_m * up, com_vel_xy_m_s=v_m_s * up, cop_xy_m=cop, q_ref=q,
-                                 qd_ref=qd, qdd_ref=qdd, swing_foot=swing, swing_pos_m=foot, swing_vel_m_s=foot_vel)
-
+    shift_m, shift_m_s = _sampled(curve, clip_s, config.control_every)
+    own = ref.table
+    lifting = ref.lifting[:, None]  # from lift-off the CoM's rate is the CMRT's alone
+    table = replace(own, com_xy_m=own.com_xy_m + shift_m[:, None] * up,
+                    com_vel_xy_m_s=np.where(lifting, shift_m_s[:, None] * up,
+                                            own.com_vel_xy_m_s + shift_m_s[:, None] * up))
+    table = _crossed(table, cmrt_x, clip_s, config.control_every, np.array([1.0, 0.0]))
     force, push_start_s, push_duration_s = push if push is not None else ((0.0, 0.0, 0.0), clip_s, 0.1)
-    given: dict[float, tuple[np.ndarray, SpatialTargets]] = {}  # what each control step was given, by its time
-
-    def motion(t: float) -> SpatialTargets:
-        given[t] = forward(t, *plan(t))
-        return given[t][1]
-
     result = stand_3d(clip_s=clip_s, push_n=force, push_start_s=push_start_s, push_duration_s=push_duration_s,
-                      config=config, motion=motion)
-    planned = [given.get(float(t)) or plan(float(t)) for t in result.time_s]  # after a fall no step asked
+                      config=config, motion=table)
     scratch.qpos[:] = result.qpos[-1]
     mujoco.mj_kinematics(m, scratch)
     k0 = int(np.searchsorted(result.time_s, start_s - 1e-9))
     k1 = max(int(np.searchsorted(result.time_s, lift_at_s - 1e-9)) - 1, k0)
     toward = 1.0 if poses.stance_centre_xy_m[1] > both[1] else -1.0
-    return LegLiftClip(result, float(scratch.xpos[foot_body][2] - d0.xpos[foot_body][2]), lift_at_s,
-                       np.array([p[1].cop_xy_m for p in planned]), np.array([p[0] for p in planned]),
+    return LegLiftClip(result, float(scratch.xpos[foot_body][2] - ref.foot_start_z_m), lift_at_s,
+                       table.cop_xy_m.copy(), table.q_ref.copy(),
                        toward * float(result.com_m[k1, 1] - result.com_m[k0, 1]))
 
 
@@ -646,46 +655,34 @@ def pose_change_3d(reference: Callable[[np.ndarray], tuple[np.ndarray, np.ndarra
     ``leg_lift_3d``'s, ``held`` as ``stand_3d``'s."""
     centre = feet_centre_xy(start_qpos)
     forward = np.array([1.0, 0.0])
-    times = control_times_s(clip_s, config.control_every)  # the reference at every control step at once: one at a
-    poses = reference(times)  # time, it was 40 % of a clip's time
-    at = {float(t): k for k, t in enumerate(times)}
-    shift = _sampled(cmrt_x, clip_s, config.control_every)
-    cross = _crossed(cmrt_y, clip_s, config.control_every, np.array([0.0, 1.0]))
-
-    def motion(t: float) -> SpatialTargets:
-        q, qd, qdd = (values[at[t]] for values in poses)
-        shift_m, shift_m_s = shift(t)
-        return cross(t, q, SpatialTargets(com_xy_m=centre + shift_m * forward, com_vel_xy_m_s=shift_m_s * forward,
-                                          cop_xy_m=centre, q_ref=q, qd_ref=qd, qdd_ref=qdd))[1]
-
+    times = control_times_s(clip_s, config.control_every)
+    q, qd, qdd = reference(times)  # the reference at every control step at once
+    shift_m, shift_m_s = _sampled(cmrt_x, clip_s, config.control_every)
+    n = times.size
+    table = SpatialTargetTable(centre + shift_m[:, None] * forward, shift_m_s[:, None] * forward,
+                               np.broadcast_to(centre, (n, 2)), q, qd, qdd)
+    motion = _crossed(table, cmrt_y, clip_s, config.control_every, np.array([0.0, 1.0]))
     force, push_start_s, push_duration_s = push if push is not None else ((0.0, 0.0, 0.0), clip_s, 0.1)
     result = stand_3d(clip_s=clip_s, push_n=force, push_start_s=push_start_s, push_duration_s=push_duration_s,
                       config=config, motion=motion, start_qpos=start_qpos, held=held)
     return result, reference(result.time_s)[0]
 
 
-def _crossed(curve: Cmrt | None, clip_s: float, control_every: int, axis: np.ndarray
-             ) -> Callable[[float, np.ndarray, SpatialTargets], tuple[np.ndarray, SpatialTargets]]:
-    """A two-axis CMRT's second displacement (``Cmrt.cross``) along ``axis`` (a unit xy vector) added to a control
-    step's CoM reference and its rate; None: the targets as they are (a one-axis CMRT's clip, bit for bit)."""
+def _crossed(table: SpatialTargetTable, curve: Cmrt | None, clip_s: float, control_every: int, axis: np.ndarray
+             ) -> SpatialTargetTable:
+    """A two-axis CMRT's second displacement (``Cmrt.cross``) along ``axis`` (a unit xy vector) added to the CoM's
+    reference and its rate at every control step; None: the table as it is (a one-axis CMRT's clip, bit for bit)."""
     if curve is None:
-        return lambda t, q, targets: (q, targets)
-    shift = _sampled(curve, clip_s, control_every)
-
-    def crossed(t: float, q: np.ndarray, targets: SpatialTargets) -> tuple[np.ndarray, SpatialTargets]:
-        d_m, v_m_s = shift(t)
-        return q, replace(targets, com_xy_m=targets.com_xy_m + d_m * axis,
-                          com_vel_xy_m_s=targets.com_vel_xy_m_s + v_m_s * axis)
-    return crossed
+        return table
+    shift_m, shift_m_s = _sampled(curve, clip_s, control_every)
+    return replace(table, com_xy_m=table.com_xy_m + shift_m[:, None] * axis,
+                   com_vel_xy_m_s=table.com_vel_xy_m_s + shift_m_s[:, None] * axis)
 
 
-def _sampled(curve: Cmrt, clip_s: float, control_every: int) -> Callable[[float], tuple[float, float]]:
-    """The CMRT's displacement (m) and rate (m/s) at a time: at the control steps' times evaluated once for all
-    (one spline call a control step was a tenth of a leg lift's clip), elsewhere when asked."""
+def _sampled(curve: Cmrt, clip_s: float, control_every: int) -> tuple[np.ndarray, np.ndarray]:
+    """The CMRT's displacement (m) and rate (m/s) at every control step."""
     times = control_times_s(clip_s, control_every)
-    table = dict(zip(times.tolist(), zip(curve.displacement_m(times).tolist(), curve.velocity_m_s(times).tolist(),
-                                         strict=True), strict=True))
-    return lambda t: table[t] if t in table else (float(curve.displacement_m(t)), float(curve.velocity_m_s(t)))
+    return np.asarray(curve.displacement_m(times), float), np.asarray(curve.velocity_m_s(times), float)
 
 
 def control_times_s(clip_s: float, control_every: int) -> np.ndarray:

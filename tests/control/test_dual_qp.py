@@ -122,8 +122,10 @@ def _plan_qp(ctl: SpatialController, d: mujoco.MjData, loaded: np.ndarray, targe
         sk._swing_objective(d.cdof, d.cdof_dot, d.cvel, qd, chain, body[12][targets.swing_foot], d.xpos, d.xquat,
                             com, t, gains, H1, f)
     M, bias = sk._dynamics(d.M, body[1], body[2], d.qfrc_bias, ctl._still, nv)
-    rows, lo, hi, equality = sk._rows(d.cdof, d.cdof_dot, d.cvel, d.qpos, qd, chain, body, gains, M, bias, Jp, on,
-                                      com, d.xpos, nv + 3 * len(ctl.points))
+    rows, lo, hi, equality, span = sk._rows(d.cdof, d.cdof_dot, d.cvel, d.qpos, qd, chain, body, gains, M, bias, Jp,
+                                            on, com, d.xpos, nv + 3 * len(ctl.points))
+    # the spans the plan hands the solver are those a scan of every whole row finds
+    np.testing.assert_array_equal(span, dual_qp.spans(rows))
     return H1, np.full(3 * len(ctl.points), 2.0 * gains[sk.G_EPS]), f, rows, lo, hi, equality
 
 

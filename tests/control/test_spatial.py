@@ -76,7 +76,8 @@ def test_a_diagonal_push_keeps_every_planned_force_in_mujocos_cone(monkeypatch):
         return out
 
     monkeypatch.setattr(SpatialController, "plan", recorded)
-    stand_3d(clip_s=1.5, push_n=(120.0, 120.0, 0.0), push_start_s=0.5, push_duration_s=0.1)
+    stand_3d(clip_s=1.5, push_n=(120.0, 120.0, 0.0), push_start_s=0.5, push_duration_s=0.1,
+             compiled=False)  # the Python loop calls ``plan`` (the compiled one is the same clip)
     f = np.concatenate(forces)
     loaded = f[:, 2] > 1.0
     ratio = np.abs(f[loaded, :2]).sum(axis=1) / f[loaded, 2]

@@ -196,7 +196,8 @@ def test_same_prop_task_same_result(name, params):
     assert np.array_equal(a.result.prop_force_n, b.result.prop_force_n) and a.prop_figures() == b.prop_figures()
 
 
-@pytest.mark.parametrize("name", ["catch3d", "push3d"])  # each falls without a CMRT, a prop's logic replayed
+@pytest.mark.parametrize("name", ["catch3d", "push3d", "leg-lift"])  # each falls without a CMRT: a prop's logic
+# replayed in Python, a clip without one in compiled code
 def test_a_3d_clips_torques_replayed_open_loop_are_the_clip(name):
     """``replay_3d``, the floor ``cmrt bench`` times: the clip's recorded torques, push, prop and protective mode
     stepped again with no controller give the closed-loop CoM at every sample, bit for bit - fall and all."""

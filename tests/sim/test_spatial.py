@@ -140,8 +140,8 @@ def test_a_step_with_no_plan_at_all_is_a_fall_not_a_crash(monkeypatch):
         return plan(self, d, *args, **kwargs)
 
     monkeypatch.setattr(SpatialController, "plan", failing)
-    r = stand_3d(clip_s=1.5)
-    assert r.fell and r.fall_time_s == pytest.approx(0.5, abs=0.01) and r.infeasible_steps == 1
+    r = stand_3d(clip_s=1.5, compiled=False)  # the loop that calls ``plan`` (tests/sim/test_spatial_loop.py: the
+    assert r.fell and r.fall_time_s == pytest.approx(0.5, abs=0.01) and r.infeasible_steps == 1  # compiled one)
     assert "balance" in r.failed_rules
     assert np.all(r.ctrl_nm[np.searchsorted(r.time_s, r.fall_time_s):] == 0.0)  # the motors off from the fall on
     com = np.full_like(r.com_m, np.nan)
@@ -150,11 +150,11 @@ def test_a_step_with_no_plan_at_all_is_a_fall_not_a_crash(monkeypatch):
 
 
 def test_a_samples_margin_planted_points_and_joint_speed_are_numpys():
-    """The compiled sample (``_sample``) is the numpy expressions it replaced, bit for bit: the CoP's margin inside
-    the touching points (``_margin``), each point's place where it carries 5 N or more (NaN elsewhere), the fastest
-    actuated joint; and with fewer than three points touching or no CoP, a margin of 0."""
+    """The compiled sample (``spatial_loop.sample``) is the numpy expressions it replaced, bit for bit: the CoP's
+    margin inside the touching points (``_margin``), each point's place where it carries 5 N or more (NaN
+    elsewhere), the fastest actuated joint; and with fewer than three points touching or no CoP, a margin of 0."""
     from cmrt.sim.simulate import PLANTED_FORCE_N
-    from cmrt.sim.spatial import _sample
+    from cmrt.sim.spatial_loop import sample
 
     rng = np.random.default_rng(5)
     acts = np.arange(6, 31)
@@ -164,19 +164,20 @@ def test_a_samples_margin_planted_points_and_joint_speed_are_numpys():
         xy = rng.uniform(-0.2, 0.2, (8, 2))
         qvel = rng.standard_normal(31)
         for cop in (rng.uniform(-0.1, 0.1, 2), np.full(2, np.nan)):
-            margin, planted, speed = _sample(cop, touch, xy, qvel, acts, PLANTED_FORCE_N)
+            margin, planted, speed = sample(cop, touch, xy, qvel, acts, PLANTED_FORCE_N)
             assert margin == _margin(cop, xy[touch > 0.0])
             np.testing.assert_array_equal(planted, np.where(touch >= PLANTED_FORCE_N, 1.0, np.nan)[:, None] * xy)
             assert speed == float(np.abs(qvel[acts]).max())
 
 
 def test_the_compiled_fall_rules_are_numpys():
-    """``_fall_rules`` is the numpy it replaced, bit for bit, on random states: the capture point from the CoM and
-    its velocity, the touching soles' centre (a mean), a foot rolled past the limit, the capture point's margin
-    outside the soles, the CoM's height; hands leaning on a prop suspend the capture rule."""
+    """``spatial_loop.fall_rules`` is the numpy it replaced, bit for bit, on random states: the capture point from
+    the CoM and its velocity, the touching soles' centre (a mean), a foot rolled past the limit, the capture
+    point's margin outside the soles, the CoM's height; hands leaning on a prop suspend the capture rule."""
     from cmrt.body.character import GRAVITY_M_S2, character
     from cmrt.sim.balance import BalanceLimits
-    from cmrt.sim.spatial import BODY, _fall_rules, _feet
+    from cmrt.sim.spatial import BODY, _feet
+    from cmrt.sim.spatial_loop import fall_rules
 
     limits, ch = BalanceLimits(), character(BODY)
     feet, soles = _feet()
@@ -191,7 +192,7 @@ def test_the_compiled_fall_rules_are_numpys():
         xmat = np.tile(np.eye(3).ravel(), (ch.model.nbody, 1))
         xmat[feet, 8] = rng.uniform(0.97, 1.0, 2)
         leaning = bool(rng.random() < 0.2)
-        fell, offset = _fall_rules(com, vel, touch, geom_xpos, soles, xmat, feet, leaning, vector)
+        fell, offset = fall_rules(com, vel, touch, geom_xpos, soles, xmat, feet, leaning, vector)
         # the numpy it replaced (cmrt.sim.spatial._fallen before it was compiled)
         capture = com[:2] + vel[:2] / np.sqrt(GRAVITY_M_S2 / max(float(com[2]), 1e-3))
         on = [(n > 0.0).any() for n in (touch[:4], touch[4:])]
