@@ -149,7 +149,7 @@ def _scratch() -> mujoco.MjData:
 
 @dataclass(frozen=True)
 class ClipSamples:
-    """What a clip records, written in place by either loop (``spatial_loop.run_clip``, ``_run_with_prop``): at
+    """What a clip records, written in place by either loop (``spatial_loop.run_clip``, ``_run_python``): at
     each control step (n samples) the CoM, the executed and the planned CoP, the pose, the CoP's margin, the
     planted points' places, the fastest joint and the motors' commands held from it on; at every physics step the
     foot points' touch sensors."""
@@ -200,7 +200,7 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
         fall, infeasible = _run_compiled(m, d, ctl, inputs, table, out)
     else:
         note_first_compile(dispatcher=spatial_kernel.plan_step)
-        fall, infeasible = _run_with_prop(m, d, ctl, inputs, table, prop, out)
+        fall, infeasible = _run_python(m, d, ctl, inputs, table, prop, out)
     result = _finished(m, d, ctl, out, (fall, infeasible), push_start_s, prop)
     return replace(result, ctrl_nm=out.ctrl_nm, inputs=inputs)
 
@@ -228,7 +228,7 @@ def _run_compiled(m: mujoco.MjModel, d: mujoco.MjData, ctl: SpatialController, i
     return (None if fall_k < 0 else (fall_k * dt, offset)), int(infeasible)
 
 
-def _run_with_prop(m: mujoco.MjModel, d: mujoco.MjData, ctl: SpatialController, inputs: ClipInputs,
+def _run_python(m: mujoco.MjModel, d: mujoco.MjData, ctl: SpatialController, inputs: ClipInputs,
                    table: SpatialTargetTable, prop: PropClip | None, out: ClipSamples
                    ) -> tuple[tuple[float, np.ndarray] | None, int]:
     """``spatial_loop.run_clip``'s loop in Python, with the prop's logic at every physics step; the same returns."""
@@ -389,8 +389,7 @@ def _finished(m: mujoco.MjModel, d: mujoco.MjData, ctl: SpatialController, out: 
         first = contact_summary(force, force_times_s(force.size, m.opt.timestep), np.ones(force.size, bool))
         impacts += (first["first_contact_s"],) if first["first_contact_s"] is not None else ()
     result = _result((time_s, out.qpos, out.com_m), (out.cop_xy_m, out.plan_cop_xy_m, out.margin_m), fall, impacts,
-                     infeasible,
-                     float(np.linalg.norm(d.subtree_linvel[1])))
+                     infeasible, float(np.linalg.norm(d.subtree_linvel[1])))
     if prop is not None:
         result = replace(result, prop_goal=prop.goal, prop_force_n=np.array(prop.force_n),
                          prop_extras=tuple(prop.extras.items()))
