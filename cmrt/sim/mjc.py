@@ -18,8 +18,6 @@ from dataclasses import dataclass
 
 import mujoco
 
-from cmrt.errors import CmrtError
-
 
 @dataclass(frozen=True)
 class CFunctions:
@@ -30,15 +28,19 @@ class CFunctions:
 
 
 @functools.cache
-def c_functions() -> CFunctions:
+def c_functions() -> CFunctions | None:
     """The C library beside the ``mujoco`` package (Linux's .so, macOS's .dylib, Windows' .dll), already loaded by
-    the binding, so one library and one set of globals."""
+    the binding, so one library and one set of globals; None where a build of mujoco keeps it elsewhere (the
+    callers then run their Python loops: the same clips, slower)."""
     folder = os.path.dirname(mujoco.__file__)
     found = sorted(name for pattern in ("libmujoco*.so*", "libmujoco*.dylib", "mujoco*.dll")
                    for name in glob.glob(os.path.join(folder, pattern)))
-    if not found:
-        raise CmrtError(f"MuJoCo's C library was not found in {folder} (the mujoco wheel ships it)")
-    lib = ctypes.CDLL(found[0])
+    if not found or not hasattr(mujoco.MjData, "_address"):
+        return None
+    try:
+        lib = ctypes.CDLL(found[0])
+    except OSError:
+        return None
     functions = []
     for name in ("mj_step", "mj_subtreeVel"):
         fn = getattr(lib, name)

@@ -195,7 +195,7 @@ def stand_3d(clip_s: float = 3.0, push_n: tuple[float, float, float] = (0.0, 0.0
     table = motion if motion is not None else SpatialTargetTable()
     steps = int(round(clip_s / m.opt.timestep))
     out = ClipSamples.empty(steps, config.control_every, m, len(ch.foot_point_geoms))
-    if prop is None and compiled:
+    if prop is None and compiled and mjc.c_functions() is not None:
         note_first_compile(dispatcher=spatial_loop.run_clip)  # the first 3D clip after an install compiles: say so
         fall, infeasible = _run_compiled(m, d, ctl, inputs, table, out)
     else:
@@ -327,8 +327,8 @@ def replay_3d(r: StandResult, com_out: np.ndarray | None = None) -> int:
     fall_sample = -1 if r.fall_time_s is None else int(np.searchsorted(r.time_s, r.fall_time_s - 1e-12))
     steps, every, dt = int(round(inputs.clip_s / m.opt.timestep)), inputs.control_every, m.opt.timestep
     window = (inputs.push_start_s, inputs.push_start_s + inputs.push_duration_s)
-    if prop is None:
-        c = mjc.c_functions()
+    c = mjc.c_functions()
+    if prop is None and c is not None:
         return spatial_loop.replay_clip(
             c.step, (m._address, d._address), (d.qpos, d.ctrl, d.xfrc_applied, d.subtree_com),
             (steps, every, dt, push, *window, ch.thorax_body), np.ascontiguousarray(r.ctrl_nm), fall_sample,
@@ -336,7 +336,7 @@ def replay_3d(r: StandResult, com_out: np.ndarray | None = None) -> int:
     for k in range(steps):
         t, control = k * dt, k % every == 0
         sample = k // every
-        if fall_sample < 0 or k <= fall_sample * every:  # a fall stops the prop's logic
+        if prop is not None and (fall_sample < 0 or k <= fall_sample * every):  # a fall stops the prop's logic
             prop.step(t, control)
         if control:
             if com_out is not None:

@@ -111,3 +111,15 @@ def test_a_clip_after_a_fall_is_the_clip_on_a_fresh_model():
     _assert_same(first, stand_3d(clip_s=1.0, push_n=(60.0, 0.0, 0.0), push_start_s=0.3))
     for name, values in zip(names, before, strict=True):
         assert np.array_equal(getattr(m, name), values)
+
+
+def test_without_mujocos_c_library_a_clip_runs_its_python_loop(monkeypatch):
+    """Where a build of mujoco keeps its C library elsewhere (``mjc.c_functions`` None), a clip and its replay run
+    the Python loop: the same clip."""
+    compiled = stand_3d(clip_s=1.5, push_n=(0.0, 300.0, 0.0), push_start_s=0.5)
+    monkeypatch.setattr(mjc, "c_functions", lambda: None)
+    python = stand_3d(clip_s=1.5, push_n=(0.0, 300.0, 0.0), push_start_s=0.5)
+    _assert_same(compiled, python)
+    replayed = np.full_like(python.com_m, np.nan)
+    replay_3d(python, com_out=replayed)
+    assert np.array_equal(replayed, python.com_m)
