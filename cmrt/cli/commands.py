@@ -489,7 +489,7 @@ def _backend_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", choices=(AUTO_BACKEND, *BACKENDS), default=AUTO_BACKEND,
                    help="where candidates are simulated: batch (one process, many clips at once on mujoco.batch), "
                    "serial, loky or dask processes (+batch: each scoring a chunk as a batch); auto (default): "
-                   "batch, but loky+batch for a 3D task with a prop (its Python loop: a process per core)")
+                   "batch for a planar task, loky+batch for a 3D one (no lockstep batch: a process per core)")
     p.add_argument("--workers", type=inputs.arg(inputs.WORKERS),
                    help="processes (loky, LocalCluster; default: one per CPU)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="dask scheduler (default: a LocalCluster)")
@@ -500,13 +500,12 @@ AUTO_BACKEND = "auto"
 
 def _backend(args, task: Task | None) -> str:
     """``--backend`` for ``task`` (None: jobs of any task, as a worker takes them): "auto" is the batched evaluator,
-    but on a 3D task with a prop and more than one CPU ``loky+batch`` - its clips run a Python loop, one after another
-    in a process (threads would contend for the GIL: ``parallel.threads_3d``), so a process per core. A 3D task
-    without a prop spreads its compiled clips over the batched evaluator's threads: ``cmrt optimize leg-lift --seed 1
-    --init none`` on 2 cores 11.0-11.4 s, 12.4-12.7 with ``loky+batch`` (docs/performance.md, *The 3D body*)."""
+    but on a 3D task with more than one CPU ``loky+batch`` - its clips run one after another in a process (no
+    lockstep batch yet), so a process per core: 28 s against 50 s for ``cmrt optimize leg-lift --seed 1 --init none``
+    on 2 cores, the same run (docs/performance.md, *The 3D body*)."""
     if args.backend != AUTO_BACKEND:
         return args.backend
-    spread = task is not None and task.body != "planar" and task.prop is not None and (os.cpu_count() or 1) > 1
+    spread = task is not None and task.body != "planar" and (os.cpu_count() or 1) > 1
     return "loky+batch" if spread else "batch"
 
 

@@ -49,7 +49,7 @@ from cmrt.motion.curve import Cmrt
 from cmrt.motion.ensemble import training_members
 from cmrt.motion.library import library_curve
 from cmrt.motion.task import Task
-from cmrt.optimize.parallel import Evaluator, evaluate_batch, evaluate_candidate, threads_3d
+from cmrt.optimize.parallel import Evaluator, evaluate_batch, evaluate_candidate
 from cmrt.sim.clip3d import clip_3d
 from cmrt.sim.simulate import direct_step, settled_state, simulate_batch, thread_count
 from cmrt.sim.spatial import replay_3d
@@ -271,12 +271,10 @@ def _clips_planar(task: Task, xs: list[np.ndarray], robust: Task, members: list,
 
 
 def _clips_3d(task: Task, xs: list[np.ndarray], robust: Task) -> _Clips:
-    """The 3D body's: each clip on its own (``cmrt.sim.clip3d``; a clip without a prop in compiled code), a
-    generation's spread over threads as ``parallel.threads_3d`` says (every core's for a task without a prop, one for
-    a task with one), so "batched" is the in-process evaluator
-    (``evaluate_batch``), "serial" one candidate at a time in one thread, and the floor each clip's recorded torques,
-    push and prop replayed open loop on its own model (``replay_3d``) over the same threads - per CPU, like for
-    like."""
+    """The 3D body's: its clips run one after another in one thread (``cmrt.sim.clip3d``; no lockstep batch yet),
+    so "batched" is the in-process evaluator a generation's chunk runs on (``evaluate_batch``), "serial" one
+    candidate at a time, and the floor each clip's recorded torques, push and prop replayed open loop on its own
+    model in the same thread (``replay_3d``) - per CPU, like for like."""
     clips = [clip_3d(task, Cmrt.from_params(x, task.clip_s)) for x in xs]  # also the warm-up
     results = [c.result for c in clips]
     divergence, steps = 0.0, 0
@@ -285,16 +283,10 @@ def _clips_3d(task: Task, xs: list[np.ndarray], robust: Task) -> _Clips:
         steps += replay_3d(r, com_out=com)
         divergence = max(divergence, float(np.linalg.norm(com - r.com_m, axis=1).max()))
     evaluated = sum(int(round(r.inputs.clip_s / task.model().opt.timestep)) for r in results)
-    threads = threads_3d(task, len(results))
-
-    def physics() -> None:
-        with ThreadPoolExecutor(threads) as pool:
-            list(pool.map(replay_3d, results))
-
-    timed = {"physics": physics, "batched": lambda: evaluate_batch(task, xs),
+    timed = {"physics": lambda: [replay_3d(r) for r in results], "batched": lambda: evaluate_batch(task, xs),
              "serial": lambda: [evaluate_candidate(task, x) for x in xs], "robust": lambda: evaluate_batch(robust, xs)}
-    return _Clips(timed, f"the evaluated 3D clips' recorded torques, push and prop replayed open loop, on {threads} "
-                  "threads as the evaluator runs them", sum(c.fell for c in clips), evaluated, steps, divergence)
+    return _Clips(timed, "the evaluated 3D clips' recorded torques, push and prop replayed open loop, one after "
+                  "another in one thread", sum(c.fell for c in clips), evaluated, steps, divergence)
 
 
 def _time_optimize(task: Task, optimize: OptimizeFn, floor_s_per_clip: float) -> dict:

@@ -2,8 +2,7 @@
 
 * ``serial``: one candidate after another in this process;
 * ``batch`` (default): the whole generation stepped in lockstep on a
-  ``mujoco.batch.Batch`` with the vectorised controller, on all cores' threads (a 3D task's clips
-  each on its own, spread over the threads: ``clips_3d``);
+  ``mujoco.batch.Batch`` with the vectorised controller, on all cores' threads;
 * ``loky`` / ``dask``: candidates spread over joblib worker processes, or over a
   ``dask.distributed`` cluster through joblib's dask backend;
 * ``loky+batch`` / ``dask+batch``: the generation split into one batch per worker.
@@ -26,7 +25,6 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
 import joblib
@@ -41,7 +39,7 @@ from cmrt.motion.task import Task
 from cmrt.optimize.memory import bound_heap_growth, clips_per_batch
 from cmrt.sim.clip3d import clip_3d
 from cmrt.sim.objective import EvalRecord, evaluate
-from cmrt.sim.simulate import simulate_batch, thread_count
+from cmrt.sim.simulate import simulate_batch
 
 
 def evaluate_candidate(task: Task, x: np.ndarray) -> EvalRecord:
@@ -70,8 +68,8 @@ def evaluate_batch(task: Task, xs: Sequence[np.ndarray], threads: int | None = N
 
 def _score_batch(task: Task, xs: Sequence[np.ndarray], members: list, threads: int | None) -> list[EvalRecord]:
     curves = [Cmrt.from_params(x, task.clip_s) for x in xs]
-    if task.body != "planar":  # the 3D body's clips, each on its own (cmrt.sim.clip3d), spread over the threads
-        scores = clips_3d(task, [(curve, member) for curve in curves for member in members], threads)
+    if task.body != "planar":  # the 3D body's clips, one after another (cmrt.sim.clip3d): no lockstep batch yet
+        scores = [clip_3d(task, curve, member) for curve in curves for member in members]
     elif members == [None]:
         scores = [evaluate(task, tr) for tr in simulate_batch(task, curves, threads=threads)]
     else:
@@ -81,28 +79,6 @@ def _score_batch(task: Task, xs: Sequence[np.ndarray], members: list, threads: i
     k = len(members)
     return [_candidate(scores[i * k : (i + 1) * k], task.robust if members != [None] else None)
             for i in range(len(curves))]
-
-
-def clips_3d(task: Task, jobs: list[tuple[Cmrt, object]], threads: int | None = None) -> list:
-    """The 3D clips of (CMRT, ensemble member) pairs, in order, on ``threads_3d`` threads; each clip is the one it is
-    alone (its data is its thread's)."""
-    n = threads_3d(task, len(jobs), threads)
-    if n == 1:
-        return [clip_3d(task, curve, member) for curve, member in jobs]
-    with ThreadPoolExecutor(n) as pool:
-        return list(pool.map(lambda job: clip_3d(task, *job), jobs))
-
-
-def threads_3d(task: Task, clips: int, threads: int | None = None) -> int:
-    """Threads for ``clips`` 3D clips of ``task``: ``threads`` (None: ``$CMRT_THREADS``, the CPUs), at most one a
-    clip - for a task without a prop, whose clips run in compiled code that lets go of the GIL for their whole
-    length, so threads share the cores as processes would, without a process's start and pickling (a leg lift on
-    2 cores: 27-31 ms a clip on two threads, 51-52 on one, 27 in two processes). A prop's clips run a Python loop
-    and contend for the GIL (the catch: 117 ms a clip on two threads, 105-108 on one): one thread (``loky+batch``
-    spreads them over processes)."""
-    if task.prop is not None:
-        return 1
-    return thread_count(clips) if threads is None else max(1, min(threads, clips))
 
 
 def _candidate(group: list, robust) -> EvalRecord:

@@ -161,12 +161,10 @@ def test_bench_takes_a_3d_task_at_its_own_speed():
 
 
 def test_the_default_backend_spreads_a_3d_tasks_clips_over_processes():
-    """``--backend auto`` (the default): the batched evaluator for a planar task and for a 3D one without a prop
-    (its compiled clips spread over the threads); for a 3D task with a prop, whose clips run a Python loop, a process
-    per core (``loky+batch``) where there is more than one core; a worker, which takes any task's jobs, batch; a
-    backend named is the one used."""
+    """``--backend auto`` (the default): the lockstep batch for a planar task; for a 3D one, whose clips run one
+    after another in a process, a process per core (``loky+batch``) where there is more than one core; a worker,
+    which takes any task's jobs, batch; a backend named is the one used."""
     auto, named = argparse.Namespace(backend="auto"), argparse.Namespace(backend="serial")
     assert _backend(auto, load_task("bend")) == "batch" and _backend(auto, None) == "batch"
-    assert _backend(auto, load_task("leg-lift")) == "batch"
-    assert _backend(auto, load_task("catch3d")) == ("loky+batch" if (os.cpu_count() or 1) > 1 else "batch")
+    assert _backend(auto, load_task("leg-lift")) == ("loky+batch" if (os.cpu_count() or 1) > 1 else "batch")
     assert _backend(named, load_task("leg-lift")) == "serial"

@@ -77,9 +77,8 @@ def test_replayed_torques_reproduce_the_closed_loop_trajectory(name):
 
 
 def test_bench_times_a_3d_task_against_its_own_replayed_physics():
-    """``cmrt bench`` on the 3D body: its clips each on its own, spread over the threads (no lockstep batch), the
-    floor those clips' recorded torques, push and prop stepped again open loop on the same threads - the same
-    physics, bit for bit."""
+    """``cmrt bench`` on the 3D body: its clips one after another in one thread (no lockstep batch), the floor
+    those clips' recorded torques, push and prop stepped again open loop - the same physics, bit for bit."""
     out = run_bench(load_task("leg-lift"), population=2, repeat=1, backends=("batch",))
     assert out["steps_per_clip"] == round(4.5 / 0.002) and out["steps_replayed"] == out["steps_evaluated"] == 2 * 2250
     assert out["replay_max_divergence_m"] == 0.0 and out["zero_torque_s_per_clip"] is None
