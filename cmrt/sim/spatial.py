@@ -436,14 +436,8 @@ def _with_body_figures(r: StandResult, ground: tuple[np.ndarray, np.ndarray], pl
 
 def _planted_slide_m(planted_xy: np.ndarray) -> float:
     """How far any point slid while planted: ``planted_xy`` (samples, points, 2), NaN where a point is not planted;
-    each run of planted samples measured from its first."""
-    planted = ~np.isnan(planted_xy).any(axis=2)  # (samples, points)
-    index = np.arange(len(planted_xy))[:, None]
-    starts = planted & ~np.vstack([np.zeros((1, planted.shape[1]), bool), planted[:-1]])
-    first = np.maximum.accumulate(np.where(starts, index, 0), axis=0)  # each sample's run's first sample
-    moved = planted_xy - np.take_along_axis(planted_xy, first[:, :, None], axis=0)
-    dist = np.sqrt((moved ** 2).sum(axis=2))
-    return float(dist[planted].max()) if planted.any() else 0.0
+    each run of planted samples measured from its first (``spatial_loop.planted_slide``)."""
+    return float(spatial_loop.planted_slide(np.ascontiguousarray(planted_xy, dtype=float)))
 
 
 _LIMITS = BalanceLimits()

@@ -131,3 +131,22 @@ def test_a_toppling_clip_uses_a_sliver_of_the_arena():
     assert stand_3d(clip_s=3.0, push_n=(0.0, 400.0, 0.0), push_start_s=0.5).fell
     m, d = spatial._local.clip  # the thread's model and data the clip ran on
     assert 0 < d.maxuse_arena < 0.01 * m.narena
+
+
+def test_the_compiled_planted_slide_is_numpys():
+    """``spatial_loop.planted_slide`` is the numpy it replaced, bit for bit, on random runs of planted samples."""
+    def numpy_slide(planted_xy: np.ndarray) -> float:  # cmrt.sim.spatial._planted_slide_m before it was compiled
+        planted = ~np.isnan(planted_xy).any(axis=2)
+        index = np.arange(len(planted_xy))[:, None]
+        starts = planted & ~np.vstack([np.zeros((1, planted.shape[1]), bool), planted[:-1]])
+        first = np.maximum.accumulate(np.where(starts, index, 0), axis=0)
+        moved = planted_xy - np.take_along_axis(planted_xy, first[:, :, None], axis=0)
+        dist = np.sqrt((moved ** 2).sum(axis=2))
+        return float(dist[planted].max()) if planted.any() else 0.0
+
+    rng = np.random.default_rng(8)
+    for share in (0.0, 0.3, 0.9, 1.0):
+        for _ in range(50):
+            xy = rng.uniform(-0.2, 0.2, (int(rng.integers(1, 60)), 8, 2))
+            xy[rng.random(xy.shape[:2]) >= share] = np.nan
+            assert spatial_loop.planted_slide(xy) == numpy_slide(xy)
