@@ -157,21 +157,18 @@ class SpatialController:
         self.mass_kg = float(self.model.body_subtreemass[1])
         self.start(d)
         t = self._targets
-        t[sk.T_COM:sk.T_COM + 3] = self.com_ref_m
-        if targets.com_xy_m is not None:
-            t[sk.T_COM:sk.T_COM + 2] = targets.com_xy_m
-        t[sk.T_VEL:sk.T_VEL + 3] = 0.0 if targets.com_vel_xy_m_s is None else (*targets.com_vel_xy_m_s, 0.0)
-        t[sk.T_COP:sk.T_COP + 2] = self.cop_ref_m if targets.cop_xy_m is None else targets.cop_xy_m
-        t[sk.T_SWING] = targets.swing_foot
-        if targets.swing_foot >= 0:
-            t[sk.T_SWING_POS:sk.T_SWING_POS + 3] = targets.swing_pos_m
-            t[sk.T_SWING_VEL:sk.T_SWING_VEL + 3] = targets.swing_vel_m_s
-        t[sk.T_HELD] = 0.0 if held_mass is None else held_mass[0]
+        swing_at, swing_rate = ((targets.swing_pos_m, targets.swing_vel_m_s) if targets.swing_foot >= 0
+                                else (self._no_point, self._no_point))
+        def given(value, default: np.ndarray) -> np.ndarray:
+            return default if value is None else np.asarray(value, float)
+        sk.write_targets(t, self.com_ref_m, given(targets.com_xy_m, self.com_ref_m[:2]),
+                         given(targets.com_vel_xy_m_s, self._no_point[:2]), given(targets.cop_xy_m, self.cop_ref_m),
+                         int(targets.swing_foot), np.asarray(swing_at, float), np.asarray(swing_rate, float),
+                         0.0 if held_mass is None else float(held_mass[0]), self.mass_kg)
         held_bodies = self._no_bodies
         if held_mass is not None:
             t[sk.T_HELD_AT:sk.T_HELD_AT + 3] = held_mass[1]
             held_bodies = np.asarray(held_mass[2], dtype=np.int64)
-        t[sk.T_MASS] = self.mass_kg
         refs = (self.q_ref if targets.q_ref is None else np.asarray(targets.q_ref, float),
                 self._still if targets.qd_ref is None else np.asarray(targets.qd_ref, float),
                 self._still if targets.qdd_ref is None else np.asarray(targets.qdd_ref, float))
@@ -243,6 +240,7 @@ class SpatialController:
         self._gains = gains
         self._targets = np.zeros(sk.N_TARGETS)
         self._still = np.zeros(self.nv)
+        self._no_point = np.zeros(3)  # a default rate, or a path not read
         self._no_bodies = np.zeros(0, dtype=np.int64)
         self._history = np.zeros((self.delay_steps + 1, 6))  # the CoM and its velocity, the last control steps'
         self._count = np.zeros(1, dtype=np.int64)

@@ -48,6 +48,25 @@ def n_rows(n_act: int, n_points: int) -> int:
 
 
 @njit(cache=True, nogil=True)
+def write_targets(targets, com_ref, com_xy, com_vel, cop, swing, swing_pos, swing_vel, held_kg, mass
+                  ):  # pragma: no cover - compiled
+    """A control step's targets into ``plan_step``'s vector (its ``T_*`` layout): the CoM held (3) with its
+    horizontal reference ``com_xy`` over it, the reference's rate (2; 0 up), the CoP's reference (2), the swing foot
+    (-1 none) and, for a foot in the air, its path and rate (3 each), the held mass (kg; 0 none; where it is is the
+    caller's) and the body's mass (kg)."""
+    targets[T_COM:T_COM + 3] = com_ref
+    targets[T_COM:T_COM + 2] = com_xy
+    targets[T_VEL], targets[T_VEL + 1], targets[T_VEL + 2] = com_vel[0], com_vel[1], 0.0
+    targets[T_COP:T_COP + 2] = cop
+    targets[T_SWING] = swing
+    if swing >= 0:
+        targets[T_SWING_POS:T_SWING_POS + 3] = swing_pos
+        targets[T_SWING_VEL:T_SWING_VEL + 3] = swing_vel
+    targets[T_HELD] = held_kg
+    targets[T_MASS] = mass
+
+
+@njit(cache=True, nogil=True)
 def plan_step(fields, body, gains, targets, refs, loaded, load_gen, held_bodies, history, count, active
               ):  # pragma: no cover - compiled
     """One control step's plan: (torques per actuator, forces per point (n, 3), the planned CoP (2), the QP's

@@ -69,8 +69,8 @@ def run_clip(step, subtree_vel, addresses, data, clip, controller, table, judge,
             if fall_k < 0:
                 for p in range(n_pts):
                     loaded[p] = geom_xpos[points[p], 2] - radius < floor_m
-                _write_targets(targets, com_ref, com_xy[i], com_vel[i], cop_ref[i], swing[i], swing_pos[i],
-                               swing_vel[i], mass)
+                sk.write_targets(targets, com_ref, com_xy[i], com_vel[i], cop_ref[i], swing[i], swing_pos[i],
+                                 swing_vel[i], 0.0, mass)
                 torque, _, planned, status, limited = sk.plan_step(
                     fields, body, gains, targets, (q_ref[i], qd_ref[i], qdd_ref[i]), loaded, load_gen, held_bodies,
                     history, count, active)
@@ -134,21 +134,6 @@ def protect(protective, qpos, ctrl):  # pragma: no cover - compiled
         dof_damping[dofs[j]] = damping[j]
         qpos_spring[qadr[j]] = qpos[qadr[j]]
     ctrl[:] = 0.0
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _write_targets(targets, com_ref, com_xy, com_vel, cop, swing, swing_pos, swing_vel, mass):  # pragma: no cover
-    """A control step's targets into plan_step's vector, as ``SpatialController.plan`` writes them."""
-    targets[sk.T_COM:sk.T_COM + 3] = com_ref
-    targets[sk.T_COM:sk.T_COM + 2] = com_xy
-    targets[sk.T_VEL], targets[sk.T_VEL + 1], targets[sk.T_VEL + 2] = com_vel[0], com_vel[1], 0.0
-    targets[sk.T_COP:sk.T_COP + 2] = cop
-    targets[sk.T_SWING] = swing
-    if swing >= 0:
-        targets[sk.T_SWING_POS:sk.T_SWING_POS + 3] = swing_pos
-        targets[sk.T_SWING_VEL:sk.T_SWING_VEL + 3] = swing_vel
-    targets[sk.T_HELD] = 0.0
-    targets[sk.T_MASS] = mass
 
 
 @njit(cache=True, nogil=True)
